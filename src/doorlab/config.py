@@ -1,0 +1,294 @@
+"""One typed scenario: nested dataclasses with defaults (units in comments), loadable from YAML.
+
+A scenario fully determines an episode: the same scenario gives bit-identical logs.
+
+Example YAML (every key optional; unknown keys are an error)::
+
+    controller: impedance
+    doors: closed
+    station:
+      time_step: 0.002
+      inner_loop: {kind: stiffness}
+    impedance: {kv: 100.0, kw: 50.0}
+"""
+
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pydrake.common.yaml import yaml_load_typed
+
+from doorlab.constants import DOOR_ANGLES, NUM_JOINTS
+from doorlab.errors import ConfigError
+
+CONTROLLERS = ("ik", "velocity", "impedance")
+"""Names of the three door-opening controllers (the seed's tasks 1-3)."""
+DOOR_STATES = tuple(DOOR_ANGLES)
+INNER_LOOPS = ("stiffness", "inverse_dynamics")
+CONTACT_APPROXIMATIONS = ("sap", "lagged", "similar", "tamsi")
+LEFT_HINGE_RANGE = (-math.pi / 2, 0.0)
+"""Hinge range of the left door [rad] (opening is negative)."""
+RIGHT_HINGE_RANGE = (0.0, math.pi / 2)
+
+
+@dataclass
+class InnerLoopConfig:
+    """The robot's joint-level controller (the seed's "robot controller").
+
+    ``stiffness`` is the seed's law tau = Kq (q_ref - q) - Dq qdot + g(q) + tau_ff, integrated
+    implicitly by the plant. ``inverse_dynamics`` is the original station's PID through M(q).
+    """
+
+    kind: str = "stiffness"  # one of INNER_LOOPS
+    # Joint stiffness Kq [N m/rad] and damping Dq [N m s/rad], per joint. Chosen so that every
+    # joint's closed loop is near critical damping about q_home (natural frequencies of
+    # 40-70 rad/s) and the lag Dq/Kq is about 18 ms: about 1 mm at Q for the arc's joint
+    # speeds (see README, "Inner loop gains").
+    kq: list[float] = field(default_factory=lambda: [4000.0, 4000.0, 2000.0, 2000.0, 600.0, 600.0, 100.0])
+    dq: list[float] = field(default_factory=lambda: [70.0, 70.0, 35.0, 35.0, 10.0, 10.0, 1.8])
+    # Inverse-dynamics PID gains of the original station (act through M(q)).
+    id_kp: float = 100.0  # [1/s^2]
+    id_ki: float = 1.0  # [1/s^3]
+    id_kd: float = 20.0  # [1/s]
+
+
+@dataclass
+class GripperConfig:
+    """WSG-50 finger controller: PD on finger separation, force-limited."""
+
+    kp: float = 200.0  # [N/m]
+    kd: float = 5.0  # [N s/m]
+    force_limit: float = 15.0  # [N], the course code's value
+    initial_width: float = 0.03  # [m] finger separation at t = 0
+    approach_width: float = 0.025  # [m] setpoint while moving to the handle
+    grasp_width: float = 0.005  # [m] setpoint while holding the handle
+
+
+@dataclass
+class StationConfig:
+    """Physics of the cell."""
+
+    time_step: float = 0.002  # [s] plant discrete step (the original's)
+    contact_approximation: str = "sap"  # one of CONTACT_APPROXIMATIONS ("tamsi" needs kind=inverse_dynamics)
+    arm_collision: bool = False  # the original arm had no collision geometry
+    hinge_damping: float = 1.0  # [N m s/rad]
+    friction: float = 1.0  # Coulomb friction of fingers and handle [-]
+    inner_loop: InnerLoopConfig = field(default_factory=InnerLoopConfig)
+    gripper: GripperConfig = field(default_factory=GripperConfig)
+
+
+@dataclass
+class TimelineConfig:
+    """The original episode timeline (station facts §4)."""
+
+    control_period: float = 0.005  # [s] plan runner period (200 Hz)
+    log_period: float = 0.01  # [s]
+    hold_duration: float = 1.0  # [s] hold q_home (plus the 1 s every plan gets)
+    approach_duration: float = 6.0  # [s] cubic move to the first plan's start (+1 s)
+    grasp_duration: float = 1.0  # [s] close the gripper on the handle (+1 s)
+    arc_duration: float = 10.0  # [s] the door-opening arc (+1 s)
+    extra_time: float = 2.0  # [s] after the last plan
+
+
+@dataclass
+class ArcConfig:
+    """The handle's arc and the L7 reference orientation along it."""
+
+    angle_end_deg: float = 50.0  # [deg] handle angle about the hinge at the arc's end
+
+
+@dataclass
+class IkConfig:
+    """Pointwise IK (task 1) and the one-shot IK to the handle."""
+
+    knots: int = 10  # knot points along the arc, >= 2
+    position_tolerance: float = 0.001  # [m] box half-width around each arc point
+    theta_bound: float = 0.005 * math.pi  # [rad] L7 orientation bound
+    grasp_position_tolerance: float = 0.0005  # [m] one-shot IK to the handle
+
+
+@dataclass
+class VelocityPlanConfig:
+    """Jacobian pseudo-inverse velocity plan (task 2)."""
+
+    kv: float = 100.0  # [1/s]
+    kw: float = 50.0  # [1/s]
+    joint_speed_limit: float = 1.0  # [rad/s] clip on q_dot (the original's)
+
+
+@dataclass
+class ImpedancePlanConfig:
+    """Jacobian-transpose impedance plan (task 3)."""
+
+    kv: float = 100.0  # [N/m]
+    kw: float = 50.0  # [N m/rad]
+    torque_limit: float = 20.0  # [N m] clip on tau_ff (the original's)
+
+
+@dataclass
+class Scenario:
+    """Everything one episode needs."""
+
+    controller: str = "velocity"  # one of CONTROLLERS
+    doors: str = "closed"  # one of DOOR_STATES; sets the initial hinge angles
+    door_angles: list[float] | None = None  # [rad] (left, right); None: from `doors`
+    station: StationConfig = field(default_factory=StationConfig)
+    timeline: TimelineConfig = field(default_factory=TimelineConfig)
+    arc: ArcConfig = field(default_factory=ArcConfig)
+    ik: IkConfig = field(default_factory=IkConfig)
+    velocity: VelocityPlanConfig = field(default_factory=VelocityPlanConfig)
+    impedance: ImpedancePlanConfig = field(default_factory=ImpedancePlanConfig)
+
+    def initial_door_angles(self) -> tuple[float, float]:
+        """Initial (left, right) hinge angles [rad]."""
+        if self.door_angles is not None:
+            return (float(self.door_angles[0]), float(self.door_angles[1]))
+        return DOOR_ANGLES[self.doors]
+
+
+def load_scenario(path: str | Path, *, defaults: Scenario | None = None) -> Scenario:
+    """Loads and validates a scenario from a YAML file.
+
+    Args:
+        path: YAML file; keys it leaves out keep the defaults.
+        defaults: Values for the keys the file leaves out (default: ``Scenario()``).
+
+    Raises:
+        ConfigError: The file is missing, is not valid YAML, has unknown keys, wrong types or
+            out-of-range values.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"config file {str(path)!r} does not exist")
+    try:
+        scenario = yaml_load_typed(
+            schema=Scenario, filename=str(path), defaults=defaults or Scenario()
+        )
+    except (RuntimeError, ValueError, TypeError) as e:
+        message = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise ConfigError(f"config file {str(path)!r}: {message}") from None
+    validate(scenario)
+    return scenario
+
+
+def _check(condition: bool, message: str) -> None:
+    if not condition:
+        raise ConfigError(message)
+
+
+def _positive(name: str, value: float) -> None:
+    _check(
+        isinstance(value, (int, float)) and math.isfinite(value) and value > 0,
+        f"{name} must be a finite number > 0, got {value!r}",
+    )
+
+
+def _non_negative(name: str, value: float) -> None:
+    _check(
+        isinstance(value, (int, float)) and math.isfinite(value) and value >= 0,
+        f"{name} must be a finite number >= 0, got {value!r}",
+    )
+
+
+def _choice(name: str, value: str, choices: tuple[str, ...]) -> None:
+    _check(value in choices, f"{name} must be one of {', '.join(choices)}; got {value!r}")
+
+
+def _gains(name: str, values: list[float], *, allow_zero: bool) -> None:
+    _check(
+        isinstance(values, (list, tuple)) and len(values) == NUM_JOINTS,
+        f"{name} must be a list of {NUM_JOINTS} numbers, got {values!r}",
+    )
+    for i, v in enumerate(values):
+        (_non_negative if allow_zero else _positive)(f"{name}[{i}]", v)
+
+
+def validate(scenario: Scenario) -> Scenario:
+    """Checks every field's type and range.
+
+    Returns:
+        The same scenario, for chaining.
+
+    Raises:
+        ConfigError: Naming the first offending field and its valid range.
+    """
+    _check(isinstance(scenario, Scenario), f"expected a Scenario, got {type(scenario).__name__}")
+    _choice("controller", scenario.controller, CONTROLLERS)
+    _choice("doors", scenario.doors, DOOR_STATES)
+    if scenario.door_angles is not None:
+        angles = scenario.door_angles
+        _check(
+            len(angles) == 2 and all(isinstance(a, (int, float)) and math.isfinite(a) for a in angles),
+            f"door_angles must be two finite numbers [rad] (left, right), got {angles!r}",
+        )
+        for name, value, (lo, hi) in (
+            ("door_angles[0] (left)", angles[0], LEFT_HINGE_RANGE),
+            ("door_angles[1] (right)", angles[1], RIGHT_HINGE_RANGE),
+        ):
+            _check(lo <= value <= hi, f"{name} must be in [{lo:.4f}, {hi:.4f}] rad, got {value!r}")
+
+    station = scenario.station
+    _positive("station.time_step", station.time_step)
+    _choice("station.contact_approximation", station.contact_approximation, CONTACT_APPROXIMATIONS)
+    _non_negative("station.hinge_damping", station.hinge_damping)
+    _non_negative("station.friction", station.friction)
+    loop = station.inner_loop
+    _choice("station.inner_loop.kind", loop.kind, INNER_LOOPS)
+    _gains("station.inner_loop.kq", loop.kq, allow_zero=False)
+    _gains("station.inner_loop.dq", loop.dq, allow_zero=True)
+    for name in ("id_kp", "id_kd"):
+        _positive(f"station.inner_loop.{name}", getattr(loop, name))
+    _non_negative("station.inner_loop.id_ki", loop.id_ki)
+    _check(
+        not (station.contact_approximation == "tamsi" and loop.kind == "stiffness"),
+        "station.contact_approximation 'tamsi' cannot integrate the implicit stiffness loop; "
+        "use sap, lagged or similar, or station.inner_loop.kind: inverse_dynamics",
+    )
+    gripper = station.gripper
+    for name in ("kp", "force_limit"):
+        _positive(f"station.gripper.{name}", getattr(gripper, name))
+    _non_negative("station.gripper.kd", gripper.kd)
+    for name in ("initial_width", "approach_width", "grasp_width"):
+        value = getattr(gripper, name)
+        _check(
+            isinstance(value, (int, float)) and 0.0 <= value <= 0.11,
+            f"station.gripper.{name} must be in [0, 0.11] m (finger travel), got {value!r}",
+        )
+
+    timeline = scenario.timeline
+    for f in dataclasses.fields(timeline):
+        value = getattr(timeline, f.name)
+        if f.name == "extra_time":
+            _non_negative(f"timeline.{f.name}", value)
+        else:
+            _positive(f"timeline.{f.name}", value)
+    _check(
+        station.time_step <= timeline.control_period,
+        f"station.time_step ({station.time_step} s) must not exceed timeline.control_period "
+        f"({timeline.control_period} s)",
+    )
+    _check(
+        timeline.log_period >= station.time_step,
+        f"timeline.log_period ({timeline.log_period} s) must be >= station.time_step "
+        f"({station.time_step} s)",
+    )
+
+    angle_end = scenario.arc.angle_end_deg
+    _check(
+        isinstance(angle_end, (int, float)) and 15.0 <= angle_end <= 90.0,
+        f"arc.angle_end_deg must be in [15, 90] deg, got {angle_end!r}",
+    )
+    ik = scenario.ik
+    _check(
+        isinstance(ik.knots, int) and not isinstance(ik.knots, bool) and 2 <= ik.knots <= 100,
+        f"ik.knots must be an integer in [2, 100], got {ik.knots!r}",
+    )
+    for name in ("position_tolerance", "theta_bound", "grasp_position_tolerance"):
+        _positive(f"ik.{name}", getattr(ik, name))
+    for section in ("velocity", "impedance"):
+        for f in dataclasses.fields(getattr(scenario, section)):
+            _positive(f"{section}.{f.name}", getattr(getattr(scenario, section), f.name))
+    return scenario
+

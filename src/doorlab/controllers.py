@@ -1,0 +1,164 @@
+"""The registry of the three door-opening controllers and the episode each one runs.
+
+Each controller turns a scenario into the arc plan and the configuration it starts from;
+:func:`run_controller` wraps it in the seed's episode: close the gripper on the handle at
+the start configuration, then follow the arc.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from pydrake.geometry import Meshcat
+from pydrake.multibody.plant import MultibodyPlant
+
+from doorlab.config import Scenario, validate
+from doorlab.constants import Q_HOME
+from doorlab.errors import ConfigError
+from doorlab.geometry import DoorGeometry, default_door_geometry
+from doorlab.ik import IkResult, pointwise_ik, solve_ik
+from doorlab.plans import JointSpacePlan, Plan, TaskSpaceImpedancePlan, TaskSpaceVelocityPlan
+from doorlab.simulation import EpisodeResult, run_episode
+from doorlab.station import make_controller_plant
+
+
+@dataclass(frozen=True)
+class ArcPlan:
+    """What a controller runs along the arc.
+
+    Attributes:
+        plan: The door-opening plan. q_start: Where it starts (7,) [rad].
+        ik: The pointwise IK behind the plan (task 1 only).
+    """
+
+    plan: Plan
+    q_start: np.ndarray
+    ik: IkResult | None = None
+
+
+@dataclass(frozen=True)
+class Controller:
+    """A registered controller: its CLI name, the seed's task number and a builder."""
+
+    name: str
+    task: int
+    title: str
+    summary: str
+    build: Callable[[Scenario, DoorGeometry, MultibodyPlant], ArcPlan]
+
+
+def _grasp_configuration(scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPlant) -> np.ndarray:
+    """One-shot IK: Q at the handle, L7 at the arc's initial orientation."""
+    return solve_ik(
+        plant,
+        geometry.p_WQ_ref(0.0),
+        geometry.R_WL7_ref(0.0),
+        Q_HOME,
+        position_tolerance=scenario.ik.grasp_position_tolerance,
+        theta_bound=scenario.ik.theta_bound,
+    )
+
+
+def build_ik_plan(scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPlant) -> ArcPlan:
+    """Task 1: IK at knots along the arc, joined by a cubic joint spline."""
+    duration = scenario.timeline.arc_duration
+    ik = pointwise_ik(
+        plant,
+        geometry.p_WQ_ref,
+        geometry.R_WL7_ref,
+        duration=duration,
+        num_knots=scenario.ik.knots,
+        q_guess=Q_HOME,
+        position_tolerance=scenario.ik.position_tolerance,
+        theta_bound=scenario.ik.theta_bound,
+    )
+    plan = JointSpacePlan.cubic(ik.times, ik.q_knots, name="ik")
+    return ArcPlan(plan, ik.q_knots[0], ik)
+
+
+def build_velocity_plan(
+    scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPlant
+) -> ArcPlan:
+    """Task 2: differential IK, q_ref = q + J^+ V_des dt."""
+    plan = TaskSpaceVelocityPlan(
+        geometry,
+        scenario.timeline.arc_duration,
+        plant,
+        scenario.velocity,
+        scenario.timeline.control_period,
+    )
+    return ArcPlan(plan, _grasp_configuration(scenario, geometry, plant))
+
+
+def build_impedance_plan(
+    scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPlant
+) -> ArcPlan:
+    """Task 3: tau_ff = J^T F, q_ref = q."""
+    plan = TaskSpaceImpedancePlan(
+        geometry, scenario.timeline.arc_duration, plant, scenario.impedance
+    )
+    return ArcPlan(plan, _grasp_configuration(scenario, geometry, plant))
+
+
+REGISTRY: dict[str, Controller] = {
+    c.name: c
+    for c in (
+        Controller(
+            "ik", 1, "Pointwise IK",
+            "IK at knots along the handle arc, cubic joint spline, position commands",
+            build_ik_plan,
+        ),
+        Controller(
+            "velocity", 2, "Jacobian velocity mapping",
+            "q_dot = J^+ V_des from the pose error, q_ref = q + q_dot dt",
+            build_velocity_plan,
+        ),
+        Controller(
+            "impedance", 3, "Jacobian-transpose impedance",
+            "tau_ff = J^T F from the pose error, q_ref = q",
+            build_impedance_plan,
+        ),
+    )
+}
+"""Controllers by CLI name, in the seed's task order."""
+
+def get_controller(name: str) -> Controller:
+    """The registered controller ``name``.
+
+    Raises:
+        ConfigError: Unknown name (the message lists the valid ones).
+    """
+    if name not in REGISTRY:
+        raise ConfigError(f"unknown controller {name!r}; choose one of {', '.join(REGISTRY)}")
+    return REGISTRY[name]
+
+
+def run_controller(
+    scenario: Scenario, *, meshcat: Meshcat | None = None, realtime_rate: float = 0.0
+) -> tuple[EpisodeResult, ArcPlan]:
+    """Runs the scenario's controller through one episode (the seed's task cell).
+
+    Returns:
+        The episode logs and the arc plan that ran.
+
+    Raises:
+        ConfigError: Invalid scenario. IkError: No IK solution. SimulationError: Physics failed.
+    """
+    validate(scenario)
+    controller = get_controller(scenario.controller)
+    geometry = default_door_geometry(scenario.arc.angle_end_deg)
+    plant = make_controller_plant()
+    arc = controller.build(scenario, geometry, plant)
+    grasp = JointSpacePlan.hold(arc.q_start, scenario.timeline.grasp_duration, name="grasp")
+    width = scenario.station.gripper.grasp_width
+    result = run_episode(
+        scenario,
+        [grasp, arc.plan],
+        [width, width],
+        q_start=arc.q_start,
+        meshcat=meshcat,
+        realtime_rate=realtime_rate,
+    )
+    return result, arc

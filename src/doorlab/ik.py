@@ -1,0 +1,164 @@
+"""Inverse kinematics: one-shot IK of Q and L7, and pointwise IK along a path (task 1).
+
+Solver: SNOPT (shipped in the drake wheel), a sparse SQP that handles the nonlinear position
+and orientation constraints directly and converges in a few milliseconds from a warm start;
+IPOPT is the fallback if SNOPT is not available. Each knot is warm-started from the previous
+solution and a quadratic cost keeps it near that solution, so the knots form a continuous
+branch of the arm's redundancy (no elbow flips between knots).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from pydrake.math import RotationMatrix
+from pydrake.multibody.inverse_kinematics import InverseKinematics
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.solvers import IpoptSolver, SnoptSolver, SolverInterface
+
+from doorlab.constants import NUM_JOINTS
+from doorlab.errors import IkError
+from doorlab.frames import L7_FRAME, p_L7Q
+
+
+@dataclass(frozen=True)
+class IkResult:
+    """Pointwise IK along a path.
+
+    Attributes:
+        times: Knot times (n,) [s]. q_knots: Joint solutions (n, 7) [rad].
+        position_residuals: |p_WQ(q) - p_WQ_ref| at each knot (n,) [m].
+        orientation_residuals: Angle between R_WL7(q) and the reference (n,) [rad].
+        solver: Name of the solver used.
+    """
+
+    times: np.ndarray
+    q_knots: np.ndarray
+    position_residuals: np.ndarray
+    orientation_residuals: np.ndarray
+    solver: str
+
+
+def _solver() -> SolverInterface:
+    snopt = SnoptSolver()
+    if snopt.available() and snopt.enabled():
+        return snopt
+    return IpoptSolver()
+
+
+def _residuals(
+    plant: MultibodyPlant, context, q: np.ndarray, p_WQ_ref: np.ndarray, R_WL7_ref: RotationMatrix
+) -> tuple[float, float]:
+    plant.SetPositions(context, q)
+    X_WL7 = plant.GetFrameByName(L7_FRAME).CalcPoseInWorld(context)
+    position = float(np.linalg.norm(X_WL7 @ p_L7Q - p_WQ_ref))
+    orientation = float(
+        (X_WL7.rotation().inverse() @ R_WL7_ref).ToAngleAxis().angle()
+    )
+    return position, orientation
+
+
+def solve_ik(
+    plant: MultibodyPlant,
+    p_WQ_ref: np.ndarray,
+    R_WL7_ref: RotationMatrix,
+    q_guess: np.ndarray,
+    *,
+    position_tolerance: float,
+    theta_bound: float,
+    knot: int | None = None,
+) -> np.ndarray:
+    """One IK: Q within a box of +-position_tolerance around p_WQ_ref, L7 within theta_bound.
+
+    Args:
+        plant: The controller plant (7 positions).
+        p_WQ_ref: Target for Q (3,) [m]. R_WL7_ref: Target orientation of L7.
+        q_guess: Initial guess and the configuration the cost pulls towards (7,) [rad].
+        position_tolerance: Half-width of the position box [m].
+        theta_bound: Orientation bound [rad].
+        knot: Knot index, for the error message.
+
+    Returns:
+        The solution (7,) [rad].
+
+    Raises:
+        IkError: No feasible solution (names the knot and the residual).
+    """
+    L7 = plant.GetFrameByName(L7_FRAME)
+    W = plant.world_frame()
+    ik = InverseKinematics(plant)
+    q = ik.q()
+    tol = np.full(3, position_tolerance)
+    ik.AddPositionConstraint(L7, p_L7Q, W, p_WQ_ref - tol, p_WQ_ref + tol)
+    ik.AddOrientationConstraint(L7, RotationMatrix(), W, R_WL7_ref, theta_bound)
+    prog = ik.get_mutable_prog()
+    prog.AddQuadraticErrorCost(np.eye(NUM_JOINTS), q_guess, q)
+    result = _solver().Solve(prog, q_guess)
+    q_sol = result.GetSolution(q)
+    if not result.is_success():
+        context = plant.CreateDefaultContext()
+        position, _ = _residuals(plant, context, q_sol, p_WQ_ref, R_WL7_ref)
+        where = "one-shot IK" if knot is None else f"IK at knot {knot}"
+        raise IkError(
+            f"{where} failed ({result.get_solution_result().name}): Q is {1000 * position:.1f} mm "
+            f"from the target {np.round(p_WQ_ref, 4).tolist()} m",
+            knot=knot,
+            residual=position,
+        )
+    return q_sol
+
+
+def pointwise_ik(
+    plant: MultibodyPlant,
+    p_WQ_ref: Callable[[float], np.ndarray],
+    R_WL7_ref: Callable[[float], RotationMatrix],
+    *,
+    duration: float,
+    num_knots: int,
+    q_guess: np.ndarray,
+    position_tolerance: float,
+    theta_bound: float,
+) -> IkResult:
+    """IK at knots tau = i / (num_knots - 1) along a path, each warm-started from the last.
+
+    Args:
+        plant: The controller plant.
+        p_WQ_ref, R_WL7_ref: The path as functions of tau in [0, 1].
+        duration: Time of the last knot [s].
+        num_knots: Number of knots (>= 2).
+        q_guess: Initial guess of the first knot (7,) [rad].
+        position_tolerance: [m]. theta_bound: [rad].
+
+    Raises:
+        IkError: A knot has no solution.
+    """
+    if num_knots < 2:
+        raise IkError(f"pointwise IK needs at least 2 knots, got {num_knots}")
+    context = plant.CreateDefaultContext()
+    taus = np.linspace(0.0, 1.0, num_knots)
+    q_knots, pos_res, rot_res = [], [], []
+    guess = np.asarray(q_guess, dtype=float)
+    for i, tau in enumerate(taus):
+        p_ref, R_ref = p_WQ_ref(tau), R_WL7_ref(tau)
+        guess = solve_ik(
+            plant,
+            p_ref,
+            R_ref,
+            guess,
+            position_tolerance=position_tolerance,
+            theta_bound=theta_bound,
+            knot=i,
+        )
+        position, orientation = _residuals(plant, context, guess, p_ref, R_ref)
+        q_knots.append(guess)
+        pos_res.append(position)
+        rot_res.append(orientation)
+    return IkResult(
+        times=taus * duration,
+        q_knots=np.array(q_knots),
+        position_residuals=np.array(pos_res),
+        orientation_residuals=np.array(rot_res),
+        solver=_solver().solver_id().name(),
+    )

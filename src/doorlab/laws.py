@@ -1,0 +1,103 @@
+"""The control laws of tasks 2 and 3 as pure functions: errors and Jacobian in, command out.
+
+Nothing here touches a simulator; the plans in :mod:`doorlab.plans` wrap these laws.
+Spatial vectors are ordered (angular, translational), as Drake's geometric Jacobians are.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from pydrake.common.eigen_geometry import AngleAxis
+from pydrake.math import RotationMatrix
+
+
+class PoseError(NamedTuple):
+    """Pose error of frame L7 and point Q, both expressed in W.
+
+    Attributes:
+        theta_n_W: Orientation error as angle x unit axis (3,) [rad]: rotating L7 by this
+            (about an axis through L7's origin, in W) gives the reference orientation.
+        e_xyz_W: Position error p_WQ_ref - p_WQ (3,) [m].
+    """
+
+    theta_n_W: np.ndarray
+    e_xyz_W: np.ndarray
+
+
+def orientation_error(R_WL7: RotationMatrix, R_WL7_ref: RotationMatrix) -> np.ndarray:
+    """Angle-axis of R_L7L7r = R_WL7^T R_WL7_ref, re-expressed in W.
+
+    The angle is in [0, pi] (from the rotation matrix, not a quaternion), so the error never
+    flips sign when a quaternion would cross hemispheres.
+
+    Returns:
+        theta * n_W, shape (3,) [rad].
+    """
+    R_L7L7r = R_WL7.inverse() @ R_WL7_ref
+    angle_axis: AngleAxis = R_L7L7r.ToAngleAxis()
+    return R_WL7.matrix() @ (angle_axis.angle() * angle_axis.axis())
+
+
+def pose_error(
+    p_WQ: np.ndarray, R_WL7: RotationMatrix, p_WQ_ref: np.ndarray, R_WL7_ref: RotationMatrix
+) -> PoseError:
+    """The seed's errors: e_xyz = p_WQ_ref - p_WQ and theta n of R_L7L7r, in W."""
+    return PoseError(
+        theta_n_W=orientation_error(R_WL7, R_WL7_ref),
+        e_xyz_W=np.asarray(p_WQ_ref, dtype=float) - np.asarray(p_WQ, dtype=float),
+    )
+
+
+def desired_spatial_vector(error: PoseError, kv: float, kw: float) -> np.ndarray:
+    """(Kw theta n; Kv e_xyz), shape (6,): a spatial velocity [rad/s, m/s] (task 2, gains in
+    1/s) or a spatial force [N m, N] (task 3, gains in N m/rad and N/m)."""
+    return np.concatenate([kw * error.theta_n_W, kv * error.e_xyz_W])
+
+
+def velocity_law(
+    error: PoseError,
+    Jv_V_WL7q: np.ndarray,
+    *,
+    kv: float,
+    kw: float,
+    joint_speed_limit: float,
+) -> np.ndarray:
+    """Task 2: q_dot_des = J^+ V_des, clipped per joint.
+
+    Args:
+        error: Pose error of L7 and Q in W.
+        Jv_V_WL7q: Geometric Jacobian of L7 at Q in W, shape (6, 7).
+        kv: Translational gain [1/s]. kw: Rotational gain [1/s].
+        joint_speed_limit: Symmetric clip on each joint speed [rad/s].
+
+    Returns:
+        Desired joint velocities (7,) [rad/s].
+    """
+    V_des = desired_spatial_vector(error, kv, kw)
+    qdot = np.linalg.pinv(Jv_V_WL7q) @ V_des
+    return np.clip(qdot, -joint_speed_limit, joint_speed_limit)
+
+
+def impedance_law(
+    error: PoseError,
+    Jv_V_WL7q: np.ndarray,
+    *,
+    kv: float,
+    kw: float,
+    torque_limit: float,
+) -> np.ndarray:
+    """Task 3: tau_ff = J^T F with F = (Kw theta n; Kv e_xyz), clipped per joint.
+
+    Args:
+        error: Pose error of L7 and Q in W.
+        Jv_V_WL7q: Geometric Jacobian of L7 at Q in W, shape (6, 7).
+        kv: Translational stiffness [N/m]. kw: Rotational stiffness [N m/rad].
+        torque_limit: Symmetric clip on each joint torque [N m].
+
+    Returns:
+        Feedforward joint torques (7,) [N m].
+    """
+    F = desired_spatial_vector(error, kv, kw)
+    return np.clip(Jv_V_WL7q.T @ F, -torque_limit, torque_limit)

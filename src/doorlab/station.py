@@ -1,0 +1,316 @@
+"""The simulated cell: iiwa7 + WSG-50 + cupboard, with the robot's inner loop, as one Diagram.
+
+The station exports stable, named ports in the spirit of the original ManipulationStation:
+
+inputs
+    ``iiwa_position`` (7) q_ref [rad], ``iiwa_feedforward_torque`` (7) tau_ff [N m],
+    ``wsg_position`` (1) finger separation setpoint [m], ``wsg_force_limit`` (1) [N].
+outputs
+    ``iiwa_position_commanded`` (7), ``iiwa_position_measured`` (7) [rad],
+    ``iiwa_velocity_estimated`` (7) [rad/s], ``iiwa_torque_commanded`` (7) [N m] (the torque the
+    joints receive, after saturation), ``iiwa_torque_external`` (7) [N m] (generalized contact
+    forces on the arm joints), ``wsg_state_measured`` (2) separation [m] and its rate [m/s],
+    ``plant_state`` (the whole plant's [q; v]), ``door_angles`` (2) left/right hinge [rad].
+
+The inner loop is built from Drake's C++ systems only (no Python per simulation step):
+
+- ``stiffness`` (the seed's law) tau = Kq (q_ref - q) - Dq qdot + g(q) + tau_ff: the plant's
+  own PD actuators (integrated implicitly by the SAP solver, so stiff gains stay stable at the
+  2 ms step) with desired state (q_ref, 0), plus g(q) from an ``InverseDynamics`` system in
+  gravity-compensation mode and tau_ff; the plant clamps the total at the effort limits.
+- ``inverse_dynamics`` (the original station): ``InverseDynamicsController`` PID through M(q),
+  the desired velocity from a discrete derivative of q_ref, plus tau_ff, then ``Saturation``.
+
+Gravity compensation and the original's inverse dynamics use a separate *controller plant*
+(the arm with the gripper lumped into L7); they never read the simulation plant's context.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.geometry import (
+    Meshcat,
+    MeshcatVisualizer,
+    MeshcatVisualizerParams,
+    Role,
+    RoleAssign,
+    SceneGraph,
+)
+from pydrake.math import RigidTransform
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import (
+    AddMultibodyPlant,
+    CoulombFriction,
+    MultibodyPlant,
+    MultibodyPlantConfig,
+)
+from pydrake.multibody.tree import ModelInstanceIndex, PdControllerGains, SpatialInertia
+from pydrake.manipulation import MakeMultibodyStateToWsgStateSystem, SchunkWsgPositionController
+from pydrake.systems.controllers import InverseDynamics, InverseDynamicsController
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import (
+    Adder,
+    ConstantVectorSource,
+    Demultiplexer,
+    MatrixGain,
+    Multiplexer,
+    PassThrough,
+    Saturation,
+    StateInterpolatorWithDiscreteDerivative,
+)
+
+from doorlab import models
+from doorlab.config import StationConfig
+from doorlab.constants import JOINT_TORQUE_LIMITS, NUM_JOINTS
+from doorlab.frames import (
+    ARM_JOINTS,
+    CUPBOARD_MODEL,
+    GRIPPER_BODY,
+    GRIPPER_MODEL,
+    IIWA_MODEL,
+    L7_FRAME,
+    LEFT_HINGE,
+    RIGHT_HINGE,
+)
+
+GRIPPER_LUMPED_BODY = "wsg_lumped"
+"""Name of the rigid body that stands for the whole gripper in the controller plant."""
+
+
+@dataclass(frozen=True)
+class Station:
+    """A built station.
+
+    Attributes:
+        diagram: The Diagram with the exported ports listed in the module docstring.
+        plant: The simulation plant (do not hand its context to controllers).
+        scene_graph: The SceneGraph of the simulation plant.
+        iiwa, wsg, cupboard: Model instances of the simulation plant.
+        interpolator: The q_ref differentiator of the ``inverse_dynamics`` loop (None for
+            ``stiffness``); its state must be set to the initial q.
+    """
+
+    diagram: Diagram
+    plant: MultibodyPlant
+    scene_graph: SceneGraph
+    iiwa: ModelInstanceIndex
+    wsg: ModelInstanceIndex
+    cupboard: ModelInstanceIndex
+    interpolator: StateInterpolatorWithDiscreteDerivative | None
+    controller_plant: MultibodyPlant
+
+
+def _plant_config(config: StationConfig) -> MultibodyPlantConfig:
+    return MultibodyPlantConfig(
+        time_step=config.time_step,
+        contact_model="point",
+        discrete_contact_approximation=config.contact_approximation,
+    )
+
+
+def add_cell(plant: MultibodyPlant, *, arm_collision: bool = False) -> tuple[ModelInstanceIndex, ...]:
+    """Adds the arm, gripper, cupboard and table to ``plant`` and welds them (before Finalize).
+
+    Returns:
+        The model instances (iiwa, wsg, cupboard).
+    """
+    parser = Parser(plant)
+    models.add_package(parser)
+    (iiwa,) = parser.AddModels(url=models.model_url("iiwa7"))
+    (wsg,) = parser.AddModels(url=models.model_url("wsg_50"))
+    (cupboard,) = parser.AddModels(url=models.model_url("cupboard"))
+    (table,) = parser.AddModels(url=models.model_url("table"))
+    world = plant.world_frame()
+    plant.WeldFrames(world, plant.GetFrameByName("iiwa_link_0", iiwa), RigidTransform())
+    plant.WeldFrames(
+        plant.GetFrameByName(L7_FRAME, iiwa), plant.GetFrameByName(GRIPPER_BODY, wsg), models.X_L7G
+    )
+    plant.WeldFrames(world, plant.GetFrameByName("cupboard_body", cupboard), models.X_WC)
+    plant.WeldFrames(world, plant.GetFrameByName("table_top", table), models.X_W_TABLE)
+    if arm_collision:
+        models.add_arm_collision(plant, iiwa)
+    return iiwa, wsg, cupboard
+
+
+def gripper_spatial_inertia(finger_separation: float = 0.01) -> SpatialInertia:
+    """Spatial inertia of the whole WSG-50 (body and fingers) about G's origin, in G.
+
+    Args:
+        finger_separation: Separation of the pads [m] at which the fingers are lumped.
+    """
+    plant = MultibodyPlant(0.0)
+    parser = Parser(plant)
+    models.add_package(parser)
+    (wsg,) = parser.AddModels(url=models.model_url("wsg_50"))
+    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName(GRIPPER_BODY, wsg))
+    plant.Finalize()
+    context = plant.CreateDefaultContext()
+    plant.SetPositions(context, wsg, [-finger_separation / 2, finger_separation / 2])
+    bodies = plant.GetBodyIndices(wsg)
+    return plant.CalcSpatialInertia(context, plant.GetFrameByName(GRIPPER_BODY, wsg), bodies)
+
+
+def make_controller_plant() -> MultibodyPlant:
+    """The controllers' model: the arm with the gripper lumped into one body welded at X_L7G.
+
+    Returns:
+        A finalized continuous MultibodyPlant with 7 positions (the arm joints).
+    """
+    plant = MultibodyPlant(0.0)
+    parser = Parser(plant)
+    models.add_package(parser)
+    (iiwa,) = parser.AddModels(url=models.model_url("iiwa7"))
+    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("iiwa_link_0", iiwa))
+    lumped = plant.AddRigidBody(GRIPPER_LUMPED_BODY, iiwa, gripper_spatial_inertia())
+    plant.WeldFrames(plant.GetFrameByName(L7_FRAME, iiwa), lumped.body_frame(), models.X_L7G)
+    plant.Finalize()
+    return plant
+
+
+def _set_friction(plant: MultibodyPlant, scene_graph: SceneGraph, friction: float) -> None:
+    """Replaces the Coulomb friction of every collision geometry of the plant."""
+    inspector = scene_graph.model_inspector()
+    source_id = plant.get_source_id()
+    for geometry_id in inspector.GetAllGeometryIds(Role.kProximity):
+        props = inspector.GetProximityProperties(geometry_id)
+        new_props = type(props)(props)
+        new_props.UpdateProperty("material", "coulomb_friction", CoulombFriction(friction, friction))
+        scene_graph.AssignRole(source_id, geometry_id, new_props, RoleAssign.kReplace)
+
+
+def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> Station:
+    """Builds the station Diagram.
+
+    Args:
+        config: Physics, inner loop and gripper settings (validated by the caller).
+        meshcat: When given, a MeshcatVisualizer draws the illustration geometry live.
+
+    Returns:
+        The built station.
+    """
+    builder = DiagramBuilder()
+    plant, scene_graph = AddMultibodyPlant(_plant_config(config), builder)
+    plant.set_name("plant")
+    iiwa, wsg, cupboard = add_cell(plant, arm_collision=config.arm_collision)
+    for hinge in (LEFT_HINGE, RIGHT_HINGE):
+        plant.GetJointByName(hinge, cupboard).set_default_damping(config.hinge_damping)
+    stiffness = config.inner_loop.kind == "stiffness"
+    arm_actuators = [plant.GetJointActuatorByName(name, iiwa) for name in ARM_JOINTS]
+    for actuator, limit in zip(arm_actuators, JOINT_TORQUE_LIMITS, strict=True):
+        actuator.set_effort_limit(float(limit))
+    if stiffness:
+        for actuator, kq, dq in zip(
+            arm_actuators, config.inner_loop.kq, config.inner_loop.dq, strict=True
+        ):
+            actuator.set_controller_gains(PdControllerGains(p=float(kq), d=float(dq)))
+    plant.Finalize()
+    _set_friction(plant, scene_graph, config.friction)
+
+    controller_plant = make_controller_plant()
+
+    def add(system, name: str):
+        system.set_name(name)
+        return builder.AddSystem(system)
+
+    # Measured arm state.
+    arm_state = plant.get_state_output_port(iiwa)
+    demux = add(Demultiplexer(2 * NUM_JOINTS, NUM_JOINTS), "iiwa_state_demux")
+    builder.Connect(arm_state, demux.get_input_port(0))
+
+    # Commands.
+    q_ref = add(PassThrough(NUM_JOINTS), "iiwa_position")
+    tau_ff = add(PassThrough(NUM_JOINTS), "iiwa_feedforward_torque")
+    builder.ExportInput(q_ref.get_input_port(), "iiwa_position")
+    builder.ExportInput(tau_ff.get_input_port(), "iiwa_feedforward_torque")
+    builder.ExportOutput(q_ref.get_output_port(), "iiwa_position_commanded")
+
+    interpolator = None
+    if stiffness:
+        # tau = Kq (q_ref - q) + Dq (0 - qdot) [plant PD] + g(q) + tau_ff [actuation input].
+        gravity = add(
+            InverseDynamics(controller_plant, InverseDynamics.InverseDynamicsMode.kGravityCompensation),
+            "gravity_compensation",
+        )
+        builder.Connect(arm_state, gravity.get_input_port_estimated_state())
+        desired = add(Multiplexer([NUM_JOINTS, NUM_JOINTS]), "desired_state")
+        zero_velocity = add(ConstantVectorSource(np.zeros(NUM_JOINTS)), "zero_velocity")
+        builder.Connect(q_ref.get_output_port(), desired.get_input_port(0))
+        builder.Connect(zero_velocity.get_output_port(), desired.get_input_port(1))
+        builder.Connect(desired.get_output_port(), plant.get_desired_state_input_port(iiwa))
+        adder = add(Adder(2, NUM_JOINTS), "gravity_plus_feedforward")
+        builder.Connect(gravity.get_output_port(), adder.get_input_port(0))
+        builder.Connect(tau_ff.get_output_port(), adder.get_input_port(1))
+        builder.Connect(adder.get_output_port(), plant.get_actuation_input_port(iiwa))
+        builder.ExportOutput(plant.get_net_actuation_output_port(iiwa), "iiwa_torque_commanded")
+    else:
+        loop = config.inner_loop
+        pid = add(
+            InverseDynamicsController(
+                controller_plant,
+                kp=np.full(NUM_JOINTS, loop.id_kp),
+                ki=np.full(NUM_JOINTS, loop.id_ki),
+                kd=np.full(NUM_JOINTS, loop.id_kd),
+                has_reference_acceleration=False,
+            ),
+            "inverse_dynamics_pid",
+        )
+        interpolator = add(
+            StateInterpolatorWithDiscreteDerivative(
+                NUM_JOINTS, config.time_step, suppress_initial_transient=True
+            ),
+            "desired_state_from_position",
+        )
+        builder.Connect(q_ref.get_output_port(), interpolator.get_input_port())
+        builder.Connect(interpolator.get_output_port(), pid.get_input_port_desired_state())
+        builder.Connect(arm_state, pid.get_input_port_estimated_state())
+        adder = add(Adder(2, NUM_JOINTS), "pid_plus_feedforward")
+        builder.Connect(pid.get_output_port_control(), adder.get_input_port(0))
+        builder.Connect(tau_ff.get_output_port(), adder.get_input_port(1))
+        saturation = add(
+            Saturation(-JOINT_TORQUE_LIMITS, JOINT_TORQUE_LIMITS), "torque_saturation"
+        )
+        builder.Connect(adder.get_output_port(), saturation.get_input_port())
+        builder.Connect(saturation.get_output_port(), plant.get_actuation_input_port(iiwa))
+        builder.ExportOutput(saturation.get_output_port(), "iiwa_torque_commanded")
+
+    builder.ExportOutput(demux.get_output_port(0), "iiwa_position_measured")
+    builder.ExportOutput(demux.get_output_port(1), "iiwa_velocity_estimated")
+    builder.ExportOutput(
+        plant.get_generalized_contact_forces_output_port(iiwa), "iiwa_torque_external"
+    )
+
+    # Gripper: PD on the finger separation, force-limited (C++).
+    gripper = config.gripper
+    wsg_controller = add(
+        SchunkWsgPositionController(kp_command=gripper.kp, kd_command=gripper.kd),
+        "wsg_controller",
+    )
+    builder.Connect(plant.get_state_output_port(wsg), wsg_controller.get_state_input_port())
+    builder.Connect(
+        wsg_controller.get_generalized_force_output_port(), plant.get_actuation_input_port(wsg)
+    )
+    builder.ExportInput(wsg_controller.get_desired_position_input_port(), "wsg_position")
+    builder.ExportInput(wsg_controller.get_force_limit_input_port(), "wsg_force_limit")
+    wsg_state = add(MakeMultibodyStateToWsgStateSystem(), "wsg_state")
+    builder.Connect(plant.get_state_output_port(wsg), wsg_state.get_input_port())
+    builder.ExportOutput(wsg_state.get_output_port(), "wsg_state_measured")
+
+    # Whole-plant state and the door hinge angles.
+    builder.ExportOutput(plant.get_state_output_port(), "plant_state")
+    selector = np.zeros((2, plant.num_multibody_states()))
+    for row, hinge in enumerate((LEFT_HINGE, RIGHT_HINGE)):
+        selector[row, plant.GetJointByName(hinge, cupboard).position_start()] = 1.0
+    doors = add(MatrixGain(selector), "door_angles")
+    builder.Connect(plant.get_state_output_port(), doors.get_input_port())
+    builder.ExportOutput(doors.get_output_port(), "door_angles")
+
+    if meshcat is not None:
+        MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, MeshcatVisualizerParams())
+
+    diagram = builder.Build()
+    diagram.set_name("doorlab_station")
+    return Station(
+        diagram, plant, scene_graph, iiwa, wsg, cupboard, interpolator, controller_plant
+    )
