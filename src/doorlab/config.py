@@ -27,6 +27,7 @@ CONTROLLERS = ("ik", "velocity", "impedance")
 """Names of the three door-opening controllers (the seed's tasks 1-3)."""
 DOOR_STATES = tuple(DOOR_ANGLES)
 INNER_LOOPS = ("stiffness", "inverse_dynamics")
+IK_OBJECTIVES = ("feasible", "centered")
 CONTACT_APPROXIMATIONS = ("sap", "lagged", "similar", "tamsi")
 LEFT_HINGE_RANGE = (-math.pi / 2, 0.0)
 """Hinge range of the left door [rad] (opening is negative)."""
@@ -47,7 +48,7 @@ class InnerLoopConfig:
     # 40-70 rad/s) and the lag Dq/Kq is about 18 ms: about 1 mm at Q for the arc's joint
     # speeds (see README, "Inner loop gains").
     kq: list[float] = field(default_factory=lambda: [4000.0, 4000.0, 2000.0, 2000.0, 600.0, 600.0, 100.0])
-    dq: list[float] = field(default_factory=lambda: [70.0, 70.0, 35.0, 35.0, 10.0, 10.0, 1.8])
+    dq: list[float] = field(default_factory=lambda: [35.0, 35.0, 17.0, 17.0, 5.0, 5.0, 0.9])
     # Inverse-dynamics PID gains of the original station (act through M(q)).
     id_kp: float = 100.0  # [1/s^2]
     id_ki: float = 1.0  # [1/s^3]
@@ -104,6 +105,9 @@ class IkConfig:
     """Pointwise IK (task 1) and the one-shot IK to the handle."""
 
     knots: int = 10  # knot points along the arc, >= 2
+    # "feasible": the seed's IK, any pose within the tolerances; "centered": the exact pose
+    # within them (knots then carry no error of their own).
+    objective: str = "feasible"
     position_tolerance: float = 0.001  # [m] box half-width around each arc point
     theta_bound: float = 0.005 * math.pi  # [rad] L7 orientation bound
     grasp_position_tolerance: float = 0.0005  # [m] one-shot IK to the handle
@@ -285,6 +289,7 @@ def validate(scenario: Scenario) -> Scenario:
         isinstance(ik.knots, int) and not isinstance(ik.knots, bool) and 2 <= ik.knots <= 100,
         f"ik.knots must be an integer in [2, 100], got {ik.knots!r}",
     )
+    _choice("ik.objective", ik.objective, IK_OBJECTIVES)
     for name in ("position_tolerance", "theta_bound", "grasp_position_tolerance"):
         _positive(f"ik.{name}", getattr(ik, name))
     for section in ("velocity", "impedance"):

@@ -7,8 +7,8 @@ the start configuration, then follow the arc.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 from pydrake.geometry import Meshcat
@@ -73,6 +73,7 @@ def build_ik_plan(scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPl
         q_guess=Q_HOME,
         position_tolerance=scenario.ik.position_tolerance,
         theta_bound=scenario.ik.theta_bound,
+        centered=scenario.ik.objective == "centered",
     )
     plan = JointSpacePlan.cubic(ik.times, ik.q_knots, name="ik")
     return ArcPlan(plan, ik.q_knots[0], ik)

@@ -3,14 +3,18 @@
 Solver: SNOPT (shipped in the drake wheel), a sparse SQP that handles the nonlinear position
 and orientation constraints directly and converges in a few milliseconds from a warm start;
 IPOPT is the fallback if SNOPT is not available. Each knot is warm-started from the previous
-solution and a quadratic cost keeps it near that solution, so the knots form a continuous
-branch of the arm's redundancy (no elbow flips between knots).
+solution and a small quadratic cost keeps it near that solution, so the knots form a
+continuous branch of the arm's redundancy (no elbow flips between knots). The seed's
+tolerances are hard constraints. Optionally (``centered``) costs on the position and
+orientation error pick the exact pose inside them, so a knot's own error becomes negligible
+next to the interpolation between knots; the seed's problem (and the default along the arc)
+accepts any pose within the tolerances.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 from pydrake.math import RotationMatrix
@@ -21,6 +25,13 @@ from pydrake.solvers import IpoptSolver, SnoptSolver, SolverInterface
 from doorlab.constants import NUM_JOINTS
 from doorlab.errors import IkError
 from doorlab.frames import L7_FRAME, p_L7Q
+
+POSITION_COST_WEIGHT = 1e4
+"""Weight of |p_WQ - p_WQ_ref|^2 [1/m^2]: 1 mm off costs 1e-2."""
+ORIENTATION_COST_WEIGHT = 1e2
+"""Weight of (1 - cos theta) of L7's orientation error: 0.01 rad off costs 5e-3."""
+JOINT_COST_WEIGHT = 1e-2
+"""Weight of |q - q_guess|^2 [1/rad^2]: breaks the arm's redundancy towards the guess."""
 
 
 @dataclass(frozen=True)
@@ -68,6 +79,7 @@ def solve_ik(
     *,
     position_tolerance: float,
     theta_bound: float,
+    centered: bool = True,
     knot: int | None = None,
 ) -> np.ndarray:
     """One IK: Q within a box of +-position_tolerance around p_WQ_ref, L7 within theta_bound.
@@ -78,6 +90,9 @@ def solve_ik(
         q_guess: Initial guess and the configuration the cost pulls towards (7,) [rad].
         position_tolerance: Half-width of the position box [m].
         theta_bound: Orientation bound [rad].
+        centered: Also minimize the pose error inside the tolerances. False solves the
+            seed's feasibility problem: any pose inside them (the solver stops near the
+            guess, typically on the tolerance boundary).
         knot: Knot index, for the error message.
 
     Returns:
@@ -93,8 +108,13 @@ def solve_ik(
     tol = np.full(3, position_tolerance)
     ik.AddPositionConstraint(L7, p_L7Q, W, p_WQ_ref - tol, p_WQ_ref + tol)
     ik.AddOrientationConstraint(L7, RotationMatrix(), W, R_WL7_ref, theta_bound)
+    if centered:
+        # Inside the tolerances, prefer the exact pose: the knot then carries no error of
+        # its own, and what remains along a path is interpolation between knots.
+        ik.AddPositionCost(W, p_WQ_ref, L7, p_L7Q, POSITION_COST_WEIGHT * np.eye(3))
+        ik.AddOrientationCost(W, R_WL7_ref, L7, RotationMatrix(), ORIENTATION_COST_WEIGHT)
     prog = ik.get_mutable_prog()
-    prog.AddQuadraticErrorCost(np.eye(NUM_JOINTS), q_guess, q)
+    prog.AddQuadraticErrorCost(JOINT_COST_WEIGHT * np.eye(NUM_JOINTS), q_guess, q)
     result = _solver().Solve(prog, q_guess)
     q_sol = result.GetSolution(q)
     if not result.is_success():
@@ -120,6 +140,7 @@ def pointwise_ik(
     q_guess: np.ndarray,
     position_tolerance: float,
     theta_bound: float,
+    centered: bool = False,
 ) -> IkResult:
     """IK at knots tau = i / (num_knots - 1) along a path, each warm-started from the last.
 
@@ -130,6 +151,7 @@ def pointwise_ik(
         num_knots: Number of knots (>= 2).
         q_guess: Initial guess of the first knot (7,) [rad].
         position_tolerance: [m]. theta_bound: [rad].
+        centered: See :func:`solve_ik`. The default (False) is the seed's problem.
 
     Raises:
         IkError: A knot has no solution.
@@ -149,6 +171,7 @@ def pointwise_ik(
             guess,
             position_tolerance=position_tolerance,
             theta_bound=theta_bound,
+            centered=centered,
             knot=i,
         )
         position, orientation = _residuals(plant, context, guess, p_ref, R_ref)

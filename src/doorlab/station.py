@@ -38,6 +38,7 @@ from pydrake.geometry import (
     RoleAssign,
     SceneGraph,
 )
+from pydrake.manipulation import MakeMultibodyStateToWsgStateSystem, SchunkWsgPositionController
 from pydrake.math import RigidTransform
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import (
@@ -47,7 +48,6 @@ from pydrake.multibody.plant import (
     MultibodyPlantConfig,
 )
 from pydrake.multibody.tree import ModelInstanceIndex, PdControllerGains, SpatialInertia
-from pydrake.manipulation import MakeMultibodyStateToWsgStateSystem, SchunkWsgPositionController
 from pydrake.systems.controllers import InverseDynamics, InverseDynamicsController
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import (
@@ -66,10 +66,7 @@ from doorlab.config import StationConfig
 from doorlab.constants import JOINT_TORQUE_LIMITS, NUM_JOINTS
 from doorlab.frames import (
     ARM_JOINTS,
-    CUPBOARD_MODEL,
     GRIPPER_BODY,
-    GRIPPER_MODEL,
-    IIWA_MODEL,
     L7_FRAME,
     LEFT_HINGE,
     RIGHT_HINGE,

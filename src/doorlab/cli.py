@@ -1,0 +1,221 @@
+"""The ``doorlab`` command: ``doorlab run`` (one controller) and ``doorlab report`` (all).
+
+Bad input prints one line naming the valid choices and exits with code 2; a run's status
+sets the exit code otherwise (see :data:`doorlab.runs.EXIT_CODES`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import NoReturn
+
+from doorlab.config import CONTROLLERS, DOOR_STATES, Scenario, load_scenario, validate
+from doorlab.errors import ConfigError, DoorlabError, OutputError
+
+USAGE_ERROR = 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (no usage block) and exit code 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(USAGE_ERROR, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _knots(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer in [2, 100], got {text!r}") from None
+    if not 2 <= value <= 100:
+        raise argparse.ArgumentTypeError(f"must be an integer in [2, 100], got {value}")
+    return value
+
+
+def _jobs(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {value}")
+    return value
+
+
+def _rate(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``doorlab``."""
+    parser = _Parser(
+        prog="doorlab",
+        description="Open a cupboard door with a simulated KUKA iiwa 7 three ways "
+        "(pointwise IK, Jacobian velocity mapping, Jacobian-transpose impedance).",
+    )
+    parser.add_argument("--version", action="version", version=_version())
+    sub = parser.add_subparsers(dest="command", metavar="{run,report}", parser_class=_Parser)
+
+    run = sub.add_parser("run", help="run one controller and write its metrics, logs and plots")
+    run.add_argument("--controller", choices=CONTROLLERS, default=None,
+                     help="which controller (default: velocity, or the config's)")
+    run.add_argument("--doors", choices=DOOR_STATES, default=None,
+                     help="start with the doors open (free-space arc) or closed (default)")
+    run.add_argument("--knots", type=_knots, default=None,
+                     help="IK knot points along the arc, 2-100 (controller ik; default 10)")
+    run.add_argument("--out", type=Path, default=None,
+                     help="output folder (default: doorlab_out/<controller>_<doors>)")
+    _common(run)
+    run.add_argument("--meshcat", action="store_true",
+                     help="draw the run live in Meshcat (prints the URL; runs in real time)")
+    run.add_argument("--realtime", type=_rate, default=None,
+                     help="real-time rate (0: as fast as possible; default 0, 1 with --meshcat)")
+    run.add_argument("--no-replay", action="store_true", help="skip replay.html (faster)")
+
+    report = sub.add_parser("report", help="run the seed's experiment set and write index.html")
+    report.add_argument("--out", type=Path, default=Path("doorlab_report"),
+                        help="output folder (default: doorlab_report)")
+    report.add_argument("--jobs", type=_jobs, default=None,
+                        help="parallel runs (default: the number of cores)")
+    _common(report)
+    return parser
+
+
+def _common(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", type=Path, default=None,
+                        help="scenario YAML (see examples/scenario.yaml); options override it")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="KEY=VALUE",
+                        help="override one scenario field, e.g. --set station.time_step=0.001")
+    parser.add_argument("--force", action="store_true", help="replace an existing output folder")
+
+
+def _version() -> str:
+    from doorlab import __version__
+
+    return f"doorlab {__version__}"
+
+
+def _apply_overrides(scenario: Scenario, overrides: Sequence[str]) -> Scenario:
+    """Applies ``KEY=VALUE`` overrides (dotted keys, YAML values) to a scenario."""
+    from pydrake.common.yaml import yaml_load_typed
+
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        if not sep or not key or any(not part.isidentifier() for part in key.split(".")):
+            raise ConfigError(f"--set expects KEY=VALUE with a dotted KEY, got {item!r}")
+        parts = key.split(".")
+        document = value
+        for depth, part in enumerate(reversed(parts)):
+            indent = "  " * (len(parts) - 1 - depth)
+            document = f"{indent}{part}:" + (f" {document}" if depth == 0 else f"\n{document}")
+        try:
+            scenario = yaml_load_typed(schema=Scenario, data=document, defaults=scenario)
+        except (RuntimeError, ValueError, TypeError) as e:
+            raise ConfigError(f"--set {item}: {str(e).splitlines()[0]}") from None
+    return scenario
+
+
+def _scenario(args: argparse.Namespace) -> Scenario:
+    scenario = load_scenario(args.config) if args.config is not None else Scenario()
+    scenario = _apply_overrides(scenario, args.overrides)
+    if getattr(args, "controller", None) is not None:
+        scenario.controller = args.controller
+    if getattr(args, "doors", None) is not None:
+        scenario.doors = args.doors
+        scenario.door_angles = None
+    if getattr(args, "knots", None) is not None:
+        if scenario.controller != "ik":
+            raise ConfigError(
+                f"--knots applies to --controller ik only (got --controller {scenario.controller})"
+            )
+        scenario.ik.knots = args.knots
+    return validate(scenario)
+
+
+def _summary(outcome) -> str:
+    m = outcome.metrics
+    lines = [f"doorlab run: {outcome.out_dir}", f"  status                       {outcome.status}"]
+    if m is None:
+        lines.append(f"  error                        {outcome.message}")
+        return "\n".join(lines)
+    knots = f" ({m.knots} knots)" if m.knots else ""
+    rows = [
+        ("controller / doors", f"{m.controller}{knots} / {m.doors}"),
+        ("radial error of Q, max / rms", f"{1e3 * m.max_radial_error_m:.3f} / "
+                                         f"{1e3 * m.rms_radial_error_m:.3f} mm (measured q)"),
+        ("  max from commanded q_ref", f"{1e3 * m.max_radial_error_cmd_m:.3f} mm"),
+        ("orientation error of L7, max", f"{m.max_orientation_error_rad:.4f} rad "
+                                         f"({math.degrees(m.max_orientation_error_rad):.2f} deg)"),
+        ("final left hinge angle", f"{m.final_door_angle_rad:.4f} rad "
+                                   f"({math.degrees(m.final_door_angle_rad):.1f} deg)"),
+        ("door opened during the arc", f"{math.degrees(m.door_opening_rad):.1f} deg"),
+        ("handle held at the end", "yes" if m.handle_held else "no"),
+        ("peak |external torque|", f"{m.peak_external_torque_Nm:.2f} N m"),
+        ("max joint speed", f"{m.max_joint_speed_rad_s:.3f} rad/s"),
+        ("simulated / wall time", f"{m.sim_time_s:.1f} s / {m.wall_time_s:.2f} s "
+                                  f"({m.realtime_factor:.1f}x real time)"),
+    ]
+    lines += [f"  {name:<29}{value}" for name, value in rows]
+    if outcome.message:
+        lines.append(f"  note                         {outcome.message}")
+    lines.append("  files: metrics.json, log.npz, *.png, replay.html")
+    return "\n".join(lines)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from doorlab.runs import run_to_folder
+
+    scenario = _scenario(args)
+    out = args.out or Path("doorlab_out") / f"{scenario.controller}_{scenario.doors}"
+    meshcat = None
+    if args.meshcat:
+        from pydrake.geometry import Meshcat
+
+        meshcat = Meshcat()
+        print(f"Meshcat: {meshcat.web_url()}", flush=True)
+    outcome = run_to_folder(
+        scenario, out, force=args.force, replay=not args.no_replay, meshcat=meshcat,
+        realtime_rate=args.realtime if args.realtime is not None else (1.0 if meshcat else 0.0),
+    )
+    print(_summary(outcome))
+    return outcome.exit_code
+
+
+def _report(args: argparse.Namespace) -> int:
+    from doorlab.report import run_report
+
+    base = _scenario(args)
+    jobs = args.jobs or os.cpu_count() or 1
+    return run_report(args.out, jobs=jobs, force=args.force, base=base)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``doorlab`` console script; returns the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        args = parser.parse_args(["run", *(argv if argv is not None else sys.argv[1:])])
+    try:
+        return _run(args) if args.command == "run" else _report(args)
+    except DoorlabError as e:
+        print(f"doorlab {args.command}: error: {e}", file=sys.stderr)
+        return USAGE_ERROR if isinstance(e, (ConfigError, OutputError)) else 1
+    except KeyboardInterrupt:
+        print("doorlab: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,199 @@
+"""Tracking and door metrics of an episode, computed from its logs (no simulation re-run).
+
+Tracking errors are taken over the arc window (the 10 s of the arc in the episode timeline):
+
+- radial error of Q: horizontal distance from the hinge axis minus r_handle [m] (the seed's
+  ``CalcRadialTrackingError``), signed, positive outside the arc;
+- orientation error of L7: the angle of R_WL7^T R_WL7_ref(tau) [rad], tau = (t - t0) / T;
+
+both from the MEASURED joint positions (what the robot did) and, as the seed's plots did, from
+the COMMANDED ones (q_ref). Forward kinematics uses the controllers' model of the arm.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from doorlab.config import Scenario
+from doorlab.constants import JOINT_SPEED_LIMITS
+from doorlab.frames import L7_FRAME, p_L7Q
+from doorlab.geometry import DoorGeometry
+from doorlab.simulation import EpisodeResult
+from doorlab.station import make_controller_plant
+
+HANDLE_CAPTURE_RADIUS = 0.02
+"""Q is "at the handle" while its horizontal distance to the handle axis is below this [m]:
+the pads are 16 mm wide and 75 mm long, the handle 10 mm thick, so a handle between the pads
+is within about 8 mm of Q across and 12-37 mm along the pads; 20 mm separates "between the
+pads" from "lost" with margin both ways."""
+
+STATUSES = ("ok", "slipped", "speed_limit", "diverged", "ik_failed")
+"""Run statuses, best first (see the README's exit codes)."""
+
+
+@dataclass(frozen=True)
+class Tracking:
+    """Per-sample tracking over the arc window.
+
+    Attributes:
+        t: Times (n,) [s]. tau: Arc parameter (n,) in [0, 1].
+        p_WQ: Positions of Q (n, 3) [m].
+        radial_error: Signed radial error of Q (n,) [m].
+        orientation_error: Orientation error angle of L7 (n,) [rad].
+    """
+
+    t: np.ndarray
+    tau: np.ndarray
+    p_WQ: np.ndarray
+    radial_error: np.ndarray
+    orientation_error: np.ndarray
+
+
+class Kinematics:
+    """Forward kinematics of L7 and Q on the controllers' arm model."""
+
+    def __init__(self) -> None:
+        self._plant = make_controller_plant()
+        self._context = self._plant.CreateDefaultContext()
+        self._L7 = self._plant.GetFrameByName(L7_FRAME)
+
+    def poses(self, q: np.ndarray):
+        """X_WL7 for each row of q (n, 7) [rad]."""
+        out = []
+        for qi in np.atleast_2d(q):
+            self._plant.SetPositions(self._context, qi)
+            out.append(self._L7.CalcPoseInWorld(self._context))
+        return out
+
+
+def compute_tracking(
+    result: EpisodeResult,
+    geometry: DoorGeometry,
+    *,
+    source: Literal["measured", "commanded"] = "measured",
+    kinematics: Kinematics | None = None,
+) -> Tracking:
+    """Radial and orientation errors over the arc window from q_measured or q_commanded."""
+    kinematics = kinematics or Kinematics()
+    t0, t1 = result.arc_window
+    mask = result.window(t0, t1)
+    q = (result.q_measured if source == "measured" else result.q_commanded)[mask]
+    t = result.t[mask]
+    tau = np.clip((t - t0) / (t1 - t0), 0.0, 1.0)
+    poses = kinematics.poses(q)
+    p_WQ = np.array([X @ p_L7Q for X in poses])
+    orientation = np.array(
+        [
+            (X.rotation().inverse() @ geometry.R_WL7_ref(s)).ToAngleAxis().angle()
+            for X, s in zip(poses, tau, strict=True)
+        ]
+    )
+    return Tracking(t, tau, p_WQ, geometry.radial_error(p_WQ), orientation)
+
+
+def handle_distance(result: EpisodeResult, geometry: DoorGeometry, kinematics: Kinematics) -> np.ndarray:
+    """Horizontal distance from Q to the (moving) handle axis at every sample (n,) [m]."""
+    p_WQ = np.array([X @ p_L7Q for X in kinematics.poses(result.q_measured)])
+    handles = np.array([geometry.handle_position(a) for a in result.door_angles[:, 0]])
+    return np.hypot(*(p_WQ - handles)[:, :2].T)
+
+
+@dataclass(frozen=True)
+class DoorMetrics:
+    """The figures of one run (SI units; the keys of ``metrics.json``)."""
+
+    controller: str
+    doors: str
+    knots: int | None
+    status: str
+    max_radial_error_m: float
+    rms_radial_error_m: float
+    max_orientation_error_rad: float
+    rms_orientation_error_rad: float
+    max_radial_error_cmd_m: float
+    max_orientation_error_cmd_rad: float
+    final_door_angle_rad: float
+    door_opening_rad: float
+    handle_held: bool
+    slip_time_s: float | None
+    peak_external_torque_Nm: float
+    max_joint_speed_rad_s: float
+    speed_limit_exceeded: bool
+    sim_time_s: float
+    wall_time_s: float
+    realtime_factor: float
+
+    def to_dict(self) -> dict:
+        """JSON-ready dictionary."""
+        return dataclasses.asdict(self)
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")
+
+
+def compute_metrics(
+    result: EpisodeResult,
+    scenario: Scenario,
+    geometry: DoorGeometry,
+    *,
+    kinematics: Kinematics | None = None,
+) -> DoorMetrics:
+    """All figures of one run, from its logs.
+
+    Args:
+        result: The episode's logs.
+        scenario: The scenario that produced them (controller, doors, knots).
+        geometry: The door geometry the plans used.
+        kinematics: Reusable forward kinematics (built if not given).
+    """
+    kinematics = kinematics or Kinematics()
+    measured = compute_tracking(result, geometry, source="measured", kinematics=kinematics)
+    commanded = compute_tracking(result, geometry, source="commanded", kinematics=kinematics)
+    t0 = result.arc_window[0]
+    i0 = int(np.argmin(np.abs(result.t - t0)))
+    left = result.door_angles[:, 0]
+
+    closed = scenario.doors == "closed" and scenario.door_angles is None
+    distance = handle_distance(result, geometry, kinematics)
+    held = bool(distance[-1] < HANDLE_CAPTURE_RADIUS)
+    slip_time = None
+    if closed:
+        lost = np.flatnonzero((result.t >= t0) & (distance >= HANDLE_CAPTURE_RADIUS))
+        if len(lost):
+            slip_time = float(result.t[lost[0]])
+    speed_ratio = np.abs(result.v_measured) / JOINT_SPEED_LIMITS
+    speed_exceeded = bool(np.any(speed_ratio > 1.0))
+    if closed and slip_time is not None:
+        status = "slipped"
+    elif speed_exceeded:
+        status = "speed_limit"
+    else:
+        status = "ok"
+    wall = float(result.wall_time_s)
+    return DoorMetrics(
+        controller=scenario.controller,
+        doors=scenario.doors,
+        knots=scenario.ik.knots if scenario.controller == "ik" else None,
+        status=status,
+        max_radial_error_m=float(np.max(np.abs(measured.radial_error))),
+        rms_radial_error_m=_rms(measured.radial_error),
+        max_orientation_error_rad=float(np.max(measured.orientation_error)),
+        rms_orientation_error_rad=_rms(measured.orientation_error),
+        max_radial_error_cmd_m=float(np.max(np.abs(commanded.radial_error))),
+        max_orientation_error_cmd_rad=float(np.max(commanded.orientation_error)),
+        final_door_angle_rad=float(left[-1]),
+        door_opening_rad=float(left[i0] - left[-1]),
+        handle_held=held,
+        slip_time_s=slip_time,
+        peak_external_torque_Nm=float(np.max(np.abs(result.tau_external))),
+        max_joint_speed_rad_s=float(np.max(np.abs(result.v_measured))),
+        speed_limit_exceeded=speed_exceeded,
+        sim_time_s=result.sim_time_s,
+        wall_time_s=wall,
+        realtime_factor=result.sim_time_s / wall if wall > 0 else float("inf"),
+    )

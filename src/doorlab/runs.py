@@ -1,0 +1,157 @@
+"""Run one scenario and write its output folder atomically.
+
+A run folder holds ``metrics.json``, ``log.npz``, the seed's plots as PNG and ``replay.html``
+(a self-contained 3-D replay). It is assembled in a hidden temporary folder beside the target
+and renamed into place at the end, so a folder either appears complete or not at all.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from pydrake.geometry import Meshcat
+
+from doorlab.config import Scenario, validate
+from doorlab.errors import IkError, OutputError, SimulationError
+from doorlab.geometry import default_door_geometry
+from doorlab.metrics import DoorMetrics, Kinematics, compute_metrics
+
+EXIT_CODES = {"ok": 0, "usage": 2, "slipped": 3, "speed_limit": 4, "diverged": 5, "ik_failed": 6}
+"""Exit codes of ``doorlab run`` by status (``usage``: bad input)."""
+
+
+@dataclass(frozen=True)
+class RunOutcome:
+    """What a run produced.
+
+    Attributes:
+        status: One of :data:`doorlab.metrics.STATUSES`.
+        metrics: The figures (None when the run could not finish: ik_failed, diverged).
+        message: Why it failed ("" when it did not).
+        out_dir: The folder written.
+    """
+
+    status: str
+    metrics: DoorMetrics | None
+    message: str
+    out_dir: Path
+
+    @property
+    def exit_code(self) -> int:
+        """The CLI exit code of this status."""
+        return EXIT_CODES[self.status]
+
+
+def prepare_output(out_dir: Path, *, force: bool) -> Path:
+    """Checks that ``out_dir`` may be written and returns a fresh staging folder beside it.
+
+    Raises:
+        OutputError: ``out_dir`` exists (without ``force``), is a file, or its parent cannot
+            be created or written.
+    """
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise OutputError(f"--out {str(out_dir)!r} is a file, not a folder")
+    if out_dir.exists() and not force:
+        raise OutputError(f"--out {str(out_dir)!r} already exists; pass --force to replace it")
+    parent = out_dir.resolve().parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        return Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".partial", dir=parent))
+    except OSError as e:
+        raise OutputError(f"cannot write --out {str(out_dir)!r}: {e.strerror}") from None
+
+
+def commit_output(staging: Path, out_dir: Path) -> None:
+    """Moves a complete staging folder into place (replacing an old ``out_dir``)."""
+    out_dir = Path(out_dir)
+    if out_dir.exists():
+        old = staging.with_name(staging.name + ".old")
+        os.replace(out_dir, old)
+        os.replace(staging, out_dir)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.replace(staging, out_dir)
+
+
+def write_json(path: Path, data: dict) -> None:
+    """Writes ``data`` as indented JSON (NaN as null)."""
+
+    def clean(value):
+        if isinstance(value, float) and value != value:
+            return None
+        if isinstance(value, dict):
+            return {k: clean(v) for k, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [clean(v) for v in value]
+        return value
+
+    path.write_text(json.dumps(clean(data), indent=2) + "\n")
+
+
+def run_to_folder(
+    scenario: Scenario,
+    out_dir: Path,
+    *,
+    force: bool = False,
+    replay: bool = True,
+    plots: bool = True,
+    meshcat: Meshcat | None = None,
+    realtime_rate: float = 0.0,
+) -> RunOutcome:
+    """Runs ``scenario`` and writes its folder; IK and physics failures become a status.
+
+    Args:
+        scenario: The run (validated here).
+        out_dir: The folder to create.
+        force: Replace ``out_dir`` if it exists.
+        replay: Write ``replay.html``. plots: Write the PNG plots.
+        meshcat: Also draw the run live in this Meshcat.
+        realtime_rate: 0 runs as fast as possible; 1 at wall-clock speed.
+
+    Raises:
+        ConfigError: Invalid scenario. OutputError: ``out_dir`` cannot be written.
+    """
+    # Imported here: plotting and replay pull in matplotlib and Meshcat, which the
+    # pure simulation API does not need.
+    from doorlab import plots as plotting
+    from doorlab.controllers import run_controller
+    from doorlab.replay import save_replay
+
+    validate(scenario)
+    out_dir = Path(out_dir)
+    staging = prepare_output(out_dir, force=force)
+    try:
+        base = {"controller": scenario.controller, "doors": scenario.doors}
+        try:
+            result, _ = run_controller(scenario, meshcat=meshcat, realtime_rate=realtime_rate)
+        except (IkError, SimulationError) as e:
+            status = "ik_failed" if isinstance(e, IkError) else "diverged"
+            write_json(staging / "metrics.json", {**base, "status": status, "error": str(e)})
+            commit_output(staging, out_dir)
+            return RunOutcome(status, None, str(e), out_dir)
+        geometry = default_door_geometry(scenario.arc.angle_end_deg)
+        kinematics = Kinematics()
+        metrics = compute_metrics(result, scenario, geometry, kinematics=kinematics)
+        result.save(staging / "log.npz")
+        write_json(staging / "metrics.json", metrics.to_dict())
+        (staging / "scenario.yaml").write_text(result.scenario_yaml)
+        if plots:
+            plotting.save_run_plots(result, geometry, staging, kinematics=kinematics)
+        if replay:
+            save_replay(result, staging / "replay.html", scenario=scenario)
+        commit_output(staging, out_dir)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    message = ""
+    if metrics.status == "slipped":
+        message = f"the handle slipped out of the gripper at t = {metrics.slip_time_s:.2f} s"
+    elif metrics.status == "speed_limit":
+        message = "a joint exceeded its data-sheet speed limit"
+    return RunOutcome(metrics.status, metrics, message, out_dir)
