@@ -68,36 +68,73 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="{run,report}", parser_class=_Parser)
 
     run = sub.add_parser("run", help="run one controller and write its metrics, logs and plots")
-    run.add_argument("--controller", choices=CONTROLLERS, default=None,
-                     help="which controller (default: velocity, or the config's)")
-    run.add_argument("--doors", choices=DOOR_STATES, default=None,
-                     help="start with the doors open (free-space arc) or closed (default)")
-    run.add_argument("--knots", type=_knots, default=None,
-                     help="IK knot points along the arc, 2-100 (controller ik; default 10)")
-    run.add_argument("--out", type=Path, default=None,
-                     help="output folder (default: doorlab_out/<controller>_<doors>)")
+    run.add_argument(
+        "--controller",
+        choices=CONTROLLERS,
+        default=None,
+        help="which controller (default: velocity, or the config's)",
+    )
+    run.add_argument(
+        "--doors",
+        choices=DOOR_STATES,
+        default=None,
+        help="start with the doors open (free-space arc) or closed (default)",
+    )
+    run.add_argument(
+        "--knots",
+        type=_knots,
+        default=None,
+        help="IK knot points along the arc, 2-100 (controller ik; default 10)",
+    )
+    run.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="output folder (default: doorlab_out/<controller>_<doors>)",
+    )
     _common(run)
-    run.add_argument("--meshcat", action="store_true",
-                     help="draw the run live in Meshcat (prints the URL; runs in real time)")
-    run.add_argument("--realtime", type=_rate, default=None,
-                     help="real-time rate (0: as fast as possible; default 0, 1 with --meshcat)")
+    run.add_argument(
+        "--meshcat",
+        action="store_true",
+        help="draw the run live in Meshcat (prints the URL; runs in real time)",
+    )
+    run.add_argument(
+        "--realtime",
+        type=_rate,
+        default=None,
+        help="real-time rate (0: as fast as possible; default 0, 1 with --meshcat)",
+    )
     run.add_argument("--no-replay", action="store_true", help="skip replay.html (faster)")
 
     report = sub.add_parser("report", help="run the seed's experiment set and write index.html")
-    report.add_argument("--out", type=Path, default=Path("doorlab_report"),
-                        help="output folder (default: doorlab_report)")
-    report.add_argument("--jobs", type=_jobs, default=None,
-                        help="parallel runs (default: the number of cores)")
+    report.add_argument(
+        "--out",
+        type=Path,
+        default=Path("doorlab_report"),
+        help="output folder (default: doorlab_report)",
+    )
+    report.add_argument(
+        "--jobs", type=_jobs, default=None, help="parallel runs (default: the number of cores)"
+    )
     _common(report)
     return parser
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", type=Path, default=None,
-                        help="scenario YAML (see examples/scenario.yaml); options override it")
-    parser.add_argument("--set", dest="overrides", action="append", default=[],
-                        metavar="KEY=VALUE",
-                        help="override one scenario field, e.g. --set station.time_step=0.001")
+    parser.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="scenario YAML (see examples/scenario.yaml); options override it",
+    )
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override one scenario field, e.g. --set station.time_step=0.001",
+    )
     parser.add_argument("--force", action="store_true", help="replace an existing output folder")
 
 
@@ -153,19 +190,28 @@ def _summary(outcome) -> str:
     knots = f" ({m.knots} knots)" if m.knots else ""
     rows = [
         ("controller / doors", f"{m.controller}{knots} / {m.doors}"),
-        ("radial error of Q, max / rms", f"{1e3 * m.max_radial_error_m:.3f} / "
-                                         f"{1e3 * m.rms_radial_error_m:.3f} mm (measured q)"),
+        (
+            "radial error of Q, max / rms",
+            f"{1e3 * m.max_radial_error_m:.3f} / {1e3 * m.rms_radial_error_m:.3f} mm (measured q)",
+        ),
         ("  max from commanded q_ref", f"{1e3 * m.max_radial_error_cmd_m:.3f} mm"),
-        ("orientation error of L7, max", f"{m.max_orientation_error_rad:.4f} rad "
-                                         f"({math.degrees(m.max_orientation_error_rad):.2f} deg)"),
-        ("final left hinge angle", f"{m.final_door_angle_rad:.4f} rad "
-                                   f"({math.degrees(m.final_door_angle_rad):.1f} deg)"),
+        (
+            "orientation error of L7, max",
+            f"{m.max_orientation_error_rad:.4f} rad "
+            f"({math.degrees(m.max_orientation_error_rad):.2f} deg)",
+        ),
+        (
+            "final left hinge angle",
+            f"{m.final_door_angle_rad:.4f} rad ({math.degrees(m.final_door_angle_rad):.1f} deg)",
+        ),
         ("door opened during the arc", f"{math.degrees(m.door_opening_rad):.1f} deg"),
         ("handle held at the end", "yes" if m.handle_held else "no"),
         ("peak |external torque|", f"{m.peak_external_torque_Nm:.2f} N m"),
         ("max joint speed", f"{m.max_joint_speed_rad_s:.3f} rad/s"),
-        ("simulated / wall time", f"{m.sim_time_s:.1f} s / {m.wall_time_s:.2f} s "
-                                  f"({m.realtime_factor:.1f}x real time)"),
+        (
+            "simulated / wall time",
+            f"{m.sim_time_s:.1f} s / {m.wall_time_s:.2f} s ({m.realtime_factor:.1f}x real time)",
+        ),
     ]
     lines += [f"  {name:<29}{value}" for name, value in rows]
     if outcome.message:
@@ -186,7 +232,11 @@ def _run(args: argparse.Namespace) -> int:
         meshcat = Meshcat()
         print(f"Meshcat: {meshcat.web_url()}", flush=True)
     outcome = run_to_folder(
-        scenario, out, force=args.force, replay=not args.no_replay, meshcat=meshcat,
+        scenario,
+        out,
+        force=args.force,
+        replay=not args.no_replay,
+        meshcat=meshcat,
         realtime_rate=args.realtime if args.realtime is not None else (1.0 if meshcat else 0.0),
     )
     print(_summary(outcome))

@@ -12,7 +12,6 @@ Example YAML (every key optional; unknown keys are an error)::
     impedance: {kv: 100.0, kw: 50.0}
 """
 
-
 import dataclasses
 import math
 from dataclasses import dataclass, field
@@ -43,11 +42,13 @@ class InnerLoopConfig:
     """
 
     kind: str = "stiffness"  # one of INNER_LOOPS
-    # Joint stiffness Kq [N m/rad] and damping Dq [N m s/rad], per joint. Chosen so that every
-    # joint's closed loop is near critical damping about q_home (natural frequencies of
-    # 40-70 rad/s) and the lag Dq/Kq is about 18 ms: about 1 mm at Q for the arc's joint
-    # speeds (see README, "Inner loop gains").
-    kq: list[float] = field(default_factory=lambda: [4000.0, 4000.0, 2000.0, 2000.0, 600.0, 600.0, 100.0])
+    # Joint stiffness Kq [N m/rad] and damping Dq [N m s/rad], per joint (README, "Inner loop
+    # gains"). Kq follows the arm's inertia at the grasp pose (natural frequencies 40-200
+    # rad/s); Dq/Kq ~ 9 ms keeps a position plan's lag under ~1 mm at Q; Dq is kept low
+    # (damping ratios 0.2-0.9) because it is all that resists the impedance plan's J^T F.
+    kq: list[float] = field(
+        default_factory=lambda: [4000.0, 4000.0, 2000.0, 2000.0, 600.0, 600.0, 100.0]
+    )
     dq: list[float] = field(default_factory=lambda: [35.0, 35.0, 17.0, 17.0, 5.0, 5.0, 0.9])
     # Inverse-dynamics PID gains of the original station (act through M(q)).
     id_kp: float = 100.0  # [1/s^2]
@@ -72,7 +73,9 @@ class StationConfig:
     """Physics of the cell."""
 
     time_step: float = 0.002  # [s] plant discrete step (the original's)
-    contact_approximation: str = "sap"  # one of CONTACT_APPROXIMATIONS ("tamsi" needs kind=inverse_dynamics)
+    contact_approximation: str = (
+        "sap"  # one of CONTACT_APPROXIMATIONS ("tamsi" needs kind=inverse_dynamics)
+    )
     arm_collision: bool = False  # the original arm had no collision geometry
     hinge_damping: float = 1.0  # [N m s/rad]
     friction: float = 1.0  # Coulomb friction of fingers and handle [-]
@@ -224,7 +227,8 @@ def validate(scenario: Scenario) -> Scenario:
     if scenario.door_angles is not None:
         angles = scenario.door_angles
         _check(
-            len(angles) == 2 and all(isinstance(a, (int, float)) and math.isfinite(a) for a in angles),
+            len(angles) == 2
+            and all(isinstance(a, (int, float)) and math.isfinite(a) for a in angles),
             f"door_angles must be two finite numbers [rad] (left, right), got {angles!r}",
         )
         for name, value, (lo, hi) in (
@@ -296,4 +300,3 @@ def validate(scenario: Scenario) -> Scenario:
         for f in dataclasses.fields(getattr(scenario, section)):
             _positive(f"{section}.{f.name}", getattr(getattr(scenario, section), f.name))
     return scenario
-

@@ -49,7 +49,9 @@ class Controller:
     build: Callable[[Scenario, DoorGeometry, MultibodyPlant], ArcPlan]
 
 
-def _grasp_configuration(scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPlant) -> np.ndarray:
+def _grasp_configuration(
+    scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPlant
+) -> np.ndarray:
     """One-shot IK: Q at the handle, L7 at the arc's initial orientation."""
     return solve_ik(
         plant,
@@ -107,23 +109,30 @@ REGISTRY: dict[str, Controller] = {
     c.name: c
     for c in (
         Controller(
-            "ik", 1, "Pointwise IK",
+            "ik",
+            1,
+            "Pointwise IK",
             "IK at knots along the handle arc, cubic joint spline, position commands",
             build_ik_plan,
         ),
         Controller(
-            "velocity", 2, "Jacobian velocity mapping",
+            "velocity",
+            2,
+            "Jacobian velocity mapping",
             "q_dot = J^+ V_des from the pose error, q_ref = q + q_dot dt",
             build_velocity_plan,
         ),
         Controller(
-            "impedance", 3, "Jacobian-transpose impedance",
+            "impedance",
+            3,
+            "Jacobian-transpose impedance",
             "tau_ff = J^T F from the pose error, q_ref = q",
             build_impedance_plan,
         ),
     )
 }
 """Controllers by CLI name, in the seed's task order."""
+
 
 def get_controller(name: str) -> Controller:
     """The registered controller ``name``.

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, cached_property
 
 import numpy as np
 from pydrake.math import RollPitchYaw, RotationMatrix
@@ -44,18 +44,18 @@ class DoorGeometry:
     p_W_handle: np.ndarray
     angle_end: float
 
-    @property
+    @cached_property
     def r_handle(self) -> float:
         """Horizontal distance from hinge axis to handle [m]."""
         return float(np.hypot(*(self.p_W_handle - self.p_W_hinge)[:2]))
 
-    @property
+    @cached_property
     def theta0(self) -> float:
         """Handle angle with the door closed [rad]."""
         d = self.p_W_hinge - self.p_W_handle
         return math.atan2(d[0], d[1])
 
-    @property
+    @cached_property
     def sweep(self) -> float:
         """Door rotation over the arc, angle_end - theta0 [rad] (positive)."""
         return self.angle_end - self.theta0
@@ -96,9 +96,7 @@ class DoorGeometry:
         return self.p_W_hinge - self.r_handle * np.array([math.sin(theta), math.cos(theta), 0.0])
 
 
-def door_geometry_from_plant(
-    plant: MultibodyPlant, *, angle_end_deg: float = 50.0
-) -> DoorGeometry:
+def door_geometry_from_plant(plant: MultibodyPlant, *, angle_end_deg: float = 50.0) -> DoorGeometry:
     """Reads the hinge and handle from a finalized plant holding the cupboard (doors closed).
 
     Args:

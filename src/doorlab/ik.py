@@ -65,9 +65,7 @@ def _residuals(
     plant.SetPositions(context, q)
     X_WL7 = plant.GetFrameByName(L7_FRAME).CalcPoseInWorld(context)
     position = float(np.linalg.norm(X_WL7 @ p_L7Q - p_WQ_ref))
-    orientation = float(
-        (X_WL7.rotation().inverse() @ R_WL7_ref).ToAngleAxis().angle()
-    )
+    orientation = float((X_WL7.rotation().inverse() @ R_WL7_ref).ToAngleAxis().angle())
     return position, orientation
 
 

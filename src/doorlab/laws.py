@@ -56,6 +56,22 @@ def desired_spatial_vector(error: PoseError, kv: float, kw: float) -> np.ndarray
     return np.concatenate([kw * error.theta_n_W, kv * error.e_xyz_W])
 
 
+def pseudo_inverse_solve(J: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """J^+ V, the minimum-norm joint velocity that realizes V.
+
+    For a full-row-rank J (6, 7) this is J^T (J J^T)^-1 V, a 6x6 solve (a few times cheaper
+    than an SVD); near a singularity it falls back to the SVD-based pseudo-inverse, which
+    drops the singular directions.
+    """
+    JJt = J @ J.T
+    scale = np.trace(JJt) / len(JJt)
+    # det / scale^n is the product of the normalized eigenvalues of J J^T: below 1e-12 at
+    # least one singular value of J is ~1e-6 of the typical one.
+    if scale > 0 and np.linalg.det(JJt) / scale ** len(JJt) > 1e-12:
+        return J.T @ np.linalg.solve(JJt, V)
+    return np.linalg.pinv(J) @ V
+
+
 def velocity_law(
     error: PoseError,
     Jv_V_WL7q: np.ndarray,
@@ -76,7 +92,7 @@ def velocity_law(
         Desired joint velocities (7,) [rad/s].
     """
     V_des = desired_spatial_vector(error, kv, kw)
-    qdot = np.linalg.pinv(Jv_V_WL7q) @ V_des
+    qdot = pseudo_inverse_solve(Jv_V_WL7q, V_des)
     return np.clip(qdot, -joint_speed_limit, joint_speed_limit)
 
 

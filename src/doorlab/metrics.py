@@ -95,7 +95,9 @@ def compute_tracking(
     return Tracking(t, tau, p_WQ, geometry.radial_error(p_WQ), orientation)
 
 
-def handle_distance(result: EpisodeResult, geometry: DoorGeometry, kinematics: Kinematics) -> np.ndarray:
+def handle_distance(
+    result: EpisodeResult, geometry: DoorGeometry, kinematics: Kinematics
+) -> np.ndarray:
     """Horizontal distance from Q to the (moving) handle axis at every sample (n,) [m]."""
     p_WQ = np.array([X @ p_L7Q for X in kinematics.poses(result.q_measured)])
     handles = np.array([geometry.handle_position(a) for a in result.door_angles[:, 0]])

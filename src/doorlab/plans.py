@@ -73,8 +73,10 @@ class JointSpacePlan:
 
     def command(self, t: float, state: ArmState) -> Command:
         """q_ref from the trajectory; the measured state is not used."""
-        t_traj = min(max(t + self.trajectory.start_time(), self.trajectory.start_time()),
-                     self.trajectory.end_time())
+        t_traj = min(
+            max(t + self.trajectory.start_time(), self.trajectory.start_time()),
+            self.trajectory.end_time(),
+        )
         return Command(self.trajectory.value(t_traj).ravel(), _ZERO_TORQUE)
 
     @classmethod

@@ -122,9 +122,7 @@ class PlanRunner(LeafSystem):
     def _tick(self, context, discrete_state) -> None:
         t = context.get_time()
         scheduled = self.active(t)
-        state = ArmState(
-            self._q.Eval(context), self._v.Eval(context), self._tau_ext.Eval(context)
-        )
+        state = ArmState(self._q.Eval(context), self._v.Eval(context), self._tau_ext.Eval(context))
         command = scheduled.plan.command(t - scheduled.t_start, state)
         discrete_state.get_mutable_vector(self._q_ref).SetFromVector(command.q_ref)
         discrete_state.get_mutable_vector(self._tau_ff).SetFromVector(command.tau_ff)

@@ -31,6 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydrake.geometry import (
+    CollisionFilterDeclaration,
+    GeometrySet,
     Meshcat,
     MeshcatVisualizer,
     MeshcatVisualizerParams,
@@ -66,6 +68,7 @@ from doorlab.config import StationConfig
 from doorlab.constants import JOINT_TORQUE_LIMITS, NUM_JOINTS
 from doorlab.frames import (
     ARM_JOINTS,
+    CUPBOARD_MODEL,
     GRIPPER_BODY,
     L7_FRAME,
     LEFT_HINGE,
@@ -107,7 +110,9 @@ def _plant_config(config: StationConfig) -> MultibodyPlantConfig:
     )
 
 
-def add_cell(plant: MultibodyPlant, *, arm_collision: bool = False) -> tuple[ModelInstanceIndex, ...]:
+def add_cell(
+    plant: MultibodyPlant, *, arm_collision: bool = False
+) -> tuple[ModelInstanceIndex, ...]:
     """Adds the arm, gripper, cupboard and table to ``plant`` and welds them (before Finalize).
 
     Returns:
@@ -129,6 +134,21 @@ def add_cell(plant: MultibodyPlant, *, arm_collision: bool = False) -> tuple[Mod
     if arm_collision:
         models.add_arm_collision(plant, iiwa)
     return iiwa, wsg, cupboard
+
+
+def _filter_scene_collisions(plant: MultibodyPlant, scene_graph: SceneGraph) -> None:
+    """Lets the scene's bodies (doors, cupboard, table) collide only with the robot.
+
+    The doors rest on the table and the cupboard (their slabs touch it at every angle) and
+    never need contact among themselves: dropping those pairs removes contact queries the
+    result does not depend on.
+    """
+    scene = [plant.GetModelInstanceByName(name) for name in (CUPBOARD_MODEL, "table")]
+    bodies = [b for instance in scene for b in plant.GetBodyIndices(instance)]
+    scene_geometry = GeometrySet([plant.GetBodyFrameIdOrThrow(b) for b in bodies])
+    scene_graph.collision_filter_manager().Apply(
+        CollisionFilterDeclaration().ExcludeWithin(scene_geometry)
+    )
 
 
 def gripper_spatial_inertia(finger_separation: float = 0.01) -> SpatialInertia:
@@ -173,7 +193,9 @@ def _set_friction(plant: MultibodyPlant, scene_graph: SceneGraph, friction: floa
     for geometry_id in inspector.GetAllGeometryIds(Role.kProximity):
         props = inspector.GetProximityProperties(geometry_id)
         new_props = type(props)(props)
-        new_props.UpdateProperty("material", "coulomb_friction", CoulombFriction(friction, friction))
+        new_props.UpdateProperty(
+            "material", "coulomb_friction", CoulombFriction(friction, friction)
+        )
         scene_graph.AssignRole(source_id, geometry_id, new_props, RoleAssign.kReplace)
 
 
@@ -204,6 +226,7 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
             actuator.set_controller_gains(PdControllerGains(p=float(kq), d=float(dq)))
     plant.Finalize()
     _set_friction(plant, scene_graph, config.friction)
+    _filter_scene_collisions(plant, scene_graph)
 
     controller_plant = make_controller_plant()
 
@@ -227,7 +250,9 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
     if stiffness:
         # tau = Kq (q_ref - q) + Dq (0 - qdot) [plant PD] + g(q) + tau_ff [actuation input].
         gravity = add(
-            InverseDynamics(controller_plant, InverseDynamics.InverseDynamicsMode.kGravityCompensation),
+            InverseDynamics(
+                controller_plant, InverseDynamics.InverseDynamicsMode.kGravityCompensation
+            ),
             "gravity_compensation",
         )
         builder.Connect(arm_state, gravity.get_input_port_estimated_state())
@@ -265,9 +290,7 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
         adder = add(Adder(2, NUM_JOINTS), "pid_plus_feedforward")
         builder.Connect(pid.get_output_port_control(), adder.get_input_port(0))
         builder.Connect(tau_ff.get_output_port(), adder.get_input_port(1))
-        saturation = add(
-            Saturation(-JOINT_TORQUE_LIMITS, JOINT_TORQUE_LIMITS), "torque_saturation"
-        )
+        saturation = add(Saturation(-JOINT_TORQUE_LIMITS, JOINT_TORQUE_LIMITS), "torque_saturation")
         builder.Connect(adder.get_output_port(), saturation.get_input_port())
         builder.Connect(saturation.get_output_port(), plant.get_actuation_input_port(iiwa))
         builder.ExportOutput(saturation.get_output_port(), "iiwa_torque_commanded")
@@ -308,6 +331,4 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
 
     diagram = builder.Build()
     diagram.set_name("doorlab_station")
-    return Station(
-        diagram, plant, scene_graph, iiwa, wsg, cupboard, interpolator, controller_plant
-    )
+    return Station(diagram, plant, scene_graph, iiwa, wsg, cupboard, interpolator, controller_plant)

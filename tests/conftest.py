@@ -1,0 +1,35 @@
+"""Shared fixtures: full episodes are expensive (~3-5 s each), so each is run once per session."""
+
+from __future__ import annotations
+
+import os
+from functools import cache
+
+import pytest
+
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+
+@cache
+def _run(controller: str, doors: str, knots: int | None):
+    from doorlab.config import Scenario
+    from doorlab.controllers import run_controller
+    from doorlab.geometry import default_door_geometry
+    from doorlab.metrics import compute_metrics
+
+    scenario = Scenario(controller=controller, doors=doors)
+    if knots is not None:
+        scenario.ik.knots = knots
+    result, arc = run_controller(scenario)
+    metrics = compute_metrics(result, scenario, default_door_geometry())
+    return scenario, result, arc, metrics
+
+
+@pytest.fixture(scope="session")
+def episode():
+    """episode(controller, doors, knots=None) -> (scenario, result, arc, metrics), memoized."""
+
+    def get(controller: str, doors: str, knots: int | None = None):
+        return _run(controller, doors, knots)
+
+    return get
