@@ -14,7 +14,14 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import NoReturn
 
-from doorlab.config import CONTROLLERS, DOOR_STATES, Scenario, load_scenario, validate
+from doorlab.config import (
+    CONTROLLERS,
+    DOOR_STATES,
+    Scenario,
+    load_scenario,
+    update_scenario,
+    validate,
+)
 from doorlab.errors import ConfigError, DoorlabError, OutputError
 
 USAGE_ERROR = 2
@@ -146,8 +153,6 @@ def _version() -> str:
 
 def _apply_overrides(scenario: Scenario, overrides: Sequence[str]) -> Scenario:
     """Applies ``KEY=VALUE`` overrides (dotted keys, YAML values) to a scenario."""
-    from pydrake.common.yaml import yaml_load_typed
-
     for item in overrides:
         key, sep, value = item.partition("=")
         if not sep or not key or any(not part.isidentifier() for part in key.split(".")):
@@ -158,9 +163,9 @@ def _apply_overrides(scenario: Scenario, overrides: Sequence[str]) -> Scenario:
             indent = "  " * (len(parts) - 1 - depth)
             document = f"{indent}{part}:" + (f" {document}" if depth == 0 else f"\n{document}")
         try:
-            scenario = yaml_load_typed(schema=Scenario, data=document, defaults=scenario)
-        except (RuntimeError, ValueError, TypeError) as e:
-            raise ConfigError(f"--set {item}: {str(e).splitlines()[0]}") from None
+            scenario = update_scenario(scenario, document)
+        except ConfigError as e:
+            raise ConfigError(f"--set {item}: {e}") from None
     return scenario
 
 
@@ -254,9 +259,12 @@ def _report(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``doorlab`` console script; returns the exit code."""
     parser = build_parser()
-    args = parser.parse_args(argv)
-    if args.command is None:
-        args = parser.parse_args(["run", *(argv if argv is not None else sys.argv[1:])])
+    try:
+        args = parser.parse_args(argv)
+        if args.command is None:
+            args = parser.parse_args(["run", *(argv if argv is not None else sys.argv[1:])])
+    except SystemExit as e:  # argparse: --help, --version, or a usage error already printed
+        return e.code if isinstance(e.code, int) else USAGE_ERROR
     try:
         return _run(args) if args.command == "run" else _report(args)
     except DoorlabError as e:

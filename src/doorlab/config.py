@@ -14,9 +14,12 @@ Example YAML (every key optional; unknown keys are an error)::
 
 import dataclasses
 import math
+import types
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import yaml
 from pydrake.common.yaml import yaml_load_typed
 
 from doorlab.constants import DOOR_ANGLES, NUM_JOINTS
@@ -77,6 +80,8 @@ class StationConfig:
         "sap"  # one of CONTACT_APPROXIMATIONS ("tamsi" needs kind=inverse_dynamics)
     )
     arm_collision: bool = False  # the original arm had no collision geometry
+    # Cupboard frame C in W [m] (rotation fixed at RotZ(pi)); move it to test reachability.
+    cupboard_position: list[float] = field(default_factory=lambda: [0.9057, 0.0, 0.4148])
     hinge_damping: float = 1.0  # [N m s/rad]
     friction: float = 1.0  # Coulomb friction of fingers and handle [-]
     inner_loop: InnerLoopConfig = field(default_factory=InnerLoopConfig)
@@ -164,20 +169,87 @@ def load_scenario(path: str | Path, *, defaults: Scenario | None = None) -> Scen
 
     Raises:
         ConfigError: The file is missing, is not valid YAML, has unknown keys, wrong types or
-            out-of-range values.
+            out-of-range values (the message names the file and the dotted field).
     """
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"config file {str(path)!r} does not exist")
     try:
-        scenario = yaml_load_typed(
-            schema=Scenario, filename=str(path), defaults=defaults or Scenario()
-        )
-    except (RuntimeError, ValueError, TypeError) as e:
-        message = str(e).splitlines()[0] if str(e) else type(e).__name__
-        raise ConfigError(f"config file {str(path)!r}: {message}") from None
-    validate(scenario)
-    return scenario
+        return update_scenario(defaults or Scenario(), path.read_text())
+    except ConfigError as e:
+        raise ConfigError(f"config file {str(path)!r}: {e}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"config file {str(path)!r} cannot be read: {e}") from None
+
+
+def update_scenario(scenario: Scenario, document: str) -> Scenario:
+    """Returns ``scenario`` updated by the keys of a YAML ``document``, validated.
+
+    Raises:
+        ConfigError: Invalid YAML, unknown keys, wrong types or out-of-range values.
+    """
+    try:
+        data = yaml.safe_load(document)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
+        problem = getattr(e, "problem", None) or type(e).__name__
+        raise ConfigError(f"invalid YAML{where}: {problem}") from None
+    if data is None:
+        return validate(scenario)
+    _check_shape(data, Scenario, "")
+    try:
+        updated = yaml_load_typed(schema=Scenario, data=document, defaults=scenario)
+    except (RuntimeError, ValueError, TypeError) as e:  # not expected after _check_shape
+        raise ConfigError(str(e).splitlines()[0] if str(e) else type(e).__name__) from None
+    return validate(updated)
+
+
+def _type_name(schema: object) -> str:
+    if dataclasses.is_dataclass(schema):
+        return "a mapping"
+    return {float: "a number", int: "an integer", str: "a string", bool: "true or false"}.get(
+        schema, str(schema)
+    )
+
+
+def _check_shape(data: object, schema: object, path: str) -> None:
+    """Checks YAML data against the scenario's dataclass schema, naming the dotted field."""
+    name = path or "the scenario"
+    if dataclasses.is_dataclass(schema):
+        if not isinstance(data, dict):
+            raise ConfigError(f"{name} must be a mapping of fields, got {data!r}")
+        fields = {f.name: f.type for f in dataclasses.fields(schema)}
+        hints = typing.get_type_hints(schema)
+        for key, value in data.items():
+            dotted = f"{path}.{key}" if path else str(key)
+            if key not in fields:
+                raise ConfigError(
+                    f"unknown field {dotted!r}; valid fields here: {', '.join(fields)}"
+                )
+            _check_shape(value, hints[key], dotted)
+        return
+    origin, args = typing.get_origin(schema), typing.get_args(schema)
+    if origin in (typing.Union, types.UnionType):
+        if data is None and type(None) in args:
+            return
+        (inner,) = [a for a in args if a is not type(None)]
+        _check_shape(data, inner, path)
+        return
+    if origin is list:
+        if not isinstance(data, list):
+            raise ConfigError(f"{name} must be a list, got {data!r}")
+        for i, item in enumerate(data):
+            _check_shape(item, args[0], f"{path}[{i}]")
+        return
+    ok = {
+        float: isinstance(data, (int, float)) and not isinstance(data, bool),
+        int: isinstance(data, int) and not isinstance(data, bool),
+        bool: isinstance(data, bool),
+        str: isinstance(data, str),
+    }.get(schema, True)
+    if not ok:
+        raise ConfigError(f"{name} must be {_type_name(schema)}, got {data!r}")
 
 
 def _check(condition: bool, message: str) -> None:
@@ -227,7 +299,8 @@ def validate(scenario: Scenario) -> Scenario:
     if scenario.door_angles is not None:
         angles = scenario.door_angles
         _check(
-            len(angles) == 2
+            isinstance(angles, (list, tuple))
+            and len(angles) == 2
             and all(isinstance(a, (int, float)) and math.isfinite(a) for a in angles),
             f"door_angles must be two finite numbers [rad] (left, right), got {angles!r}",
         )
@@ -240,6 +313,13 @@ def validate(scenario: Scenario) -> Scenario:
     station = scenario.station
     _positive("station.time_step", station.time_step)
     _choice("station.contact_approximation", station.contact_approximation, CONTACT_APPROXIMATIONS)
+    position = station.cupboard_position
+    _check(
+        isinstance(position, (list, tuple))
+        and len(position) == 3
+        and all(isinstance(v, (int, float)) and abs(v) <= 10.0 for v in position),
+        f"station.cupboard_position must be three numbers [m] within +-10 m, got {position!r}",
+    )
     _non_negative("station.hinge_damping", station.hinge_damping)
     _non_negative("station.friction", station.friction)
     loop = station.inner_loop

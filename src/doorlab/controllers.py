@@ -17,7 +17,7 @@ from pydrake.multibody.plant import MultibodyPlant
 from doorlab.config import Scenario, validate
 from doorlab.constants import Q_HOME
 from doorlab.errors import ConfigError
-from doorlab.geometry import DoorGeometry, default_door_geometry
+from doorlab.geometry import DoorGeometry, scenario_door_geometry
 from doorlab.ik import IkResult, pointwise_ik, solve_ik
 from doorlab.plans import JointSpacePlan, Plan, TaskSpaceImpedancePlan, TaskSpaceVelocityPlan
 from doorlab.simulation import EpisodeResult, run_episode
@@ -158,7 +158,7 @@ def run_controller(
     """
     validate(scenario)
     controller = get_controller(scenario.controller)
-    geometry = default_door_geometry(scenario.arc.angle_end_deg)
+    geometry = scenario_door_geometry(scenario)
     plant = make_controller_plant()
     arc = controller.build(scenario, geometry, plant)
     grasp = JointSpacePlan.hold(arc.q_start, scenario.timeline.grasp_duration, name="grasp")

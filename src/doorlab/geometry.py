@@ -17,6 +17,7 @@ axis towards +x; at theta0 the door is closed, and theta grows as the left door 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache, cached_property
 
@@ -24,6 +25,7 @@ import numpy as np
 from pydrake.math import RollPitchYaw, RotationMatrix
 from pydrake.multibody.plant import MultibodyPlant
 
+from doorlab.config import Scenario
 from doorlab.frames import CUPBOARD_MODEL, LEFT_HANDLE_FRAME, LEFT_HINGE
 
 L7_PITCH = 3 * math.pi / 4
@@ -116,17 +118,32 @@ def door_geometry_from_plant(plant: MultibodyPlant, *, angle_end_deg: float = 50
 
 
 @cache
-def _model_geometry() -> tuple[np.ndarray, np.ndarray]:
-    from doorlab.station import add_cell  # local: station imports geometry's users
+def _model_geometry(p_WC: tuple[float, float, float] | None) -> tuple[np.ndarray, np.ndarray]:
+    from doorlab.station import add_cell  # local: the station module imports this one
 
     plant = MultibodyPlant(0.0)
-    add_cell(plant)
+    add_cell(plant, p_WC=p_WC)
     plant.Finalize()
     g = door_geometry_from_plant(plant)
     return g.p_W_hinge, g.p_W_handle
 
 
-def default_door_geometry(angle_end_deg: float = 50.0) -> DoorGeometry:
-    """The door geometry of the shipped cupboard model (cached)."""
-    p_W_hinge, p_W_handle = _model_geometry()
+def default_door_geometry(
+    angle_end_deg: float = 50.0, *, p_WC: Sequence[float] | None = None
+) -> DoorGeometry:
+    """The door geometry of the shipped cupboard model (cached).
+
+    Args:
+        angle_end_deg: Handle angle at the arc's end [deg].
+        p_WC: Cupboard position in W (3,) [m]; default: the original placement.
+    """
+    key = None if p_WC is None else tuple(float(v) for v in p_WC)
+    p_W_hinge, p_W_handle = _model_geometry(key)
     return DoorGeometry(p_W_hinge.copy(), p_W_handle.copy(), math.radians(angle_end_deg))
+
+
+def scenario_door_geometry(scenario: Scenario) -> DoorGeometry:
+    """The door geometry of a scenario (its arc's end angle and cupboard position)."""
+    return default_door_geometry(
+        scenario.arc.angle_end_deg, p_WC=scenario.station.cupboard_position
+    )

@@ -18,7 +18,7 @@ from pydrake.geometry import Meshcat
 
 from doorlab.config import Scenario, validate
 from doorlab.errors import IkError, OutputError, SimulationError
-from doorlab.geometry import default_door_geometry
+from doorlab.geometry import scenario_door_geometry
 from doorlab.metrics import DoorMetrics, Kinematics, compute_metrics
 
 EXIT_CODES = {"ok": 0, "usage": 2, "slipped": 3, "speed_limit": 4, "diverged": 5, "ik_failed": 6}
@@ -60,9 +60,16 @@ def prepare_output(out_dir: Path, *, force: bool) -> Path:
     if out_dir.exists() and not force:
         raise OutputError(f"--out {str(out_dir)!r} already exists; pass --force to replace it")
     parent = out_dir.resolve().parent
+    for ancestor in (parent, *parent.parents):
+        if ancestor.exists() and not ancestor.is_dir():
+            raise OutputError(f"--out {str(out_dir)!r}: {str(ancestor)!r} is a file, not a folder")
     try:
         parent.mkdir(parents=True, exist_ok=True)
-        return Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".partial", dir=parent))
+        staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".partial", dir=parent))
+        umask = os.umask(0)
+        os.umask(umask)
+        staging.chmod(0o777 & ~umask)  # mkdtemp makes it private; the result is not
+        return staging
     except OSError as e:
         raise OutputError(f"cannot write --out {str(out_dir)!r}: {e.strerror}") from None
 
@@ -135,7 +142,7 @@ def run_to_folder(
             write_json(staging / "metrics.json", {**base, "status": status, "error": str(e)})
             commit_output(staging, out_dir)
             return RunOutcome(status, None, str(e), out_dir)
-        geometry = default_door_geometry(scenario.arc.angle_end_deg)
+        geometry = scenario_door_geometry(scenario)
         kinematics = Kinematics()
         metrics = compute_metrics(result, scenario, geometry, kinematics=kinematics)
         result.save(staging / "log.npz")

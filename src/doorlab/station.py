@@ -27,6 +27,7 @@ Gravity compensation and the original's inverse dynamics use a separate *control
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -111,9 +112,18 @@ def _plant_config(config: StationConfig) -> MultibodyPlantConfig:
 
 
 def add_cell(
-    plant: MultibodyPlant, *, arm_collision: bool = False
+    plant: MultibodyPlant,
+    *,
+    arm_collision: bool = False,
+    p_WC: Sequence[float] | None = None,
 ) -> tuple[ModelInstanceIndex, ...]:
     """Adds the arm, gripper, cupboard and table to ``plant`` and welds them (before Finalize).
+
+    Args:
+        plant: A plant that is not finalized yet.
+        arm_collision: Give the arm collision capsules (the original arm had none).
+        p_WC: Where the cupboard frame C sits in W (3,) [m]; its orientation is always
+            RotZ(pi) and the table follows it. Default: the original station's placement.
 
     Returns:
         The model instances (iiwa, wsg, cupboard).
@@ -129,8 +139,13 @@ def add_cell(
     plant.WeldFrames(
         plant.GetFrameByName(L7_FRAME, iiwa), plant.GetFrameByName(GRIPPER_BODY, wsg), models.X_L7G
     )
-    plant.WeldFrames(world, plant.GetFrameByName("cupboard_body", cupboard), models.X_WC)
-    plant.WeldFrames(world, plant.GetFrameByName("table_top", table), models.X_W_TABLE)
+    X_WC, X_W_table = models.X_WC, models.X_W_TABLE
+    if p_WC is not None:
+        shift = np.asarray(p_WC, dtype=float) - models.X_WC.translation()
+        X_WC = RigidTransform(models.X_WC.rotation(), models.X_WC.translation() + shift)
+        X_W_table = RigidTransform(models.X_W_TABLE.translation() + shift)
+    plant.WeldFrames(world, plant.GetFrameByName("cupboard_body", cupboard), X_WC)
+    plant.WeldFrames(world, plant.GetFrameByName("table_top", table), X_W_table)
     if arm_collision:
         models.add_arm_collision(plant, iiwa)
     return iiwa, wsg, cupboard
@@ -212,7 +227,9 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(_plant_config(config), builder)
     plant.set_name("plant")
-    iiwa, wsg, cupboard = add_cell(plant, arm_collision=config.arm_collision)
+    iiwa, wsg, cupboard = add_cell(
+        plant, arm_collision=config.arm_collision, p_WC=config.cupboard_position
+    )
     for hinge in (LEFT_HINGE, RIGHT_HINGE):
         plant.GetJointByName(hinge, cupboard).set_default_damping(config.hinge_damping)
     stiffness = config.inner_loop.kind == "stiffness"
