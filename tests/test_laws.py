@@ -134,9 +134,8 @@ def test_orientation_error_does_not_flip_across_the_quaternion_hemisphere():
     continuously in the yaw: no sign flip between neighbouring samples."""
     R_WL7 = RollPitchYaw(0.0, 3 * np.pi / 4, 0.0).ToRotationMatrix()
     yaws = np.linspace(-0.8, 0.8, 401)
-    errors = np.array(
-        [orientation_error(R_WL7, RollPitchYaw(0, 3 * np.pi / 4, y).ToRotationMatrix()) for y in yaws]
-    )
+    references = [RollPitchYaw(0, 3 * np.pi / 4, y).ToRotationMatrix() for y in yaws]
+    errors = np.array([orientation_error(R_WL7, R) for R in references])
     steps = np.linalg.norm(np.diff(errors, axis=0), axis=1)
     assert steps.max() < 2 * (yaws[1] - yaws[0])
     np.testing.assert_allclose(np.linalg.norm(errors, axis=1), np.abs(yaws), atol=1e-9)

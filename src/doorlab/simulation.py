@@ -60,7 +60,8 @@ def make_schedule(
     """
     if len(plans) != len(gripper_widths):
         raise ConfigError(
-            f"need one gripper setpoint per plan: {len(plans)} plans, {len(gripper_widths)} setpoints"
+            f"need one gripper setpoint per plan: {len(plans)} plans, "
+            f"{len(gripper_widths)} setpoints"
         )
     if not plans:
         raise ConfigError("need at least one plan")
