@@ -121,6 +121,7 @@ class DoorMetrics:
     final_door_angle_rad: float
     door_opening_rad: float
     handle_held: bool
+    handle_distance_m: float
     slip_time_s: float | None
     peak_external_torque_Nm: float
     max_joint_speed_rad_s: float
@@ -191,6 +192,7 @@ def compute_metrics(
         final_door_angle_rad=float(left[-1]),
         door_opening_rad=float(left[i0] - left[-1]),
         handle_held=held,
+        handle_distance_m=float(distance[-1]),
         slip_time_s=slip_time,
         peak_external_torque_Nm=float(np.max(np.abs(result.tau_external))),
         max_joint_speed_rad_s=float(np.max(np.abs(result.v_measured))),

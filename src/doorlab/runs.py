@@ -158,7 +158,10 @@ def run_to_folder(
         raise
     message = ""
     if metrics.status == "slipped":
-        message = f"the handle slipped out of the gripper at t = {metrics.slip_time_s:.2f} s"
+        message = (
+            f"the handle slipped out of the gripper at t = {metrics.slip_time_s:.2f} s "
+            f"(Q ends {1e3 * metrics.handle_distance_m:.0f} mm from it)"
+        )
     elif metrics.status == "speed_limit":
         message = "a joint exceeded its data-sheet speed limit"
     return RunOutcome(metrics.status, metrics, message, out_dir)
