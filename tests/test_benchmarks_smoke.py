@@ -1,0 +1,77 @@
+"""Smoke test of the benchmark CLI: it runs and writes well-formed JSON.
+
+No timing assertions: speed targets live in benchmarks/ (printed as pass/fail there), never in
+unit tests, whose timings depend on the machine and its load.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import doorlab
+
+REPO = Path(__file__).resolve().parents[1]
+SCRIPT = REPO / "benchmarks" / "run_benchmarks.py"
+SMOKE_TIMEOUT_S = 120
+"""Generous bound on a run that takes ~2-5 s (a hung run should fail, a slow machine not)."""
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    src = str(Path(doorlab.__file__).resolve().parents[1])
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (src, env.get("PYTHONPATH", "")) if p)
+    env["MPLBACKEND"] = "Agg"
+    return env
+
+
+def _run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, str(SCRIPT), *args],
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=SMOKE_TIMEOUT_S,
+    )
+
+
+def test_quick_run_writes_positive_metrics(tmp_path):
+    """--quick --only tick/velocity ik/10_knots exits 0 and saves positive medians, min, max."""
+    out = tmp_path / "quick.json"
+    proc = _run("--quick", "--only", "tick/velocity", "ik/10_knots", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(out.read_text())
+    for key in ("machine", "settings", "metrics", "created"):
+        assert key in data
+    assert data["machine"]["cpu_model"] and data["machine"]["drake"]
+    for key, unit in (("tick/velocity", "us"), ("ik/10_knots", "s")):
+        metric = data["metrics"][key]
+        assert metric["unit"] == unit
+        assert metric["n"] == 1
+        for stat in ("median", "min", "max"):
+            assert isinstance(metric[stat], float) and metric[stat] > 0, (key, stat)
+        assert metric["passed"] in (True, False)  # a target exists; its outcome is not tested
+    assert data["errors"] == {}
+    assert "tick/velocity" in proc.stdout  # the table
+
+
+def test_compare_against_itself_has_no_regression(tmp_path):
+    """--compare with a previous file prints new/old ratios (same metrics, so no 'new' rows)."""
+    old = tmp_path / "old.json"
+    assert _run("--quick", "--only", "ik/2_knots", "--out", str(old)).returncode == 0
+    new = tmp_path / "new.json"
+    proc = _run("--quick", "--only", "ik/2_knots", "--out", str(new), "--compare", str(old))
+    assert proc.returncode == 0, proc.stderr
+    assert "new/old" in proc.stdout
+
+
+def test_bad_arguments_exit_2_with_one_line(tmp_path):
+    """Unknown benchmark names and bad repeats are usage errors: exit 2, one line on stderr."""
+    for args in (["--only", "no_such_benchmark"], ["--repeats", "0"]):
+        proc = _run(*args, "--out", str(tmp_path / "x.json"))
+        assert proc.returncode == 2
+        assert len(proc.stderr.strip().splitlines()) == 1
+        assert not (tmp_path / "x.json").exists()
