@@ -210,7 +210,7 @@ def _summary(outcome) -> str:
             f"{m.final_door_angle_rad:.4f} rad ({math.degrees(m.final_door_angle_rad):.1f} deg)",
         ),
         ("door opened during the arc", f"{math.degrees(m.door_opening_rad):.1f} deg"),
-        ("handle held at the end", "yes" if m.handle_held else "no"),
+        ("handle held at the end", {True: "yes", False: "no"}.get(m.handle_held, "n/a (open)")),
         ("peak |external torque|", f"{m.peak_external_torque_Nm:.2f} N m"),
         ("max joint speed", f"{m.max_joint_speed_rad_s:.3f} rad/s"),
         (

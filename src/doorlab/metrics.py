@@ -31,6 +31,9 @@ the pads are 16 mm wide and 75 mm long, the handle 10 mm thick, so a handle betw
 is within about 8 mm of Q across and 12-37 mm along the pads; 20 mm separates "between the
 pads" from "lost" with margin both ways."""
 
+CLOSED_DOOR_ANGLE = 0.1
+"""A left door opened less than this at the start [rad] counts as closed (handle in reach)."""
+
 STATUSES = ("ok", "slipped", "speed_limit", "diverged", "ik_failed")
 """Run statuses, best first (see the README's exit codes)."""
 
@@ -120,10 +123,11 @@ class DoorMetrics:
     max_orientation_error_cmd_rad: float
     final_door_angle_rad: float
     door_opening_rad: float
-    handle_held: bool
+    handle_held: bool | None  # None with the doors open: there is no handle to hold
     handle_distance_m: float
     slip_time_s: float | None
     peak_external_torque_Nm: float
+    peak_external_torque_arc_Nm: float
     max_joint_speed_rad_s: float
     speed_limit_exceeded: bool
     sim_time_s: float
@@ -161,9 +165,10 @@ def compute_metrics(
     i0 = int(np.argmin(np.abs(result.t - t0)))
     left = result.door_angles[:, 0]
 
-    closed = scenario.doors == "closed" and scenario.door_angles is None
+    # The handle is within the gripper's reach only if the left door starts (nearly) closed.
+    closed = scenario.initial_door_angles()[0] > -CLOSED_DOOR_ANGLE
     distance = handle_distance(result, geometry, kinematics)
-    held = bool(distance[-1] < HANDLE_CAPTURE_RADIUS)
+    held = bool(distance[-1] < HANDLE_CAPTURE_RADIUS) if closed else None
     slip_time = None
     if closed:
         lost = np.flatnonzero((result.t >= t0) & (distance >= HANDLE_CAPTURE_RADIUS))
@@ -195,6 +200,9 @@ def compute_metrics(
         handle_distance_m=float(distance[-1]),
         slip_time_s=slip_time,
         peak_external_torque_Nm=float(np.max(np.abs(result.tau_external))),
+        peak_external_torque_arc_Nm=float(
+            np.max(np.abs(result.tau_external[result.window(*result.arc_window)]))
+        ),
         max_joint_speed_rad_s=float(np.max(np.abs(result.v_measured))),
         speed_limit_exceeded=speed_exceeded,
         sim_time_s=result.sim_time_s,

@@ -1149,8 +1149,67 @@ def _answer_t3q2(page: _Page) -> tuple[str, str]:
                 )
                 + ".</p>"
             )
+        text += _contact_paragraph(page)
         text += page.status_note("impedance_closed", "impedance_open")
     return figs, text
+
+
+def _contact_paragraph(page: _Page) -> str:
+    """Why the three controllers press on the closed door as hard as they do (from the logs)."""
+    runs = page.logged("ik_10_closed", "velocity_closed", "impedance_closed")
+    key = "peak_external_torque_arc_Nm"
+    values = [(r, page.value(r.name, key)) for r in runs]
+    values = [(r, v) for r, v in values if v is not None]
+    if len(values) < 2:
+        return ""
+    ranked = sorted(values, key=lambda rv: rv[1])
+    text = (
+        "<p><b>Contact torques.</b> Peak |external joint torque| during the arc, doors closed "
+        "(the grasp before the arc, the same for all, is left out): "
+        + " &lt; ".join(f"{html.escape(r.label)} {page.num(r.name, key)}" for r, _ in ranked)
+        + ". "
+    )
+    imp = page.runs.get("impedance_closed")
+    if imp is None or imp.result is None or imp.tracking is None or imp.geometry is None:
+        return text + "</p>"
+    lowest = ranked[0][0].name == "impedance_closed"
+    text += (
+        "The impedance plan is the softest controller, and it does press the lightest. "
+        if lowest
+        else "The impedance plan is the softest controller, yet it does not press the lightest. "
+    )
+    # Where the impedance plan pressed hardest: its spring's stretch and twist.
+    result, tracking = imp.result, imp.tracking
+    norms = np.linalg.norm(result.tau_external[result.window(*result.arc_window)], axis=1)
+    i = min(int(np.argmax(norms)), len(tracking.t) - 1)
+    p_ref = np.array([imp.geometry.p_WQ_ref(s) for s in tracking.tau])
+    stretch = float(np.linalg.norm(tracking.p_WQ[i] - p_ref[i]))
+    kv = imp.scenario.impedance.kv if imp.scenario is not None else float("nan")
+    kw = imp.scenario.impedance.kw if imp.scenario is not None else float("nan")
+    theta = float(tracking.orientation_error[i])
+    text += (
+        f"At its peak (t = {_span(format_number(float(tracking.t[i])))} s) it trails its "
+        f"reference by {_span(format_number(1e3 * stretch))} mm and "
+        f"{_span(format_number(float(np.degrees(theta))))} deg, so its task-space spring pulls "
+        f"with K<sub>v</sub>&nbsp;|e| = {_span(format_number(kv * stretch))} N and twists with "
+        f"K<sub>&omega;</sub>&nbsp;&theta; = {_span(format_number(kw * theta))} N m. "
+        "That lag comes from the inner loop's joint damping D<sub>q</sub>, which is all the "
+        "spring works against when q_ref = q. "
+    )
+    if page.value("impedance_open", "max_radial_error_m") is not None:
+        text += (
+            "Dragged that way in free space, the soft arm drifts "
+            f"{page.num('impedance_open', 'max_radial_error_m')} off the handle's circle "
+            "(impedance, open); with the door closed the hinge holds Q on the circle instead, "
+            "and that holding force is the contact torque. "
+        )
+    text += (
+        "The position-controlled plans (IK, velocity) stay within about a millimetre of the "
+        "circle in free space, so the door carries little more than its own inertia and hinge "
+        "damping, plus the plan's own mismatch: IK's knots may sit up to 1 mm off the arc, and "
+        "the stiff arm pushes that mismatch into the door.</p>"
+    )
+    return text
 
 
 _ANSWERS = {
