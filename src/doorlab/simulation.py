@@ -118,11 +118,7 @@ class PlanRunner(LeafSystem):
 
     def active(self, t: float) -> ScheduledPlan:
         """The scheduled plan active at time t [s] (the last one after the schedule ends)."""
-        index = max(int(np.searchsorted(self._starts, t, side="right")) - 1, 0)
-        return self._schedule[index]
-
-    def _active_fast(self, t: float) -> ScheduledPlan:
-        # Ticks come in increasing time: advance a cursor instead of searching.
+        # Ticks come in increasing time: move a cursor instead of searching the schedule.
         while self._cursor + 1 < len(self._schedule) and t >= self._starts[self._cursor + 1]:
             self._cursor += 1
         while self._cursor > 0 and t < self._starts[self._cursor]:
@@ -131,7 +127,7 @@ class PlanRunner(LeafSystem):
 
     def _tick(self, context, discrete_state) -> None:
         t = context.get_time()
-        scheduled = self._active_fast(t)
+        scheduled = self.active(t)
         state = ArmState(self._q.Eval(context), self._v.Eval(context), self._tau_ext.Eval(context))
         command = scheduled.plan.command(t - scheduled.t_start, state)
         discrete_state.get_mutable_vector(self._q_ref).SetFromVector(command.q_ref)

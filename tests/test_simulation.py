@@ -1,0 +1,92 @@
+"""The episode timeline and the log container, without simulating."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from doorlab.config import Scenario
+from doorlab.constants import Q_HOME
+from doorlab.errors import ConfigError
+from doorlab.plans import JointSpacePlan
+from doorlab.simulation import PLAN_SETTLE_TIME, EpisodeResult, PlanRunner, make_schedule
+
+Q_START = Q_HOME + 0.1
+
+
+def seed_schedule(scenario: Scenario):
+    grasp = JointSpacePlan.hold(Q_START, scenario.timeline.grasp_duration, name="grasp")
+    arc = JointSpacePlan.hold(Q_START, scenario.timeline.arc_duration, name="arc")
+    return make_schedule(
+        [grasp, arc], [0.005, 0.005], q_initial=Q_HOME, q_start=Q_START, scenario=scenario
+    )
+
+
+def test_default_schedule_is_the_originals_timeline():
+    """Hold 0-2 s, move 2-9 s, grasp 9-11 s, arc 11-22 s (10 s + 1 s): the seed's t = 11 s."""
+    schedule = seed_schedule(Scenario())
+    assert [s.plan.name for s in schedule] == ["hold", "move_to_start", "grasp", "arc"]
+    assert [s.t_start for s in schedule] == [0.0, 2.0, 9.0, 11.0]
+    assert schedule[-1].t_end == 22.0
+    assert all(s.t_end - s.t_start == s.plan.duration + PLAN_SETTLE_TIME for s in schedule)
+    approach = Scenario().station.gripper.approach_width
+    assert [s.gripper_width for s in schedule] == [approach, approach, 0.005, 0.005]
+
+
+def test_move_plan_joins_the_initial_and_start_configurations_at_rest():
+    """The cubic move starts at q_initial and ends at q_start with zero velocity at both."""
+    move = seed_schedule(Scenario())[1].plan
+    traj = move.trajectory
+    np.testing.assert_allclose(traj.value(traj.start_time()).ravel(), Q_HOME, atol=1e-12)
+    np.testing.assert_allclose(traj.value(traj.end_time()).ravel(), Q_START, atol=1e-12)
+    for t in (traj.start_time(), traj.end_time()):
+        np.testing.assert_allclose(traj.EvalDerivative(t, 1).ravel(), 0.0, atol=1e-12)
+
+
+def test_plan_runner_picks_the_active_plan_in_any_order():
+    """At each boundary the next plan takes over; after the schedule the last plan holds;
+    asking for an earlier time (e.g. a re-initialized simulator) steps back."""
+    schedule = seed_schedule(Scenario())
+    runner = PlanRunner(schedule, control_period=0.005, q_initial=Q_HOME, gripper_width=0.025)
+    names = [runner.active(t).plan.name for t in (0.0, 1.999, 2.0, 9.0, 10.99, 11.0, 30.0)]
+    assert names == ["hold", "hold", "move_to_start", "grasp", "grasp", "arc", "arc"]
+    assert runner.active(0.5).plan.name == "hold"
+
+
+def test_schedule_needs_one_gripper_setpoint_per_plan():
+    """Mismatched plan and setpoint lists are a configuration error, not an IndexError."""
+    with pytest.raises(ConfigError, match="one gripper setpoint per plan"):
+        make_schedule(
+            [JointSpacePlan.hold(Q_START, 1.0)], [], q_initial=Q_HOME, q_start=Q_START,
+            scenario=Scenario(),
+        )
+
+
+def test_episode_result_round_trips_through_npz(tmp_path):
+    """save then load gives back every channel exactly."""
+    rng = np.random.default_rng(0)
+    n = 17
+    result = EpisodeResult(
+        t=np.arange(n) * 0.01,
+        **{name: rng.normal(size=(n, 7)) for name in (
+            "q_commanded", "q_measured", "v_measured", "tau_external", "tau_feedforward",
+            "tau_commanded")},  # fmt: skip
+        door_angles=rng.normal(size=(n, 2)),
+        wsg_width=rng.normal(size=n),
+        plant_positions=rng.normal(size=(n, 11)),
+        plan_names=("hold", "move_to_start", "grasp", "arc"),
+        plan_starts=np.array([0.0, 2.0, 9.0, 11.0]),
+        arc_window=np.array([11.0, 21.0]),
+        wall_time_s=1.25,
+        scenario_yaml="controller: ik\n",
+    )
+    result.save(tmp_path / "log.npz")
+    loaded = EpisodeResult.load(tmp_path / "log.npz")
+    for field in dataclasses.fields(EpisodeResult):
+        a, b = getattr(result, field.name), getattr(loaded, field.name)
+        if isinstance(a, np.ndarray):
+            np.testing.assert_array_equal(a, b)
+        else:
+            assert a == b, field.name
