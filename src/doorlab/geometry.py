@@ -68,12 +68,15 @@ class DoorGeometry:
 
     def p_WQ_ref(self, tau: float) -> np.ndarray:
         """Reference position of Q at tau in [0, 1] (clipped), shape (3,) [m]."""
-        theta = self.theta(tau)
-        return self.p_W_hinge - self.r_handle * np.array([math.sin(theta), math.cos(theta), 0.0])
+        # Scalar math: this runs at every control tick of the task-space plans.
+        theta = self.theta0 + self.sweep * min(max(float(tau), 0.0), 1.0)
+        r = self.r_handle
+        x, y, z = self.p_W_hinge
+        return np.array([x - r * math.sin(theta), y - r * math.cos(theta), z])
 
     def R_WL7_ref(self, tau: float) -> RotationMatrix:
         """Reference orientation of L7 at tau in [0, 1] (clipped)."""
-        yaw = self.sweep * float(np.clip(tau, 0.0, 1.0))
+        yaw = self.sweep * min(max(float(tau), 0.0), 1.0)
         return RollPitchYaw(0.0, L7_PITCH, -yaw).ToRotationMatrix()
 
     def arc_points(self, n: int = 100) -> np.ndarray:

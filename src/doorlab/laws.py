@@ -35,9 +35,9 @@ def orientation_error(R_WL7: RotationMatrix, R_WL7_ref: RotationMatrix) -> np.nd
     Returns:
         theta * n_W, shape (3,) [rad].
     """
-    R_L7L7r = R_WL7.inverse() @ R_WL7_ref
-    angle_axis: AngleAxis = R_L7L7r.ToAngleAxis()
-    return R_WL7.matrix() @ (angle_axis.angle() * angle_axis.axis())
+    # R_WL7 (R_WL7^T R_WL7_ref) R_WL7^T = R_WL7_ref R_WL7^T: the same rotation, in W.
+    angle_axis: AngleAxis = (R_WL7_ref @ R_WL7.inverse()).ToAngleAxis()
+    return angle_axis.angle() * angle_axis.axis()
 
 
 def pose_error(
@@ -53,7 +53,12 @@ def pose_error(
 def desired_spatial_vector(error: PoseError, kv: float, kw: float) -> np.ndarray:
     """(Kw theta n; Kv e_xyz), shape (6,): a spatial velocity [rad/s, m/s] (task 2, gains in
     1/s) or a spatial force [N m, N] (task 3, gains in N m/rad and N/m)."""
-    return np.concatenate([kw * error.theta_n_W, kv * error.e_xyz_W])
+    V = np.empty(6)
+    V[:3] = error.theta_n_W
+    V[:3] *= kw
+    V[3:] = error.e_xyz_W
+    V[3:] *= kv
+    return V
 
 
 def pseudo_inverse_solve(J: np.ndarray, V: np.ndarray) -> np.ndarray:
@@ -93,7 +98,7 @@ def velocity_law(
     """
     V_des = desired_spatial_vector(error, kv, kw)
     qdot = pseudo_inverse_solve(Jv_V_WL7q, V_des)
-    return np.clip(qdot, -joint_speed_limit, joint_speed_limit)
+    return np.minimum(np.maximum(qdot, -joint_speed_limit), joint_speed_limit)
 
 
 def impedance_law(
@@ -116,4 +121,4 @@ def impedance_law(
         Feedforward joint torques (7,) [N m].
     """
     F = desired_spatial_vector(error, kv, kw)
-    return np.clip(Jv_V_WL7q.T @ F, -torque_limit, torque_limit)
+    return np.minimum(np.maximum(Jv_V_WL7q.T @ F, -torque_limit), torque_limit)

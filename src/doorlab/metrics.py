@@ -19,7 +19,7 @@ from typing import Literal
 import numpy as np
 
 from doorlab.config import Scenario
-from doorlab.constants import JOINT_SPEED_LIMITS
+from doorlab.constants import JOINT_SPEED_LIMITS, JOINT_TORQUE_LIMITS
 from doorlab.frames import L7_FRAME, p_L7Q
 from doorlab.geometry import DoorGeometry
 from doorlab.simulation import EpisodeResult
@@ -130,6 +130,7 @@ class DoorMetrics:
     peak_external_torque_arc_Nm: float
     max_joint_speed_rad_s: float
     speed_limit_exceeded: bool
+    peak_torque_ratio: float  # max over joints and time of |tau_commanded| / data-sheet limit
     sim_time_s: float
     wall_time_s: float
     realtime_factor: float
@@ -205,6 +206,7 @@ def compute_metrics(
         ),
         max_joint_speed_rad_s=float(np.max(np.abs(result.v_measured))),
         speed_limit_exceeded=speed_exceeded,
+        peak_torque_ratio=float(np.max(np.abs(result.tau_commanded) / JOINT_TORQUE_LIMITS)),
         sim_time_s=result.sim_time_s,
         wall_time_s=wall,
         realtime_factor=result.sim_time_s / wall if wall > 0 else float("inf"),
