@@ -145,3 +145,21 @@ def test_a_handle_yanked_too_fast_slips_and_is_reported(tmp_path, capsys):
     assert t0 < metrics["slip_time_s"] <= t1 + 1.0
     assert metrics["handle_distance_m"] > 0.02
     assert "slipped" in capsys.readouterr().out
+
+
+def test_a_failed_simulation_is_a_diverged_run(tmp_path, monkeypatch, capsys):
+    """When the physics fails, the folder holds metrics.json with status diverged and the
+    error, and the CLI exits 5 (the failure itself is tested in test_simulation)."""
+    from doorlab import controllers
+    from doorlab.errors import SimulationError
+
+    def failing(scenario, **kwargs):
+        raise SimulationError("the simulation failed at t = 12.345 s: contact solver diverged")
+
+    monkeypatch.setattr(controllers, "run_controller", failing)
+    out = tmp_path / "boom"
+    assert main(["run", "--out", str(out)]) == 5
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["status"] == "diverged" and "12.345" in metrics["error"]
+    assert "diverged" in capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == ["metrics.json"]

@@ -90,3 +90,23 @@ def test_episode_result_round_trips_through_npz(tmp_path):
             np.testing.assert_array_equal(a, b)
         else:
             assert a == b, field.name
+
+
+def test_a_plan_sending_nan_stops_the_run_with_a_simulation_error():
+    """A buggy plan (NaN q_ref) is caught by the plant and reported with the time, not a
+    raw Drake traceback."""
+    from doorlab.errors import SimulationError
+    from doorlab.plans import Command
+    from doorlab.simulation import run_episode
+
+    class NanPlan:
+        name, duration = "nan", 0.5
+
+        def command(self, t, state):
+            return Command(np.full(7, np.nan), np.zeros(7))
+
+    scenario = Scenario()
+    t = scenario.timeline
+    t.hold_duration, t.approach_duration, t.extra_time = 0.1, 0.2, 0.1
+    with pytest.raises(SimulationError, match=r"failed at t = 2\.30\d s: .*NaN"):
+        run_episode(scenario, [NanPlan()], [0.02], q_start=Q_HOME)

@@ -249,7 +249,13 @@ def _check_shape(data: object, schema: object, path: str) -> None:
         str: isinstance(data, str),
     }.get(schema, True)
     if not ok:
-        raise ConfigError(f"{name} must be {_type_name(schema)}, got {data!r}")
+        hint = ""
+        if schema is float and isinstance(data, str):
+            try:
+                hint = f" (YAML reads {data} as text: write {float(data)!r})"
+            except ValueError:
+                pass
+        raise ConfigError(f"{name} must be {_type_name(schema)}, got {data!r}{hint}")
 
 
 def _check(condition: bool, message: str) -> None:
