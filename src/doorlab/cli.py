@@ -211,7 +211,10 @@ def _summary(outcome) -> str:
         ),
         ("door opened during the arc", f"{math.degrees(m.door_opening_rad):.1f} deg"),
         ("handle held at the end", {True: "yes", False: "no"}.get(m.handle_held, "n/a (open)")),
-        ("peak |external torque|", f"{m.peak_external_torque_Nm:.2f} N m"),
+        (
+            "peak |external torque|",
+            f"{m.peak_external_torque_Nm:.2f} N m ({m.peak_external_torque_arc_Nm:.2f} in the arc)",
+        ),
         ("max joint speed", f"{m.max_joint_speed_rad_s:.3f} rad/s"),
         (
             "simulated / wall time",
