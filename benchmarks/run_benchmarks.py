@@ -54,7 +54,6 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import NoReturn
 
 BENCH_DIR = Path(__file__).resolve().parent
 REPO_DIR = BENCH_DIR.parent
@@ -927,32 +926,17 @@ def compare(new: dict, old: dict) -> tuple[str, list[str]]:
 # Command line.
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors and exit code 2."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(USAGE_ERROR, f"{self.prog}: error: {message} (see --help)\n")
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {value}")
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(
+    from doorlab.cli import OneLineParser, bounded_int  # the CLI's one-line errors, exit 2
+
+    parser = OneLineParser(
         prog="run_benchmarks.py",
         description="doorlab benchmarks: medians (min, max) over repeats, JSON out, compare.",
         epilog=f"benchmarks: {', '.join(ALL)}",
     )
     parser.add_argument(
         "--repeats",
-        type=_positive_int,
+        type=bounded_int(1),
         default=None,
         help=f"repeats of episodes, ticks and IK (default {DEFAULT_REPEATS}, 1 with --quick); "
         "doorlab run subprocesses repeat max(1, N // 2) times",

@@ -27,31 +27,27 @@ from doorlab.errors import ConfigError, DoorlabError, OutputError
 USAGE_ERROR = 2
 
 
-class _Parser(argparse.ArgumentParser):
+class OneLineParser(argparse.ArgumentParser):
     """argparse with one-line errors (no usage block) and exit code 2."""
 
     def error(self, message: str) -> NoReturn:
         self.exit(USAGE_ERROR, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def _knots(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer in [2, 100], got {text!r}") from None
-    if not 2 <= value <= 100:
-        raise argparse.ArgumentTypeError(f"must be an integer in [2, 100], got {value}")
-    return value
+def bounded_int(low: int, high: int | None = None):
+    """An argparse type: an integer in [low, high] (no upper bound if high is None)."""
+    valid = f"an integer in [{low}, {high}]" if high is not None else f"an integer >= {low}"
 
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be {valid}, got {text!r}") from None
+        if value < low or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"must be {valid}, got {value}")
+        return value
 
-def _jobs(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {value}")
-    return value
+    return parse
 
 
 def _rate(text: str) -> float:
@@ -66,13 +62,13 @@ def _rate(text: str) -> float:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``doorlab``."""
-    parser = _Parser(
+    parser = OneLineParser(
         prog="doorlab",
         description="Open a cupboard door with a simulated KUKA iiwa 7 three ways "
         "(pointwise IK, Jacobian velocity mapping, Jacobian-transpose impedance).",
     )
     parser.add_argument("--version", action="version", version=_version())
-    sub = parser.add_subparsers(dest="command", metavar="{run,report}", parser_class=_Parser)
+    sub = parser.add_subparsers(dest="command", metavar="{run,report}", parser_class=OneLineParser)
 
     run = sub.add_parser("run", help="run one controller and write its metrics, logs and plots")
     run.add_argument(
@@ -89,7 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument(
         "--knots",
-        type=_knots,
+        type=bounded_int(2, 100),
         default=None,
         help="IK knot points along the arc, 2-100 (controller ik; default 10)",
     )
@@ -121,7 +117,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="output folder (default: doorlab_report)",
     )
     report.add_argument(
-        "--jobs", type=_jobs, default=None, help="parallel runs (default: the number of cores)"
+        "--jobs",
+        type=bounded_int(1),
+        default=None,
+        help="parallel runs (default: the number of cores)",
     )
     _common(report)
     return parser
