@@ -89,3 +89,12 @@ def test_radial_error_sign(geometry):
     """A point 1 mm outside the arc (farther from the hinge) has radial error +1 mm."""
     p = geometry.p_W_handle + 0.001 * (geometry.p_W_handle - geometry.p_W_hinge) / geometry.r_handle
     assert geometry.radial_error(p) == pytest.approx(0.001, abs=1e-12)
+
+
+def test_moving_the_cupboard_moves_the_geometry_read_from_the_model():
+    """station.cupboard_position shifts hinge and handle by the same vector (rotation fixed)."""
+    shift = np.array([0.1, 0.1, 0.0])
+    moved = default_door_geometry(p_WC=np.array([0.9057, 0.0, 0.4148]) + shift)
+    np.testing.assert_allclose(moved.p_W_hinge, P_W_HINGE + shift, atol=1e-4)
+    np.testing.assert_allclose(moved.p_W_handle, P_W_HANDLE + shift, atol=1e-4)
+    assert moved.r_handle == pytest.approx(R_HANDLE, abs=1e-6)

@@ -141,9 +141,11 @@ def add_cell(
     )
     X_WC, X_W_table = models.X_WC, models.X_W_TABLE
     if p_WC is not None:
-        shift = np.asarray(p_WC, dtype=float) - models.X_WC.translation()
-        X_WC = RigidTransform(models.X_WC.rotation(), models.X_WC.translation() + shift)
-        X_W_table = RigidTransform(models.X_W_TABLE.translation() + shift)
+        p_WC = np.asarray(p_WC, dtype=float)
+        X_WC = RigidTransform(models.X_WC.rotation(), p_WC)
+        X_W_table = RigidTransform(
+            models.X_W_TABLE.translation() + p_WC - models.X_WC.translation()
+        )
     plant.WeldFrames(world, plant.GetFrameByName("cupboard_body", cupboard), X_WC)
     plant.WeldFrames(world, plant.GetFrameByName("table_top", table), X_W_table)
     if arm_collision:
