@@ -65,16 +65,19 @@ def pseudo_inverse_solve(J: np.ndarray, V: np.ndarray) -> np.ndarray:
     """J^+ V, the minimum-norm joint velocity that realizes V.
 
     For a full-row-rank J (6, 7) this is J^T (J J^T)^-1 V, a 6x6 solve (a few times cheaper
-    than an SVD); near a singularity it falls back to the SVD-based pseudo-inverse, which
-    drops the singular directions.
+    than an SVD); when J J^T is numerically singular it falls back to the SVD-based
+    pseudo-inverse, which drops the singular directions.
     """
     JJt = J @ J.T
-    scale = np.trace(JJt) / len(JJt)
-    # det / scale^n is the product of the normalized eigenvalues of J J^T: below 1e-12 at
-    # least one singular value of J is ~1e-6 of the typical one.
-    if scale > 0 and np.linalg.det(JJt) / scale ** len(JJt) > 1e-12:
-        return J.T @ np.linalg.solve(JJt, V)
-    return np.linalg.pinv(J) @ V
+    try:
+        y = np.linalg.solve(JJt, V)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(J) @ V
+    # |y| ~ |V| / |J J^T| unless J J^T is (numerically) singular along V: then fall back to
+    # the SVD pseudo-inverse, which drops the singular directions (one check, no SVD per tick).
+    if not np.abs(y).max() * np.abs(JJt).max() <= 1e10 * (np.abs(V).max() + 1e-300):
+        return np.linalg.pinv(J) @ V
+    return J.T @ y
 
 
 def velocity_law(
