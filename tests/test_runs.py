@@ -163,3 +163,14 @@ def test_a_failed_simulation_is_a_diverged_run(tmp_path, monkeypatch, capsys):
     assert metrics["status"] == "diverged" and "12.345" in metrics["error"]
     assert "diverged" in capsys.readouterr().out
     assert sorted(p.name for p in out.iterdir()) == ["metrics.json"]
+
+
+def test_a_cupboard_out_of_reach_is_an_ik_failure(tmp_path, capsys):
+    """Cupboard moved 1.6 m further away: the grasp IK fails, the run ends ik_failed with
+    the residual in metrics.json, exit code 6, and nothing was simulated."""
+    out = tmp_path / "far"
+    code = main(["run", "--out", str(out), "--set", "station.cupboard_position=[2.5, 0, 0.4148]"])
+    assert code == 6
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["status"] == "ik_failed" and "mm from the target" in metrics["error"]
+    assert sorted(p.name for p in out.iterdir()) == ["metrics.json"]
