@@ -30,6 +30,7 @@ from doorlab.models import X_L7G, X_WC
 __all__ = [
     "ARM_JOINTS",
     "CUPBOARD_MODEL",
+    "FINGER_JOINTS",
     "GRIPPER_BODY",
     "GRIPPER_MODEL",
     "IIWA_MODEL",

@@ -23,7 +23,7 @@ from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
 from doorlab.config import Scenario
 from doorlab.constants import NUM_JOINTS, Q_HOME
 from doorlab.errors import ConfigError, SimulationError
-from doorlab.frames import FINGER_JOINTS
+from doorlab.frames import FINGER_JOINTS, LEFT_HINGE, RIGHT_HINGE
 from doorlab.plans import ArmState, JointSpacePlan, Plan
 from doorlab.station import Station, build_station
 
@@ -215,8 +215,8 @@ def _initialize(station: Station, context, q_initial: np.ndarray, scenario: Scen
     for joint_name, q in zip(FINGER_JOINTS, (-width / 2, width / 2), strict=True):
         plant.GetJointByName(joint_name, station.wsg).set_translation(plant_context, q)
     left, right = scenario.initial_door_angles()
-    plant.GetJointByName("left_door_hinge", station.cupboard).set_angle(plant_context, left)
-    plant.GetJointByName("right_door_hinge", station.cupboard).set_angle(plant_context, right)
+    plant.GetJointByName(LEFT_HINGE, station.cupboard).set_angle(plant_context, left)
+    plant.GetJointByName(RIGHT_HINGE, station.cupboard).set_angle(plant_context, right)
     if station.interpolator is not None:
         station.interpolator.set_initial_position(
             station.interpolator.GetMyMutableContextFromRoot(context), q_initial
