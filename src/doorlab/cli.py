@@ -247,6 +247,9 @@ def _run(args: argparse.Namespace) -> int:
         realtime_rate=args.realtime if args.realtime is not None else (1.0 if meshcat else 0.0),
     )
     print(_summary(outcome))
+    if meshcat is not None and sys.stdin.isatty():
+        # The live view (with the recording to replay) lives as long as this process.
+        input(f"Meshcat is still serving {meshcat.web_url()}; press Enter to quit. ")
     return outcome.exit_code
 
 
