@@ -223,7 +223,10 @@ def _summary(outcome) -> str:
     lines += [f"  {name:<29}{value}" for name, value in rows]
     if outcome.message:
         lines.append(f"  note                         {outcome.message}")
-    lines.append("  files: metrics.json, log.npz, *.png, replay.html")
+    files = sorted(p.name for p in outcome.out_dir.iterdir())
+    pngs = [f for f in files if f.endswith(".png")]
+    others = [f for f in files if not f.endswith(".png")]
+    lines.append(f"  files: {', '.join(others)}" + (f" and {len(pngs)} plots (*.png)" if pngs else ""))
     return "\n".join(lines)
 
 
