@@ -226,7 +226,9 @@ def _summary(outcome) -> str:
     files = sorted(p.name for p in outcome.out_dir.iterdir())
     pngs = [f for f in files if f.endswith(".png")]
     others = [f for f in files if not f.endswith(".png")]
-    lines.append(f"  files: {', '.join(others)}" + (f" and {len(pngs)} plots (*.png)" if pngs else ""))
+    lines.append(
+        f"  files: {', '.join(others)}" + (f" and {len(pngs)} plots (*.png)" if pngs else "")
+    )
     return "\n".join(lines)
 
 
