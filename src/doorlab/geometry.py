@@ -62,10 +62,6 @@ class DoorGeometry:
         """Door rotation over the arc, angle_end - theta0 [rad] (positive)."""
         return self.angle_end - self.theta0
 
-    def theta(self, tau: float | np.ndarray) -> float | np.ndarray:
-        """Handle angle at arc parameter tau, clipped to [0, 1]."""
-        return self.theta0 + self.sweep * np.clip(tau, 0.0, 1.0)
-
     def p_WQ_ref(self, tau: float) -> np.ndarray:
         """Reference position of Q at tau in [0, 1] (clipped), shape (3,) [m]."""
         # Scalar math: this runs at every control tick of the task-space plans.

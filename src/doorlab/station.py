@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 from pydrake.geometry import (
@@ -186,8 +187,12 @@ def gripper_spatial_inertia(finger_separation: float = 0.01) -> SpatialInertia:
     return plant.CalcSpatialInertia(context, plant.GetFrameByName(GRIPPER_BODY, wsg), bodies)
 
 
+@cache
 def make_controller_plant() -> MultibodyPlant:
     """The controllers' model: the arm with the gripper lumped into one body welded at X_L7G.
+
+    Built once per process and shared (it is finalized, so no user can change it): the
+    inner loop, the plans and the metrics each keep their own Context of it.
 
     Returns:
         A finalized continuous MultibodyPlant with 7 positions (the arm joints).
