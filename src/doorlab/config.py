@@ -25,8 +25,8 @@ from pydrake.common.yaml import yaml_load_typed
 from doorlab.constants import DOOR_ANGLES, NUM_JOINTS
 from doorlab.errors import ConfigError
 
-CONTROLLERS = ("ik", "velocity", "impedance")
-"""Names of the three door-opening controllers (the seed's tasks 1-3)."""
+CONTROLLERS = ("ik", "velocity", "impedance", "adaptive")
+"""Names of the door-opening controllers: the seed's tasks 1-3, then the adaptive plan."""
 DOOR_STATES = tuple(DOOR_ANGLES)
 INNER_LOOPS = ("stiffness", "inverse_dynamics")
 IK_OBJECTIVES = ("feasible", "centered")
@@ -139,6 +139,32 @@ class ImpedancePlanConfig:
     torque_limit: float = 20.0  # [N m] clip on tau_ff (the original's)
 
 
+SEED_SWEEP_DEG = math.degrees(math.radians(50.0) - math.atan2(0.041, 0.264))
+"""The seed's door rotation over the arc, angle_end - theta0 = 41.17 deg (station facts §4)."""
+
+
+@dataclass
+class AdaptivePlanConfig:
+    """The adaptive plan: opens the door knowing only the grasp (no hinge, radius or arc).
+
+    It moves Q along the estimated tangent, yields to radial contact force, and stops when
+    its own estimate of the door angle reaches ``target_angle``.
+    """
+
+    target_angle: float = SEED_SWEEP_DEG  # [deg] door rotation to open, estimated online
+    speed: float = 0.025  # [m/s] Q's speed along the estimated tangent
+    ramp_time: float = 0.5  # [s] the speed ramps up from 0 over this time
+    approach_gain: float = 2.0  # [1/s] speed <= this x the estimated arc length left
+    force_gain: float = 0.01  # [m/(N s)] radial admittance: velocity per newton
+    force_target: float = 0.0  # [N] outward pull on the handle (may be negative)
+    kz: float = 10.0  # [1/s] gain holding Q at its grasp height
+    kw: float = 5.0  # [1/s] orientation gain (L7 turns with the estimated door yaw)
+    joint_speed_limit: float = 1.0  # [rad/s] clip on q_dot
+    min_sagitta: float = 0.001  # [m] the hinge fit is trusted once Q's path bulges this much
+    velocity_time_constant: float = 0.1  # [s] low-pass of Q's velocity direction
+    min_speed: float = 0.005  # [m/s] slower motion does not update the direction
+
+
 @dataclass
 class Scenario:
     """Everything one episode needs."""
@@ -152,6 +178,7 @@ class Scenario:
     ik: IkConfig = field(default_factory=IkConfig)
     velocity: VelocityPlanConfig = field(default_factory=VelocityPlanConfig)
     impedance: ImpedancePlanConfig = field(default_factory=ImpedancePlanConfig)
+    adaptive: AdaptivePlanConfig = field(default_factory=AdaptivePlanConfig)
 
     def initial_door_angles(self) -> tuple[float, float]:
         """Initial (left, right) hinge angles [rad]."""
@@ -385,4 +412,18 @@ def validate(scenario: Scenario) -> Scenario:
     for section in ("velocity", "impedance"):
         for f in dataclasses.fields(getattr(scenario, section)):
             _positive(f"{section}.{f.name}", getattr(getattr(scenario, section), f.name))
+    adaptive = scenario.adaptive
+    for f in dataclasses.fields(adaptive):
+        value = getattr(adaptive, f.name)
+        if f.name == "force_target":
+            _check(
+                isinstance(value, (int, float)) and math.isfinite(value),
+                f"adaptive.force_target must be a finite number [N], got {value!r}",
+            )
+        else:
+            _positive(f"adaptive.{f.name}", value)
+    _check(
+        adaptive.target_angle < 90.0,
+        f"adaptive.target_angle must be in (0, 90) deg, got {adaptive.target_angle!r}",
+    )
     return scenario

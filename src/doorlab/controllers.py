@@ -1,4 +1,4 @@
-"""The registry of the three door-opening controllers and the episode each one runs.
+"""The registry of the door-opening controllers and the episode each one runs.
 
 Each controller turns a scenario into the arc plan and the configuration it starts from;
 :func:`run_controller` wraps it in the seed's episode: close the gripper on the handle at
@@ -14,6 +14,7 @@ import numpy as np
 from pydrake.geometry import Meshcat
 from pydrake.multibody.plant import MultibodyPlant
 
+from doorlab.adaptive import AdaptivePlan, velocity_lead
 from doorlab.config import Scenario, validate
 from doorlab.constants import Q_HOME
 from doorlab.errors import ConfigError
@@ -105,6 +106,20 @@ def build_impedance_plan(
     return ArcPlan(plan, _grasp_configuration(scenario, geometry, plant))
 
 
+def build_adaptive_plan(
+    scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPlant
+) -> ArcPlan:
+    """The adaptive plan: grasp at the believed handle, then nothing from the model."""
+    plan = AdaptivePlan(
+        scenario.timeline.arc_duration,
+        plant,
+        scenario.adaptive,
+        scenario.timeline.control_period,
+        velocity_lead(scenario.station.inner_loop, scenario.timeline.control_period),
+    )
+    return ArcPlan(plan, _grasp_configuration(scenario, geometry, plant))
+
+
 REGISTRY: dict[str, Controller] = {
     c.name: c
     for c in (
@@ -129,9 +144,17 @@ REGISTRY: dict[str, Controller] = {
             "tau_ff = J^T F from the pose error, q_ref = q",
             build_impedance_plan,
         ),
+        Controller(
+            "adaptive",
+            4,
+            "Adaptive, unknown hinge",
+            "velocity along the estimated tangent, radial force compliance, hinge fitted "
+            "online from Q's path; nothing from the model after the grasp",
+            build_adaptive_plan,
+        ),
     )
 }
-"""Controllers by CLI name, in the seed's task order."""
+"""Controllers by CLI name, in the seed's task order, then the adaptive plan."""
 
 
 def get_controller(name: str) -> Controller:

@@ -125,3 +125,67 @@ def impedance_law(
     """
     F = desired_spatial_vector(error, kv, kw)
     return np.minimum(np.maximum(Jv_V_WL7q.T @ F, -torque_limit), torque_limit)
+
+
+class AdaptiveCommand(NamedTuple):
+    """Output of :func:`adaptive_law`.
+
+    Attributes:
+        qdot: Desired joint velocities (7,) [rad/s], clipped.
+        V_des: The spatial velocity they realize before clipping, (angular; translational)
+            (6,) [rad/s, m/s].
+    """
+
+    qdot: np.ndarray
+    V_des: np.ndarray
+
+
+def adaptive_law(
+    *,
+    theta_n_W: np.ndarray,
+    F_Q_W: np.ndarray,
+    tangent_W: np.ndarray,
+    radial_W: np.ndarray,
+    height_error: float,
+    speed: float,
+    force_gain: float,
+    force_target: float,
+    kz: float,
+    kw: float,
+    Jv_V_WL7q: np.ndarray,
+    joint_speed_limit: float,
+) -> AdaptiveCommand:
+    """The adaptive plan's law: move along the estimated tangent, comply along the estimated
+    radial direction (Karayiannidis et al., T-RO 2016), hold Q's height, turn L7 with the
+    estimated door yaw::
+
+        v = speed t + force_gain (F . r + force_target) r + kz e_z z,   w = kw theta n,
+        q_dot = J^+ (w; v)
+
+    F . r is the radial component of the force the handle applies to the gripper, so
+    force_target is the outward pull the robot should exert on the handle [N]; with
+    force_target = 0 the gripper yields to any radial force (an admittance), which turns its
+    motion onto the true circle whatever the tangent estimate's error.
+
+    Args:
+        theta_n_W: Orientation error of L7 against the reference, in W (3,) [rad].
+        F_Q_W: Contact wrench on the gripper at Q, (torque; force) in W (6,) [N m, N].
+        tangent_W, radial_W: Unit horizontal directions in W (3,) (or (2,): z = 0).
+        height_error: Q's reference height minus its height [m].
+        speed: Speed along the tangent [m/s].
+        force_gain: Radial admittance [m/(N s)]. force_target: Outward pull [N].
+        kz: Height gain [1/s]. kw: Orientation gain [1/s].
+        Jv_V_WL7q: Geometric Jacobian of L7 at Q in W (6, 7).
+        joint_speed_limit: Symmetric clip on each joint speed [rad/s].
+    """
+    t = np.zeros(3)
+    r = np.zeros(3)
+    t[:2] = np.asarray(tangent_W, dtype=float)[:2]
+    r[:2] = np.asarray(radial_W, dtype=float)[:2]
+    F = np.asarray(F_Q_W, dtype=float)[3:]
+    V = np.empty(6)
+    V[:3] = kw * np.asarray(theta_n_W, dtype=float)
+    V[3:] = speed * t + force_gain * (F @ r + force_target) * r
+    V[5] += kz * height_error
+    qdot = pseudo_inverse_solve(Jv_V_WL7q, V)
+    return AdaptiveCommand(np.minimum(np.maximum(qdot, -joint_speed_limit), joint_speed_limit), V)

@@ -27,6 +27,9 @@ from doorlab.frames import FINGER_JOINTS, LEFT_HINGE, RIGHT_HINGE
 from doorlab.plans import ArmState, JointSpacePlan, Plan
 from doorlab.station import Station, build_station
 
+_PLAN_LOG_PREFIX = "plan_log."
+"""Keys of EpisodeResult.plan_log's columns in a saved ``.npz``."""
+
 PLAN_SETTLE_TIME = 1.0
 """Every plan stays active this long after its duration [s] (the original's timeline)."""
 
@@ -152,6 +155,9 @@ class EpisodeResult:
         arc_window: [t_start, t_end] of the door-opening arc [s], shape (2,).
         wall_time_s: Wall-clock time of the simulation [s].
         scenario_yaml: The scenario that produced the logs.
+        plan_log: The arc plan's own per-tick table {channel: (m,)} (empty for plans that
+            record nothing); its ``t`` column is the episode's time [s]. The adaptive plan's
+            channels are listed in :data:`doorlab.adaptive.LOG_CHANNELS`.
     """
 
     t: np.ndarray
@@ -169,6 +175,7 @@ class EpisodeResult:
     arc_window: np.ndarray
     wall_time_s: float = 0.0
     scenario_yaml: str = field(default="", compare=False)
+    plan_log: dict[str, np.ndarray] = field(default_factory=dict, compare=False)
 
     @property
     def sim_time_s(self) -> float:
@@ -184,8 +191,11 @@ class EpisodeResult:
         """Writes every channel to an ``.npz`` file (see :meth:`load`)."""
         arrays = {}
         for f in fields(self):
-            value = getattr(self, f.name)
-            arrays[f.name] = np.asarray(value)
+            if f.name == "plan_log":
+                continue
+            arrays[f.name] = np.asarray(getattr(self, f.name))
+        for name, column in self.plan_log.items():
+            arrays[f"{_PLAN_LOG_PREFIX}{name}"] = np.asarray(column)
         buffer = io.BytesIO()
         np.savez_compressed(buffer, **arrays)
         Path(path).write_bytes(buffer.getvalue())
@@ -196,6 +206,13 @@ class EpisodeResult:
         with np.load(path, allow_pickle=False) as data:
             values = {}
             for f in fields(cls):
+                if f.name == "plan_log":
+                    values[f.name] = {
+                        key[len(_PLAN_LOG_PREFIX) :]: data[key]
+                        for key in data.files
+                        if key.startswith(_PLAN_LOG_PREFIX)
+                    }
+                    continue
                 value = data[f.name]
                 if f.name == "plan_names":
                     value = tuple(str(s) for s in value)
@@ -323,6 +340,12 @@ def run_episode(
     nq = station.plant.num_positions()
     arc_index = (len(plans) - 1 if arc_plan_index is None else arc_plan_index) + 2
     arc = schedule[arc_index]
+    plan_log = {}
+    log_table = getattr(arc.plan, "log_table", None)
+    if callable(log_table):
+        plan_log = dict(log_table())
+        if "t" in plan_log:
+            plan_log["t"] = plan_log["t"] + arc.t_start
     result = EpisodeResult(
         t=t,
         q_commanded=data["q_commanded"],
@@ -339,6 +362,7 @@ def run_episode(
         arc_window=np.array([arc.t_start, arc.t_start + arc.plan.duration]),
         wall_time_s=wall_time,
         scenario_yaml=yaml_dump_typed(scenario),
+        plan_log=plan_log,
     )
     if not np.all(np.isfinite(data["plant_state"])):
         raise SimulationError("the simulation diverged: the plant state became non-finite")

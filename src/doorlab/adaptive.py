@@ -1,0 +1,171 @@
+"""The adaptive plan: opens a door whose hinge it does not know.
+
+After the grasp it uses only the measured arm state and the arm's external torques: no
+hinge, radius or arc from the model. Per control tick it
+
+1. computes Q's pose, velocity and the Jacobian at Q on its own controller plant;
+2. estimates the contact wrench at Q from tau_external (least squares through J^T);
+3. updates the hinge estimate from Q's path (:class:`doorlab.hinge_estimation.HingeEstimator`);
+4. commands q_ref = q + q_dot dt with q_dot from :func:`doorlab.laws.adaptive_law`: speed
+   along the estimated tangent (ramped up, slowed down near the target angle), radial
+   admittance, Q's grasp height held, L7 turned by the estimated door yaw;
+5. records its running estimates (a named table, see :meth:`AdaptivePlan.log_table`).
+
+It stops when its own estimate of the door's rotation reaches ``adaptive.target_angle``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import JacobianWrtVariable
+
+from doorlab.config import AdaptivePlanConfig, InnerLoopConfig
+from doorlab.constants import NUM_JOINTS
+from doorlab.frames import L7_FRAME, p_L7Q
+from doorlab.hinge_estimation import HingeEstimator, estimate_contact_wrench
+from doorlab.laws import adaptive_law, orientation_error
+from doorlab.plans import ArmState, Command
+
+LOG_CHANNELS = (
+    "t",  # [s] time since the plan started (the episode's time in EpisodeResult.plan_log)
+    "hinge_x",  # [m] estimated hinge axis position in W (nan before the fit is trusted)
+    "hinge_y",  # [m]
+    "radius",  # [m] estimated distance hinge to Q (nan before the fit is trusted)
+    "door_angle",  # [rad] estimated counter-clockwise rotation of the door (0 before)
+    "fit_ready",  # 1 once the hinge fit is trusted, else 0
+    "tangent_x",  # unit direction Q is moved along, in W
+    "tangent_y",
+    "force_radial",  # [N] estimated contact force on the gripper along the radial estimate
+    "force_tangential",  # [N] ... along the tangent estimate
+    "speed",  # [m/s] commanded speed along the tangent
+    "wrench_residual",  # [N m] external torque no wrench at Q explains
+)
+"""The named channels of the adaptive plan's log, with units."""
+
+
+def velocity_lead(inner_loop: InnerLoopConfig, control_period: float) -> np.ndarray:
+    """Per-joint lead (7,) [s] turning a desired joint speed into q_ref (AdaptivePlan).
+
+    Stiffness loop: Dq / Kq + dt / 2. The inverse-dynamics PID differentiates q_ref itself,
+    so there the lead is the control period (as in the velocity plan).
+    """
+    if inner_loop.kind == "stiffness":
+        return np.asarray(inner_loop.dq) / np.asarray(inner_loop.kq) + control_period / 2
+    return np.full(NUM_JOINTS, control_period)
+
+
+def _rot_z(angle: float) -> RotationMatrix:
+    return RotationMatrix.MakeZRotation(angle)
+
+
+class AdaptivePlan:
+    """Opens the grasped door along its estimated arc (module docstring).
+
+    Args:
+        duration: Nominal duration [s] (the plan keeps commanding after it: hold).
+        controller_plant: The controllers' arm model (this plan keeps its own context).
+        config: Gains and target.
+        control_period: The plan runner's period [s].
+        velocity_lead: Per-joint lead (7,) [s]: q_ref = q + q_dot * velocity_lead. The
+            stiffness inner loop reaches a joint speed w in steady state only with
+            q_ref - q = (Dq / Kq) w, and q_ref is held over a period while q moves on, so
+            the lead is Dq / Kq + dt / 2 there (:func:`velocity_lead`); the seed's velocity
+            plan uses dt and gets about half its commanded speed, which its position
+            feedback hides, and this plan has none along the tangent.
+    """
+
+    def __init__(
+        self,
+        duration: float,
+        controller_plant: MultibodyPlant,
+        config: AdaptivePlanConfig,
+        control_period: float,
+        velocity_lead: np.ndarray,
+    ):
+        self.name = "adaptive"
+        self.velocity_lead = np.asarray(velocity_lead, dtype=float)
+        self.duration = duration
+        self.config = config
+        self.control_period = control_period
+        self._plant = controller_plant
+        self._context = controller_plant.CreateDefaultContext()
+        self._L7 = controller_plant.GetFrameByName(L7_FRAME)
+        self._W = controller_plant.world_frame()
+        self._target = math.radians(config.target_angle)
+        self._estimator: HingeEstimator | None = None
+        self._R_WL7_0: RotationMatrix | None = None
+        self._z0 = 0.0
+        self._rows: list[tuple[float, ...]] = []
+
+    def _start(self, X_WL7: RigidTransform, p_WQ: np.ndarray) -> None:
+        """First tick: remember the grasp pose; pull opposite the approach direction."""
+        c = self.config
+        self._R_WL7_0 = X_WL7.rotation()
+        self._z0 = float(p_WQ[2])
+        approach_W = self._R_WL7_0.col(2)  # L7's z axis: the gripper's approach direction
+        self._estimator = HingeEstimator(
+            -approach_W[:2],
+            min_sagitta=c.min_sagitta,
+            velocity_time_constant=c.velocity_time_constant,
+            min_speed=c.min_speed,
+        )
+
+    def command(self, t: float, state: ArmState) -> Command:
+        """One control tick (t [s] since the plan started)."""
+        c = self.config
+        self._plant.SetPositions(self._context, state.q)
+        X_WL7 = self._L7.CalcPoseInWorld(self._context)
+        p_WQ = X_WL7 @ p_L7Q
+        J = self._plant.CalcJacobianSpatialVelocity(
+            self._context, JacobianWrtVariable.kV, self._L7, p_L7Q, self._W, self._W
+        )
+        if self._estimator is None:
+            self._start(X_WL7, p_WQ)
+        V_WQ = J @ state.v
+        estimate = self._estimator.update(p_WQ, V_WQ[3:], self.control_period)
+        wrench = estimate_contact_wrench(J, state.tau_external)
+
+        speed = c.speed * min(1.0, t / c.ramp_time)
+        if estimate.fit_ready:
+            left = max(self._target - abs(estimate.door_angle), 0.0) * estimate.radius
+            speed = min(speed, c.approach_gain * left)
+        R_WL7_ref = _rot_z(estimate.door_angle) @ self._R_WL7_0
+        command = adaptive_law(
+            theta_n_W=orientation_error(X_WL7.rotation(), R_WL7_ref),
+            F_Q_W=wrench.F_Q_W,
+            tangent_W=estimate.tangent,
+            radial_W=estimate.radial,
+            height_error=self._z0 - float(p_WQ[2]),
+            speed=speed,
+            force_gain=c.force_gain,
+            force_target=c.force_target,
+            kz=c.kz,
+            kw=c.kw,
+            Jv_V_WL7q=J,
+            joint_speed_limit=c.joint_speed_limit,
+        )
+        F = wrench.F_Q_W[3:5]
+        self._rows.append(
+            (
+                t,
+                *estimate.center,
+                estimate.radius,
+                estimate.door_angle,
+                float(estimate.fit_ready),
+                *estimate.tangent,
+                float(F @ estimate.radial),
+                float(F @ estimate.tangent),
+                speed,
+                wrench.residual,
+            )
+        )
+        return Command(state.q + command.qdot * self.velocity_lead, np.zeros(NUM_JOINTS))
+
+    def log_table(self) -> dict[str, np.ndarray]:
+        """The running estimates, one row per control tick: {channel: (n,)} (LOG_CHANNELS)."""
+        data = np.array(self._rows, dtype=float).reshape(-1, len(LOG_CHANNELS))
+        return {name: data[:, i].copy() for i, name in enumerate(LOG_CHANNELS)}
