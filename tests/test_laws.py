@@ -141,3 +141,63 @@ def test_orientation_error_does_not_flip_across_the_quaternion_hemisphere():
     np.testing.assert_allclose(np.linalg.norm(errors, axis=1), np.abs(yaws), atol=1e-9)
     # The error of a pure yaw is about W's z axis, with the yaw's sign.
     np.testing.assert_allclose(errors[:, 2], yaws, atol=1e-9)
+
+
+def adaptive_command(J, **overrides):
+    """adaptive_law with neutral inputs (no force, no orientation or height error)."""
+    from doorlab.laws import adaptive_law
+
+    inputs = dict(
+        theta_n_W=np.zeros(3),
+        F_Q_W=np.zeros(6),
+        tangent_W=np.array([-1.0, 0.0, 0.0]),
+        radial_W=np.array([0.0, -1.0, 0.0]),
+        height_error=0.0,
+        speed=0.02,
+        force_gain=0.01,
+        force_target=0.0,
+        kz=10.0,
+        kw=5.0,
+        Jv_V_WL7q=J,
+        joint_speed_limit=1.0,
+    )
+    inputs.update(overrides)
+    return adaptive_law(**inputs)
+
+
+def test_adaptive_law_moves_q_along_the_tangent_without_force(arm):
+    """No force and no errors: J q_dot is exactly speed * tangent (no rotation, no drift)."""
+    J = jacobian(arm, Q_GRASP)
+    command = adaptive_command(J)
+    assert np.allclose(J @ command.qdot, [0, 0, 0, -0.02, 0, 0], atol=1e-12)
+
+
+def test_adaptive_law_yields_to_radial_force(arm):
+    """A radial contact force of 2 N adds force_gain * 2 N of velocity in the force's
+    direction (an admittance), tangential and vertical forces add nothing, and flipping the
+    radial estimate's sign changes nothing (its sign is unknown before the fit)."""
+    J = jacobian(arm, Q_GRASP)
+    F = np.array([0, 0, 0, 0.0, 2.0, 0.0])  # pushes Q along +y, i.e. along -radial
+    F_other = np.array([0.1, 0, 0, 3.0, 2.0, -4.0])  # + tangential, vertical and torque
+    for radial in ([0.0, -1.0, 0.0], [0.0, 1.0, 0.0]):
+        for force in (F, F_other):
+            V = J @ adaptive_command(J, F_Q_W=force, radial_W=np.array(radial)).qdot
+            assert np.allclose(V, [0, 0, 0, -0.02, 0.01 * 2.0, 0], atol=1e-12)
+    # force_target: the robot keeps pulling outward by that much when nothing pushes back.
+    V = J @ adaptive_command(J, force_target=1.5).qdot
+    assert np.allclose(V[3:], [-0.02, -0.01 * 1.5, 0], atol=1e-12)
+
+
+def test_adaptive_law_corrects_height_and_orientation(arm):
+    """Height and orientation errors map to kz e_z upwards and kw theta n."""
+    J = jacobian(arm, Q_GRASP)
+    theta = np.array([0.0, 0.0, 0.1])
+    V = J @ adaptive_command(J, speed=0.0, height_error=0.003, theta_n_W=theta).qdot
+    assert np.allclose(V, [0, 0, 5.0 * 0.1, 0, 0, 10.0 * 0.003], atol=1e-10)
+
+
+def test_adaptive_law_clips_joint_speeds(arm):
+    J = jacobian(arm, Q_GRASP)
+    command = adaptive_command(J, speed=50.0, joint_speed_limit=0.3)
+    assert np.max(np.abs(command.qdot)) == pytest.approx(0.3)
+    assert command.V_des[3] == pytest.approx(-50.0)

@@ -5,7 +5,7 @@ knows nothing of the cupboard model after the grasp.
 
 **Hinge.** While the gripper holds the handle, Q moves on a horizontal circle about the
 hinge axis. :class:`HingeEstimator` fits that circle to Q's measured path by linear least
-squares (the algebraic "Kasa" fit, kept as running sums: O(1) per control tick) once the
+squares (the algebraic "Hyper" fit, kept as running moments: O(1) per control tick) once the
 path is curved enough to trust it, and takes the door's tangent from Q's measured velocity
 (low-pass filtered unit direction; the idea of Karayiannidis et al., T-RO 2016: a radially
 compliant gripper is turned onto the true tangent by the door, so its measured velocity
@@ -24,7 +24,8 @@ a^2/2 part separates them (variance Phi^4/720). Hence, to first order in Phi and
 
 The radial one dominates: a short arc fixes the direction to the hinge long before the
 distance. The algebraic fit has the geometric fit's first-order variance on a circle (its
-residual is 2 R times the geometric distance, a constant weight), so the bound applies.
+residual is 2 R times the geometric distance, a constant weight), so the bound applies; the
+Hyper fit also removes the algebraic fit's second-order bias (see ``_CircleSums``).
 
 **Contact wrench at Q** (:func:`estimate_contact_wrench`). The arm's measured external
 torques are tau_ext = Jv_V_WL7q^T F_Q for a spatial force F_Q (torque; force) applied to the
@@ -58,39 +59,54 @@ class CircleFit(NamedTuple):
 
 
 class _CircleSums:
-    """Running sums of the algebraic circle fit about a fixed origin (the first point).
+    """Running moments of the algebraic circle fit about a fixed origin (the first point).
 
-    The fit solves min sum (|u|^2 + D u_x + E u_y + F)^2 for (D, E, F), u = p - origin;
-    center = origin - (D, E) / 2, radius^2 = (D^2 + E^2) / 4 - F.
+    A circle is A |u|^2 + B u_x + C u_y + D = 0 (u = p - origin). With the moment matrix
+    M = mean(w w^T), w = (|u|^2, u_x, u_y, 1), the "Hyper" fit (Al-Sharadqah and Chernov,
+    2009) solves M a = eta N a for the smallest non-negative eta, with N the constraint
+    matrix below. Unlike the simpler Kasa fit (least squares of |u|^2 + B u_x + C u_y + D,
+    biased towards small circles on short arcs: +6 mm on a 20 deg arc at 0.2 mm noise), it
+    has no bias to second order and the geometric fit's first-order variance.
     """
 
     def __init__(self) -> None:
         self.origin: np.ndarray | None = None
-        self.AtA = np.zeros((3, 3))
-        self.Atb = np.zeros(3)
+        self.moments = np.zeros((4, 4))
         self.count = 0
 
     def add(self, p: np.ndarray) -> None:
         if self.origin is None:
             self.origin = np.array(p[:2], dtype=float)
         ux, uy = p[0] - self.origin[0], p[1] - self.origin[1]
-        a = np.array([ux, uy, 1.0])
-        self.AtA += np.outer(a, a)
-        self.Atb -= a * (ux * ux + uy * uy)
+        w = np.array([ux * ux + uy * uy, ux, uy, 1.0])
+        self.moments += np.outer(w, w)
         self.count += 1
 
     def solve(self) -> CircleFit | None:
         if self.count < 3:
             return None
-        # Scale-aware singularity check: collinear points leave AtA rank 2.
-        try:
-            D, E, F = np.linalg.solve(self.AtA, self.Atb)
-        except np.linalg.LinAlgError:
+        M = self.moments / self.count
+        z, x, y = M[0, 3], M[1, 3], M[2, 3]
+        N = np.array(
+            [
+                [8.0 * z, 4.0 * x, 4.0 * y, 2.0],
+                [4.0 * x, 1.0, 0.0, 0.0],
+                [4.0 * y, 0.0, 1.0, 0.0],
+                [2.0, 0.0, 0.0, 0.0],
+            ]
+        )
+        eta, vectors = np.linalg.eig(np.linalg.solve(N, M))
+        eta = eta.real
+        candidates = np.flatnonzero(eta >= -1e-12 * np.abs(eta).max())
+        if not len(candidates):
             return None
-        r2 = (D * D + E * E) / 4.0 - F
+        A, B, C, D = vectors[:, candidates[np.argmin(eta[candidates])]].real
+        if abs(A) < 1e-12 * max(abs(B), abs(C), 1e-300):  # a line, not a circle
+            return None
+        r2 = (B * B + C * C - 4.0 * A * D) / (4.0 * A * A)
         if not (np.isfinite(r2) and r2 > 0.0):
             return None
-        return CircleFit(self.origin + np.array([-D / 2.0, -E / 2.0]), math.sqrt(r2))
+        return CircleFit(self.origin + np.array([-B, -C]) / (2.0 * A), math.sqrt(r2))
 
 
 def fit_circle(points: np.ndarray) -> CircleFit:
