@@ -24,7 +24,7 @@ DOOR_TARGET = math.radians(39.0)
 def test_registry_is_the_configs_list_of_controllers():
     """The CLI choices (config.CONTROLLERS) and the registry are the same, in task order."""
     assert tuple(REGISTRY) == CONTROLLERS
-    assert [c.task for c in REGISTRY.values()] == [1, 2, 3]
+    assert [c.task for c in REGISTRY.values()] == [1, 2, 3, 4]
     with pytest.raises(ConfigError, match="ik, velocity, impedance"):
         get_controller("pid")
 

@@ -64,8 +64,9 @@ def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``doorlab``."""
     parser = OneLineParser(
         prog="doorlab",
-        description="Open a cupboard door with a simulated KUKA iiwa 7 three ways "
-        "(pointwise IK, Jacobian velocity mapping, Jacobian-transpose impedance).",
+        description="Open a cupboard door with a simulated KUKA iiwa 7 four ways "
+        "(pointwise IK, Jacobian velocity mapping, Jacobian-transpose impedance, and an "
+        "adaptive plan that does not know the hinge).",
     )
     parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(dest="command", metavar="{run,report}", parser_class=OneLineParser)
@@ -214,12 +215,15 @@ def _summary(outcome) -> str:
             "peak |external torque|",
             f"{m.peak_external_torque_Nm:.2f} N m ({m.peak_external_torque_arc_Nm:.2f} in the arc)",
         ),
+        ("peak contact force at Q", f"{m.peak_contact_force_arc_N:.2f} N (in the arc)"),
         ("max joint speed", f"{m.max_joint_speed_rad_s:.3f} rad/s"),
         (
             "simulated / wall time",
             f"{m.sim_time_s:.1f} s / {m.wall_time_s:.2f} s ({m.realtime_factor:.1f}x real time)",
         ),
     ]
+    if m.hinge_estimate_error_m is not None:
+        rows.append(("final hinge estimate error", f"{1e3 * m.hinge_estimate_error_m:.2f} mm"))
     lines += [f"  {name:<29}{value}" for name, value in rows]
     if outcome.message:
         lines.append(f"  note                         {outcome.message}")

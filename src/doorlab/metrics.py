@@ -20,6 +20,7 @@ import numpy as np
 
 from doorlab.config import Scenario
 from doorlab.constants import JOINT_SPEED_LIMITS, JOINT_TORQUE_LIMITS
+from doorlab.errors import ConfigError
 from doorlab.frames import L7_FRAME, p_L7Q
 from doorlab.geometry import DoorGeometry
 from doorlab.simulation import EpisodeResult
@@ -71,6 +72,24 @@ class Kinematics:
             self._plant.SetPositions(self._context, qi)
             out.append(self._L7.CalcPoseInWorld(self._context))
         return out
+
+    def contact_wrenches(self, q: np.ndarray, tau_external: np.ndarray) -> np.ndarray:
+        """Least-squares contact wrench at Q, (torque; force) in W, for each row of q (n, 7)
+        [rad] and tau_external (n, 7) [N m]: shape (n, 6) [N m, N] (see
+        :func:`doorlab.hinge_estimation.estimate_contact_wrench`)."""
+        from pydrake.multibody.tree import JacobianWrtVariable
+
+        from doorlab.hinge_estimation import estimate_contact_wrench
+
+        W = self._plant.world_frame()
+        out = []
+        for qi, tau in zip(np.atleast_2d(q), np.atleast_2d(tau_external), strict=True):
+            self._plant.SetPositions(self._context, qi)
+            J = self._plant.CalcJacobianSpatialVelocity(
+                self._context, JacobianWrtVariable.kV, self._L7, p_L7Q, W, W
+            )
+            out.append(estimate_contact_wrench(J, tau).F_Q_W)
+        return np.array(out).reshape(-1, 6)
 
 
 def compute_tracking(
@@ -134,6 +153,11 @@ class DoorMetrics:
     sim_time_s: float
     wall_time_s: float
     realtime_factor: float
+    # Peak |force| of the least-squares contact wrench at Q during the arc [N].
+    peak_contact_force_arc_N: float = float("nan")
+    # Plans that estimate the hinge (adaptive): horizontal distance of the final estimate
+    # from the true hinge axis [m]; None for the others (or if no estimate was trusted).
+    hinge_estimate_error_m: float | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready dictionary."""
@@ -211,4 +235,44 @@ def compute_metrics(
         sim_time_s=result.sim_time_s,
         wall_time_s=wall,
         realtime_factor=result.sim_time_s / wall if wall > 0 else float("inf"),
+        peak_contact_force_arc_N=peak_contact_force(result, kinematics),
+        hinge_estimate_error_m=final_hinge_estimate_error(result, geometry),
     )
+
+
+def peak_contact_force(result: EpisodeResult, kinematics: Kinematics) -> float:
+    """Peak |force| of the contact wrench at Q over the arc window [N] (0 if no contact)."""
+    arc = result.window(*result.arc_window)
+    if not np.any(result.tau_external[arc]):
+        return 0.0
+    F = kinematics.contact_wrenches(result.q_measured[arc], result.tau_external[arc])
+    return float(np.max(np.linalg.norm(F[:, 3:], axis=1)))
+
+
+def hinge_estimate_error(result: EpisodeResult, geometry: DoorGeometry) -> np.ndarray:
+    """Horizontal distance [m] of the plan's running hinge estimate from the true hinge axis,
+    per control tick of ``result.plan_log`` (n,) (nan before the estimate is trusted).
+
+    Args:
+        result: An episode whose arc plan logged ``hinge_x``/``hinge_y`` (the adaptive plan).
+        geometry: The TRUE door geometry.
+
+    Raises:
+        ConfigError: The episode's plan logged no hinge estimate.
+    """
+    log = result.plan_log
+    if "hinge_x" not in log:
+        raise ConfigError(
+            "this episode's plan logged no hinge estimate (only the adaptive plan does); "
+            f"logged channels: {', '.join(log) or 'none'}"
+        )
+    return np.hypot(log["hinge_x"] - geometry.p_W_hinge[0], log["hinge_y"] - geometry.p_W_hinge[1])
+
+
+def final_hinge_estimate_error(result: EpisodeResult, geometry: DoorGeometry) -> float | None:
+    """The last trusted hinge estimate's error [m]; None without a (trusted) estimate."""
+    if "hinge_x" not in result.plan_log:
+        return None
+    error = hinge_estimate_error(result, geometry)
+    finite = error[np.isfinite(error)]
+    return float(finite[-1]) if len(finite) else None

@@ -1,0 +1,322 @@
+"""Robustness to an unknown hinge: every controller against the cupboard's yaw error.
+
+The true cupboard is the believed one turned by ``station.cupboard_yaw_error`` about the
+left handle's vertical axis (:func:`doorlab.geometry.true_door_geometry`). The seed's plans
+follow the believed arc; the adaptive plan estimates the hinge. This module
+
+- runs a controller on a yaw error and reduces the episode to one :class:`RobustnessRow`
+  (:func:`run_case`, :func:`run_grid` in parallel processes);
+- finds the largest yaw error a controller still opens the door at (:func:`largest_opening_yaw`,
+  bisection);
+- turns rows and results into a Markdown table and figures (:func:`robustness_table`,
+  :func:`plot_robustness`, :func:`plot_hinge_convergence`) without re-running anything.
+
+"Opens" means: status ok, the door turned by at least :data:`OPEN_THRESHOLD_DEG` during the
+arc, and the handle is still between the fingers at the end.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import copy
+import dataclasses
+import math
+import multiprocessing
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+
+from doorlab.config import Scenario, validate
+from doorlab.errors import IkError, SimulationError
+from doorlab.geometry import DoorGeometry, true_door_geometry
+from doorlab.simulation import EpisodeResult
+
+OPEN_THRESHOLD_DEG = 39.0
+"""A door counts as opened from this rotation during the arc on [deg] (the acceptance's)."""
+
+ACCEPTANCE_YAW_ERRORS_DEG = (-10.0, -5.0, 0.0, 5.0, 10.0)
+"""The acceptance grid of cupboard yaw errors [deg]."""
+
+
+@dataclass(frozen=True)
+class RobustnessRow:
+    """One controller on one yaw error (SI units; NaN where the run produced no episode).
+
+    Attributes:
+        controller: Registry name. yaw_error_rad: station.cupboard_yaw_error [rad].
+        status: The run's status (ok, slipped, speed_limit, diverged, ik_failed).
+        door_opening_rad: Door rotation during the arc [rad].
+        handle_held: Handle between the fingers at the end.
+        peak_contact_torque_arc_Nm: Peak |external joint torque| during the arc [N m].
+        peak_contact_force_arc_N: Peak |contact force at Q| during the arc [N].
+        max_radial_error_m: Max |radial error of Q| against the TRUE arc [m].
+        hinge_estimate_error_m: Final hinge estimate's error (adaptive only) [m].
+    """
+
+    controller: str
+    yaw_error_rad: float
+    status: str
+    door_opening_rad: float
+    handle_held: bool | None
+    peak_contact_torque_arc_Nm: float
+    peak_contact_force_arc_N: float
+    max_radial_error_m: float
+    hinge_estimate_error_m: float | None
+
+    @property
+    def opened(self) -> bool:
+        """Status ok, door turned >= OPEN_THRESHOLD_DEG, handle held."""
+        return bool(
+            self.status == "ok"
+            and self.handle_held
+            and self.door_opening_rad >= math.radians(OPEN_THRESHOLD_DEG)
+        )
+
+    def to_dict(self) -> dict:
+        """JSON-ready dictionary (with ``opened``)."""
+        return {**dataclasses.asdict(self), "opened": self.opened}
+
+
+def case_scenario(base: Scenario, controller: str, yaw_error_rad: float) -> Scenario:
+    """``base`` with the controller, closed doors and the yaw error set (a copy, validated)."""
+    scenario = copy.deepcopy(base)
+    scenario.controller = controller
+    scenario.doors = "closed"
+    scenario.door_angles = None
+    scenario.station.cupboard_yaw_error = float(yaw_error_rad)
+    return validate(scenario)
+
+
+def run_case(
+    base: Scenario, controller: str, yaw_error_rad: float
+) -> tuple[RobustnessRow, EpisodeResult | None]:
+    """Runs one controller on one yaw error.
+
+    Returns:
+        The row and the episode (None when IK or the physics failed: the row says which).
+    """
+    from doorlab.controllers import run_controller
+    from doorlab.metrics import compute_metrics
+
+    scenario = case_scenario(base, controller, yaw_error_rad)
+    nan = float("nan")
+    try:
+        result, _ = run_controller(scenario)
+    except (IkError, SimulationError) as e:
+        status = "ik_failed" if isinstance(e, IkError) else "diverged"
+        return RobustnessRow(
+            controller, yaw_error_rad, status, nan, None, nan, nan, nan, None
+        ), None
+    m = compute_metrics(result, scenario, true_door_geometry(scenario))
+    row = RobustnessRow(
+        controller=controller,
+        yaw_error_rad=float(yaw_error_rad),
+        status=m.status,
+        door_opening_rad=m.door_opening_rad,
+        handle_held=m.handle_held,
+        peak_contact_torque_arc_Nm=m.peak_external_torque_arc_Nm,
+        peak_contact_force_arc_N=m.peak_contact_force_arc_N,
+        max_radial_error_m=m.max_radial_error_m,
+        hinge_estimate_error_m=m.hinge_estimate_error_m,
+    )
+    return row, result
+
+
+def _row_only(base: Scenario, controller: str, yaw_error_rad: float) -> RobustnessRow:
+    return run_case(base, controller, yaw_error_rad)[0]
+
+
+def run_grid(
+    base: Scenario,
+    controllers: Sequence[str],
+    yaw_errors_rad: Sequence[float],
+    *,
+    jobs: int = 1,
+) -> list[RobustnessRow]:
+    """Every controller on every yaw error, ``jobs`` episodes at a time (processes).
+
+    Returns:
+        Rows in (controller, yaw error) order.
+    """
+    cases = [(c, float(y)) for c in controllers for y in yaw_errors_rad]
+    if jobs <= 1:
+        return [_row_only(base, c, y) for c, y in cases]
+    context = multiprocessing.get_context("spawn")  # Drake objects do not survive fork
+    with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context) as pool:
+        futures = [pool.submit(_row_only, base, c, y) for c, y in cases]
+        return [f.result() for f in futures]
+
+
+@dataclass(frozen=True)
+class LargestYaw:
+    """The largest |yaw error| a controller opens the door at, on one side.
+
+    Attributes:
+        controller: Registry name. sign: +1 or -1 (the side of the yaw error).
+        opened_rad: Largest |yaw| found that opens [rad] (the lower end of the bracket).
+        failed_rad: Smallest |yaw| found that does not open [rad] (nan if none up to the cap).
+        runs: Episodes it took.
+    """
+
+    controller: str
+    sign: int
+    opened_rad: float
+    failed_rad: float
+    runs: int
+
+
+def largest_opening_yaw(
+    base: Scenario,
+    controller: str,
+    sign: int,
+    *,
+    opened_rad: float = 0.0,
+    failed_rad: float | None = None,
+    cap_rad: float = math.radians(45.0),
+    tolerance_rad: float = math.radians(0.5),
+) -> LargestYaw:
+    """Bisection for the largest |yaw error| on one side at which ``controller`` opens.
+
+    Assumes success is monotone in |yaw| on each side (what the grid shows; a controller that
+    fails, then succeeds again further out would be missed past the first failure).
+
+    Args:
+        opened_rad: A |yaw| known to open (e.g. from the grid) [rad].
+        failed_rad: A |yaw| known to fail [rad]; None: try ``cap_rad`` first.
+        cap_rad: Largest |yaw| tried [rad] (the scenario's own limit is 45 deg).
+        tolerance_rad: Stop when the bracket is this narrow [rad].
+    """
+    runs = 0
+    lo = float(opened_rad)
+    if failed_rad is None:
+        runs += 1
+        if run_case(base, controller, sign * cap_rad)[0].opened:
+            return LargestYaw(controller, sign, cap_rad, float("nan"), runs)
+        failed_rad = cap_rad
+    hi = float(failed_rad)
+    while hi - lo > tolerance_rad:
+        mid = (lo + hi) / 2
+        runs += 1
+        if run_case(base, controller, sign * mid)[0].opened:
+            lo = mid
+        else:
+            hi = mid
+    return LargestYaw(controller, sign, lo, hi, runs)
+
+
+def robustness_table(rows: Iterable[RobustnessRow]) -> str:
+    """Markdown table: one line per (controller, yaw error), in the given order."""
+    lines = [
+        "| controller | yaw error [deg] | status | door opened [deg] | handle held | "
+        "peak contact torque in the arc [N m] | peak contact force at Q [N] | "
+        "max radial error, true arc [mm] | final hinge estimate error [mm] |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+
+    def num(value: float | None, scale: float = 1.0, digits: int = 2) -> str:
+        if value is None or not math.isfinite(value):
+            return "-"
+        return f"{value * scale:.{digits}f}"
+
+    for r in rows:
+        held = {True: "yes", False: "no"}.get(r.handle_held, "-")
+        lines.append(
+            f"| {r.controller} | {math.degrees(r.yaw_error_rad):+.1f} | {r.status} | "
+            f"{num(r.door_opening_rad, 180.0 / math.pi, 1)} | "
+            f"{held} | {num(r.peak_contact_torque_arc_Nm)} | {num(r.peak_contact_force_arc_N)} | "
+            f"{num(r.max_radial_error_m, 1e3, 1)} | {num(r.hinge_estimate_error_m, 1e3, 1)} |"
+        )
+    return "\n".join(lines)
+
+
+def plot_robustness(rows: Sequence[RobustnessRow]):
+    """Door opened and peak contact torque in the arc against the yaw error, per controller.
+
+    Returns:
+        A matplotlib Figure with two panels.
+    """
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(11, 4), constrained_layout=True)
+    ax_door, ax_torque = fig.subplots(1, 2)
+    controllers = list(dict.fromkeys(r.controller for r in rows))
+    for name in controllers:
+        mine = sorted((r for r in rows if r.controller == name), key=lambda r: r.yaw_error_rad)
+        yaw = [math.degrees(r.yaw_error_rad) for r in mine]
+        door = [math.degrees(r.door_opening_rad) for r in mine]
+        (line,) = ax_door.plot(yaw, door, "o-", label=name)
+        failed = [(y, d) for y, d, r in zip(yaw, door, mine, strict=True) if not r.opened]
+        if failed:
+            ax_door.plot(*zip(*failed, strict=True), "x", color=line.get_color(), ms=10)
+        ax_torque.plot(yaw, [r.peak_contact_torque_arc_Nm for r in mine], "o-", label=name)
+    ax_door.axhline(OPEN_THRESHOLD_DEG, color="k", lw=0.8, ls="--")
+    ax_door.set(
+        xlabel="cupboard yaw error [deg]",
+        ylabel="door opened during the arc [deg]",
+        title=f"Door opened (x: not opened, i.e. < {OPEN_THRESHOLD_DEG:g} deg or handle lost)",
+    )
+    ax_torque.set(
+        xlabel="cupboard yaw error [deg]",
+        ylabel="peak |contact torque| in the arc [N m]",
+        title="Peak contact torque on the arm",
+        yscale="log",
+    )
+    for ax in (ax_door, ax_torque):
+        ax.grid(True, alpha=0.3)
+        ax.legend()
+    return fig
+
+
+def plot_hinge_convergence(results: Mapping[str, tuple[EpisodeResult, DoorGeometry]]):
+    """The adaptive plan's hinge estimate error against time, one line per episode.
+
+    Args:
+        results: {label: (episode of the adaptive plan, its TRUE door geometry)}.
+
+    Returns:
+        A matplotlib Figure (log-scale error [mm] against time in the arc [s]).
+    """
+    from matplotlib.figure import Figure
+
+    from doorlab.metrics import hinge_estimate_error
+
+    fig = Figure(figsize=(7, 4), constrained_layout=True)
+    ax = fig.subplots()
+    for label, (result, geometry) in results.items():
+        error = hinge_estimate_error(result, geometry)
+        t = result.plan_log["t"] - result.arc_window[0]
+        ax.semilogy(t, 1e3 * error, label=label)
+    ax.axhline(10.0, color="k", lw=0.8, ls="--", label="acceptance: 10 mm")
+    ax.set(
+        xlabel="time since the arc started [s]",
+        ylabel="|hinge estimate - true hinge| [mm]",
+        title="Adaptive plan: hinge estimate convergence (nan until the fit is trusted)",
+    )
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    return fig
+
+
+def opening_summary(rows: Iterable[RobustnessRow]) -> dict[str, list[float]]:
+    """{controller: yaw errors [rad] at which it opened the door}, from rows."""
+    out: dict[str, list[float]] = {}
+    for r in rows:
+        out.setdefault(r.controller, [])
+        if r.opened:
+            out[r.controller].append(r.yaw_error_rad)
+    return out
+
+
+__all__ = [
+    "ACCEPTANCE_YAW_ERRORS_DEG",
+    "OPEN_THRESHOLD_DEG",
+    "LargestYaw",
+    "RobustnessRow",
+    "case_scenario",
+    "largest_opening_yaw",
+    "opening_summary",
+    "plot_hinge_convergence",
+    "plot_robustness",
+    "robustness_table",
+    "run_case",
+    "run_grid",
+]
