@@ -8,7 +8,7 @@ hinge, radius or arc from the model. Per control tick it
 3. updates the hinge estimate from Q's path (:class:`doorlab.hinge_estimation.HingeEstimator`);
 4. commands q_ref = q + q_dot dt with q_dot from :func:`doorlab.laws.adaptive_law`: speed
    along the estimated tangent (ramped up, slowed down near the target angle), radial
-   admittance, Q's grasp height held, L7 turned by the estimated door yaw;
+   admittance, Q's grasp height held, L7 turned by the estimated door yaw (rate-limited);
 5. records its running estimates (a named table, see :meth:`AdaptivePlan.log_table`).
 
 It stops when its own estimate of the door's rotation reaches ``adaptive.target_angle``.
@@ -99,6 +99,7 @@ class AdaptivePlan:
         self._estimator: HingeEstimator | None = None
         self._R_WL7_0: RotationMatrix | None = None
         self._z0 = 0.0
+        self._yaw_ref = 0.0
         self._rows: list[tuple[float, ...]] = []
 
     def _start(self, X_WL7: RigidTransform, p_WQ: np.ndarray) -> None:
@@ -133,7 +134,9 @@ class AdaptivePlan:
         if estimate.fit_ready:
             left = max(self._target - abs(estimate.door_angle), 0.0) * estimate.radius
             speed = min(speed, c.approach_gain * left)
-        R_WL7_ref = _rot_z(estimate.door_angle) @ self._R_WL7_0
+        step = c.yaw_rate_limit * self.control_period
+        self._yaw_ref += min(max(estimate.door_angle - self._yaw_ref, -step), step)
+        R_WL7_ref = _rot_z(self._yaw_ref) @ self._R_WL7_0
         command = adaptive_law(
             theta_n_W=orientation_error(X_WL7.rotation(), R_WL7_ref),
             F_Q_W=wrench.F_Q_W,

@@ -166,6 +166,9 @@ class AdaptivePlanConfig:
     force_target: float = 0.0  # [N] outward pull on the handle (may be negative)
     kz: float = 10.0  # [1/s] gain holding Q at its grasp height
     kw: float = 5.0  # [1/s] orientation gain (L7 turns with the estimated door yaw)
+    # [rad/s] L7's yaw reference follows the estimated door yaw at most this fast: the
+    # estimate jumps from 0 to the swept angle when the hinge fit becomes trusted.
+    yaw_rate_limit: float = 0.2
     joint_speed_limit: float = 1.0  # [rad/s] clip on q_dot
     min_sagitta: float = 0.001  # [m] the hinge fit is trusted once Q's path bulges this much
     velocity_time_constant: float = 0.1  # [s] low-pass of Q's velocity direction
