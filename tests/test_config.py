@@ -105,6 +105,20 @@ BAD_VALUES = [
         for v in (0.0, -1.0)
     ],
     ("impedance.torque_limit=nan", _with("impedance.torque_limit", NAN), "impedance.torque_limit"),
+    # the adaptive plan: gains, speeds and thresholds finite and > 0, target below 90 deg
+    *[
+        (f"{f}={v!r}", _with(f, v), f)
+        for f in (
+            "adaptive.target_angle",
+            "adaptive.speed",
+            "adaptive.force_gain",
+            "adaptive.yaw_rate_limit",
+            "adaptive.min_sagitta",
+        )
+        for v in (0.0, -1.0, NAN)
+    ],
+    ("adaptive.target_angle=95", _with("adaptive.target_angle", 95.0), "adaptive.target_angle"),
+    ("adaptive.force_target=inf", _with("adaptive.force_target", INF), "adaptive.force_target"),
     # inner-loop gains: kq > 0, dq >= 0, per entry
     ("kq[0]=0", _with_entry("station.inner_loop.kq", 0, 0.0), "station.inner_loop.kq[0]"),
     ("kq[3]=-1", _with_entry("station.inner_loop.kq", 3, -1.0), "station.inner_loop.kq[3]"),
