@@ -150,6 +150,11 @@ def run_to_folder(
         (staging / "scenario.yaml").write_text(result.scenario_yaml)
         if plots:
             plotting.save_run_plots(result, geometry, staging, kinematics=kinematics)
+            if "hinge_x" in result.plan_log:  # a plan that estimates the hinge (adaptive)
+                from doorlab.robustness import plot_hinge_convergence
+
+                figure = plot_hinge_convergence({scenario.controller: (result, geometry)})
+                plotting.save_figure(figure, staging / "hinge_estimate_error.png")
         if replay:
             save_replay(result, staging / "replay.html", scenario=scenario)
         commit_output(staging, out_dir)
