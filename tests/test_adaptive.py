@@ -98,3 +98,19 @@ def test_episodes_without_a_plan_log_load_with_an_empty_one(tmp_path, episode):
     assert result.plan_log == {}
     result.save(tmp_path / "log.npz")
     assert EpisodeResult.load(tmp_path / "log.npz").plan_log == {}
+
+
+def test_robustness_section_from_the_episodes():
+    """The report's section is built from rows and logs only: the convergence plot shows
+    exactly hinge_estimate_error in mm against the time since the arc started."""
+    from doorlab.robustness import robustness_section
+
+    row, result, scenario = adaptive_case(0.0)
+    geometry = true_door_geometry(scenario)
+    section = robustness_section([row], {"yaw 0": (result, geometry)})
+    (line, *_) = section.figures["hinge_convergence"].axes[0].get_lines()
+    expected = 1e3 * hinge_estimate_error(result, geometry)
+    assert np.array_equal(np.asarray(line.get_ydata()), expected, equal_nan=True)
+    assert np.allclose(line.get_xdata(), result.plan_log["t"] - result.arc_window[0])
+    assert section.table_markdown.count("\n") == 2
+    assert section.findings[0].startswith("adaptive: opens the door at yaw errors +0 deg")

@@ -306,17 +306,66 @@ def opening_summary(rows: Iterable[RobustnessRow]) -> dict[str, list[float]]:
     return out
 
 
-__all__ = [
-    "ACCEPTANCE_YAW_ERRORS_DEG",
-    "OPEN_THRESHOLD_DEG",
-    "LargestYaw",
-    "RobustnessRow",
-    "case_scenario",
-    "largest_opening_yaw",
-    "opening_summary",
-    "plot_hinge_convergence",
-    "plot_robustness",
-    "robustness_table",
-    "run_case",
-    "run_grid",
-]
+@dataclass(frozen=True)
+class RobustnessSection:
+    """What a report's robustness section shows, computed from rows and episodes only.
+
+    Attributes:
+        table_markdown: :func:`robustness_table` of the rows.
+        figures: {"robustness": door opened and peak torque against yaw error,
+            "hinge_convergence": the adaptive plan's hinge estimate error against time}.
+        findings: One generated sentence per controller (measured values only).
+    """
+
+    table_markdown: str
+    figures: dict
+    findings: tuple[str, ...]
+
+
+def robustness_findings(rows: Sequence[RobustnessRow]) -> tuple[str, ...]:
+    """One sentence per controller: where it opens the door and its contact torque range."""
+    out = []
+    for name in dict.fromkeys(r.controller for r in rows):
+        mine = sorted((r for r in rows if r.controller == name), key=lambda r: r.yaw_error_rad)
+        opened = [f"{math.degrees(r.yaw_error_rad):+.0f}" for r in mine if r.opened]
+        failed = [
+            f"{math.degrees(r.yaw_error_rad):+.0f} ({r.status})" for r in mine if not r.opened
+        ]
+        torques = [
+            r.peak_contact_torque_arc_Nm
+            for r in mine
+            if math.isfinite(r.peak_contact_torque_arc_Nm)
+        ]
+        sentence = f"{name}: opens the door at yaw errors {', '.join(opened) or 'none'} deg"
+        if failed:
+            sentence += f", not at {', '.join(failed)}"
+        if torques:
+            sentence += (
+                f"; peak contact torque in the arc {min(torques):.2f}-{max(torques):.2f} N m"
+            )
+        errors = [r.hinge_estimate_error_m for r in mine if r.hinge_estimate_error_m is not None]
+        if errors:
+            sentence += f"; final hinge estimate within {1e3 * max(errors):.1f} mm of the truth"
+        out.append(sentence + ".")
+    return tuple(out)
+
+
+def robustness_section(
+    rows: Sequence[RobustnessRow],
+    adaptive_results: Mapping[str, tuple[EpisodeResult, DoorGeometry]],
+) -> RobustnessSection:
+    """The robustness section of a report from a grid's rows and the adaptive episodes.
+
+    Args:
+        rows: :func:`run_grid` output (every controller on every yaw error).
+        adaptive_results: {label: (adaptive episode, its TRUE geometry)} for the convergence
+            plot (e.g. one per yaw error of the grid).
+    """
+    return RobustnessSection(
+        table_markdown=robustness_table(rows),
+        figures={
+            "robustness": plot_robustness(rows),
+            "hinge_convergence": plot_hinge_convergence(adaptive_results),
+        },
+        findings=robustness_findings(rows),
+    )

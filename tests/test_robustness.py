@@ -1,0 +1,83 @@
+"""The robustness analysis from rows (no simulation): success rule, table, figure, findings."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from doorlab.config import Scenario
+from doorlab.errors import ConfigError
+from doorlab.robustness import (
+    RobustnessRow,
+    case_scenario,
+    plot_robustness,
+    robustness_findings,
+    robustness_table,
+)
+
+
+def row(controller, yaw_deg, *, status="ok", door_deg=41.0, held=True, torque=1.0, hinge=None):
+    return RobustnessRow(
+        controller=controller,
+        yaw_error_rad=math.radians(yaw_deg),
+        status=status,
+        door_opening_rad=math.radians(door_deg),
+        handle_held=held,
+        peak_contact_torque_arc_Nm=torque,
+        peak_contact_force_arc_N=2.0 * torque,
+        max_radial_error_m=0.001,
+        hinge_estimate_error_m=hinge,
+    )
+
+
+ROWS = [
+    row("velocity", -10, status="slipped", held=False, torque=3.5),
+    row("velocity", 0, torque=0.5),
+    row("velocity", 10, door_deg=38.0, torque=5.0),
+    row("adaptive", -10, torque=0.4, hinge=0.004),
+    row("adaptive", 0, torque=0.3, hinge=0.002),
+    row("adaptive", 10, torque=0.35, hinge=0.0005),
+]
+
+
+def test_opened_needs_status_ok_the_handle_and_39_degrees():
+    assert row("x", 0).opened
+    assert not row("x", 0, status="slipped").opened
+    assert not row("x", 0, held=False).opened
+    assert not row("x", 0, door_deg=38.9).opened
+    assert not row("x", 0, door_deg=float("nan")).opened
+
+
+def test_table_has_one_line_per_row_with_the_measured_values():
+    lines = robustness_table(ROWS).splitlines()
+    assert len(lines) == 2 + len(ROWS)
+    assert "| velocity | -10.0 | slipped | 41.0 | no | 3.50 | 7.00 | 1.0 | - |" in lines
+    assert "| adaptive | +10.0 | ok | 41.0 | yes | 0.35 | 0.70 | 1.0 | 0.5 |" in lines
+
+
+def test_figure_plots_the_rows_sorted_by_yaw():
+    fig = plot_robustness(list(reversed(ROWS)))
+    door_axes, torque_axes = fig.axes
+    lines = {line.get_label(): line for line in torque_axes.get_lines()}
+    assert np.allclose(lines["adaptive"].get_xdata(), [-10, 0, 10])
+    assert np.allclose(lines["adaptive"].get_ydata(), [0.4, 0.3, 0.35])
+    assert np.allclose(lines["velocity"].get_ydata(), [3.5, 0.5, 5.0])
+
+
+def test_findings_name_where_each_controller_opens():
+    velocity, adaptive = robustness_findings(ROWS)
+    assert velocity.startswith("velocity: opens the door at yaw errors +0 deg, not at -10")
+    assert "+10 (ok)" in velocity
+    assert "0.50-5.00 N m" in velocity
+    assert adaptive.startswith("adaptive: opens the door at yaw errors -10, +0, +10 deg;")
+    assert "within 4.0 mm" in adaptive
+
+
+def test_case_scenario_sets_the_case_and_validates():
+    scenario = case_scenario(Scenario(doors="open"), "adaptive", math.radians(5))
+    assert (scenario.controller, scenario.doors) == ("adaptive", "closed")
+    assert scenario.station.cupboard_yaw_error == pytest.approx(math.radians(5))
+    with pytest.raises(ConfigError, match="cupboard_yaw_error"):
+        case_scenario(Scenario(), "adaptive", math.radians(60))
