@@ -53,6 +53,9 @@ class InnerLoopConfig:
         default_factory=lambda: [4000.0, 4000.0, 2000.0, 2000.0, 600.0, 600.0, 100.0]
     )
     dq: list[float] = field(default_factory=lambda: [35.0, 35.0, 17.0, 17.0, 5.0, 5.0, 0.9])
+    # Multiplier on every Dq [-] (>= 0): one knob for the position-tracking vs impedance-lag
+    # trade-off (benchmarks/inner_loop_sweep.py).
+    dq_scale: float = 1.0
     # Inverse-dynamics PID gains of the original station (act through M(q)).
     id_kp: float = 100.0  # [1/s^2]
     id_ki: float = 1.0  # [1/s^3]
@@ -332,6 +335,7 @@ def validate(scenario: Scenario) -> Scenario:
     _choice("station.inner_loop.kind", loop.kind, INNER_LOOPS)
     _gains("station.inner_loop.kq", loop.kq, allow_zero=False)
     _gains("station.inner_loop.dq", loop.dq, allow_zero=True)
+    _non_negative("station.inner_loop.dq_scale", loop.dq_scale)
     for name in ("id_kp", "id_kd"):
         _positive(f"station.inner_loop.{name}", getattr(loop, name))
     _non_negative("station.inner_loop.id_ki", loop.id_ki)
