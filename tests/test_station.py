@@ -362,3 +362,15 @@ def test_left_door_terminal_speed_is_torque_over_damping(station):
     speed = (after - before) / 0.2
     np.testing.assert_allclose(speed[0], -torque / damping, rtol=DOOR_SPEED_REL_TOL)
     assert abs(after[1] - start[1]) < DOOR_HOLD_TOL  # the right door is not touched
+
+
+def test_dq_scale_multiplies_the_joint_damping():
+    """station.inner_loop.dq_scale scales every Dq of the plant's PD actuators, not Kq."""
+    config = StationConfig()
+    config.inner_loop.dq_scale = 2.5
+    station = build_station(config)
+    for i, (kq, dq) in enumerate(zip(KQ, DQ, strict=True), start=1):
+        actuator = station.plant.GetJointActuatorByName(f"iiwa_joint_{i}", station.iiwa)
+        gains = actuator.get_controller_gains()
+        assert gains.p == kq
+        assert gains.d == pytest.approx(2.5 * dq, rel=1e-15)
