@@ -54,3 +54,25 @@ def test_door_metrics_of_a_delayed_ramp():
     assert times[0] == pytest.approx(T0) and times[-1] == pytest.approx(T1)
     assert np.max(lag) == pytest.approx(shortfall, abs=1e-9)
     assert math.degrees(shortfall) == pytest.approx(6.18, abs=0.01)  # 41.2 deg x 0.15
+
+
+def test_default_inner_loop_is_damped_at_zeta_0_1_at_the_grasp():
+    """The default gains were derived as Kq = wn^2 M_ii, Dq = 2 zeta sqrt(Kq M_ii) with zeta =
+    0.1 at the grasp pose (README, "Inner loop gains"): the model gives that back within the
+    gains' rounding (3 significant digits, so 1 %); dq_scale scales it; ID-PID has none."""
+    from doorlab.config import Scenario
+    from doorlab.controllers import get_controller
+    from doorlab.geometry import scenario_door_geometry
+    from doorlab.metrics import joint_damping_ratios
+    from doorlab.station import make_controller_plant
+
+    scenario = Scenario(controller="velocity", doors="closed")
+    arc = get_controller("velocity").build(
+        scenario, scenario_door_geometry(scenario), make_controller_plant()
+    )
+    zeta = joint_damping_ratios(scenario, arc.q_start)
+    assert zeta == pytest.approx(np.full(7, 0.1), rel=0.01)
+    scenario.station.inner_loop.dq_scale = 2.0
+    assert joint_damping_ratios(scenario, arc.q_start) == pytest.approx(2 * zeta, rel=1e-12)
+    scenario.station.inner_loop.kind = "inverse_dynamics"
+    assert joint_damping_ratios(scenario, arc.q_start) is None

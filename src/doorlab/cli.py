@@ -210,7 +210,9 @@ def _summary(outcome) -> str:
         ),
         (
             "door opened at the arc's end",
-            f"{math.degrees(m.door_opening_arc_end_rad):.1f} deg "
+            "n/a (open)"
+            if m.door_lag_max_rad is None
+            else f"{math.degrees(m.door_opening_arc_end_rad):.1f} deg "
             f"({math.degrees(m.door_opening_rad):.1f} at the episode's end)",
         ),
         (

@@ -245,3 +245,21 @@ def compute_metrics(
         wall_time_s=wall,
         realtime_factor=result.sim_time_s / wall if wall > 0 else float("inf"),
     )
+
+
+def joint_damping_ratios(scenario: Scenario, q: np.ndarray) -> np.ndarray | None:
+    """Damping ratio of each joint's stiffness loop at configuration q, shape (7,) [-].
+
+    zeta_i = Dq_i dq_scale / (2 sqrt(Kq_i M_ii(q))), with M(q) of the controllers' arm model
+    (links, lumped gripper and the motors' reflected inertia). None for the
+    ``inverse_dynamics`` inner loop, which has no joint stiffness.
+    """
+    loop = scenario.station.inner_loop
+    if loop.kind != "stiffness":
+        return None
+    plant = make_controller_plant()
+    context = plant.CreateDefaultContext()
+    plant.SetPositions(context, np.asarray(q, dtype=float))
+    inertia = np.diag(plant.CalcMassMatrix(context))
+    kq, dq = np.asarray(loop.kq), np.asarray(loop.dq) * loop.dq_scale
+    return dq / (2.0 * np.sqrt(kq * inertia))

@@ -1138,8 +1138,35 @@ def _answer_t3q2(page: _Page) -> tuple[str, str]:
                 + ".</p>"
             )
         text += _contact_paragraph(page)
+        text += _damping_paragraph(page.runs["impedance_closed"])
         text += page.status_note("impedance_closed", "impedance_open")
     return figs, text
+
+
+def _damping_paragraph(run: _Run) -> str:
+    """The inner loop's damping behind the impedance plan's lag (issue 12's trade-off)."""
+    from doorlab.metrics import joint_damping_ratios
+
+    if run.result is None or run.scenario is None:
+        return ""
+    i0 = int(np.argmin(np.abs(run.result.t - run.result.arc_window[0])))
+    zeta = joint_damping_ratios(run.scenario, run.result.q_measured[i0])
+    if zeta is None:
+        return (
+            "<p>This run used the original station's inverse-dynamics PID: with q_ref = q its "
+            "derivative term damps almost nothing, so the impedance plan's J<sup>T</sup> F "
+            "meets only the arm's inertia.</p>"
+        )
+    return (
+        "<p>Why the door trails: with q_ref = q the stiffness loop's damping D<sub>q</sub> "
+        "q&#775; is all that resists the plan's J<sup>T</sup> F. This run's joint damping "
+        f"ratios at the grasp are {_span(format_number(float(zeta.min())))}-"
+        f"{_span(format_number(float(zeta.max())))} (motors' reflected inertia included); "
+        "more damping leaves the door further behind at the arc's end, less lets the "
+        "position plans ring. The measured trade-off over D<sub>q</sub> is in the README "
+        "(<code>benchmarks/inner_loop_sweep.py</code>, <code>station.inner_loop.dq_scale</code>)."
+        "</p>"
+    )
 
 
 def _contact_paragraph(page: _Page) -> str:
