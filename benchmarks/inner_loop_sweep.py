@@ -57,7 +57,7 @@ def _scenario(controller: str, doors: str, scale: float, overrides: list[str]):
 def run_one(controller: str, doors: str, scale: float, overrides: list[str]) -> dict:
     """Worker: one episode, its metrics as a dict (status ``error`` if it raised)."""
     from doorlab.controllers import run_controller
-    from doorlab.geometry import scenario_door_geometry
+    from doorlab.geometry import true_door_geometry
     from doorlab.metrics import compute_metrics
 
     scenario = _scenario(controller, doors, scale, overrides)
@@ -66,7 +66,7 @@ def run_one(controller: str, doors: str, scale: float, overrides: list[str]) -> 
         result, _ = run_controller(scenario)
     except Exception as e:  # one failed run must not lose the sweep
         return {**row, "status": "error", "message": f"{type(e).__name__}: {e}"}
-    m = compute_metrics(result, scenario, scenario_door_geometry(scenario))
+    m = compute_metrics(result, scenario, true_door_geometry(scenario))
     return {**row, **m.to_dict(), "dq": [d * scale for d in scenario.station.inner_loop.dq]}
 
 
