@@ -50,11 +50,12 @@ LOG_CHANNELS = (
 def velocity_lead(inner_loop: InnerLoopConfig, control_period: float) -> np.ndarray:
     """Per-joint lead (7,) [s] turning a desired joint speed into q_ref (AdaptivePlan).
 
-    Stiffness loop: Dq / Kq + dt / 2. The inverse-dynamics PID differentiates q_ref itself,
-    so there the lead is the control period (as in the velocity plan).
+    Stiffness loop: Dq dq_scale / Kq + dt / 2. The inverse-dynamics PID differentiates q_ref
+    itself, so there the lead is the control period (as in the velocity plan).
     """
     if inner_loop.kind == "stiffness":
-        return np.asarray(inner_loop.dq) / np.asarray(inner_loop.kq) + control_period / 2
+        dq = np.asarray(inner_loop.dq) * inner_loop.dq_scale
+        return dq / np.asarray(inner_loop.kq) + control_period / 2
     return np.full(NUM_JOINTS, control_period)
 
 
