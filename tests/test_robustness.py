@@ -24,6 +24,7 @@ def row(controller, yaw_deg, *, status="ok", door_deg=41.0, held=True, torque=1.
         yaw_error_rad=math.radians(yaw_deg),
         status=status,
         door_opening_rad=math.radians(door_deg),
+        door_opening_final_rad=math.radians(door_deg + 0.5),
         handle_held=held,
         peak_contact_torque_arc_Nm=torque,
         peak_contact_force_arc_N=2.0 * torque,
@@ -53,8 +54,8 @@ def test_opened_needs_status_ok_the_handle_and_39_degrees():
 def test_table_has_one_line_per_row_with_the_measured_values():
     lines = robustness_table(ROWS).splitlines()
     assert len(lines) == 2 + len(ROWS)
-    assert "| velocity | -10.0 | slipped | 41.0 | no | 3.50 | 7.00 | 1.0 | - |" in lines
-    assert "| adaptive | +10.0 | ok | 41.0 | yes | 0.35 | 0.70 | 1.0 | 0.5 |" in lines
+    assert "| velocity | -10.0 | slipped | 41.0 / 41.5 | no | 3.50 | 7.00 | 1.0 | - |" in lines
+    assert "| adaptive | +10.0 | ok | 41.0 / 41.5 | yes | 0.35 | 0.70 | 1.0 | 0.5 |" in lines
 
 
 def test_figure_plots_the_rows_sorted_by_yaw():

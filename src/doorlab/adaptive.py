@@ -8,7 +8,8 @@ hinge, radius or arc from the model. Per control tick it
 3. updates the hinge estimate from Q's path (:class:`doorlab.hinge_estimation.HingeEstimator`);
 4. commands q_ref = q + q_dot dt with q_dot from :func:`doorlab.laws.adaptive_law`: speed
    along the estimated tangent (ramped up, slowed down near the target angle), radial
-   admittance, Q's grasp height held, L7 turned by the estimated door yaw (rate-limited);
+   admittance, Q's grasp height held, L7 turned by the estimated door yaw (from the
+   tangent's rotation, then from the hinge fit; rate-limited);
 5. records its running estimates (a named table, see :meth:`AdaptivePlan.log_table`).
 
 It stops when its own estimate of the door's rotation reaches ``adaptive.target_angle``.
@@ -26,7 +27,7 @@ from pydrake.multibody.tree import JacobianWrtVariable
 from doorlab.config import AdaptivePlanConfig, InnerLoopConfig
 from doorlab.constants import NUM_JOINTS
 from doorlab.frames import L7_FRAME, p_L7Q
-from doorlab.hinge_estimation import HingeEstimator, estimate_contact_wrench
+from doorlab.hinge_estimation import HingeEstimator, estimate_contact_wrench, signed_angle
 from doorlab.laws import adaptive_law, orientation_error
 from doorlab.plans import ArmState, Command
 
@@ -101,6 +102,7 @@ class AdaptivePlan:
         self._R_WL7_0: RotationMatrix | None = None
         self._z0 = 0.0
         self._yaw_ref = 0.0
+        self._tangent_ref: np.ndarray | None = None
         self._rows: list[tuple[float, ...]] = []
 
     def _start(self, X_WL7: RigidTransform, p_WQ: np.ndarray) -> None:
@@ -135,8 +137,17 @@ class AdaptivePlan:
         if estimate.fit_ready:
             left = max(self._target - abs(estimate.door_angle), 0.0) * estimate.radius
             speed = min(speed, c.approach_gain * left)
+        # The door's yaw: from the hinge fit once it is trusted; before, the rotation of the
+        # measured tangent since it settled (ramp plus three filter time constants: by then it
+        # has turned from the initial guess onto the true tangent), which misses only the
+        # door's rotation before that moment (about a degree).
+        if self._tangent_ref is None and t >= c.ramp_time + 3 * c.velocity_time_constant:
+            self._tangent_ref = estimate.tangent.copy()
+        door_yaw = estimate.door_angle
+        if not estimate.fit_ready and self._tangent_ref is not None:
+            door_yaw = signed_angle(self._tangent_ref, estimate.tangent)
         step = c.yaw_rate_limit * self.control_period
-        self._yaw_ref += min(max(estimate.door_angle - self._yaw_ref, -step), step)
+        self._yaw_ref += min(max(door_yaw - self._yaw_ref, -step), step)
         R_WL7_ref = _rot_z(self._yaw_ref) @ self._R_WL7_0
         command = adaptive_law(
             theta_n_W=orientation_error(X_WL7.rotation(), R_WL7_ref),

@@ -11,8 +11,9 @@ follow the believed arc; the adaptive plan estimates the hinge. This module
 - turns rows and results into a Markdown table and figures (:func:`robustness_table`,
   :func:`plot_robustness`, :func:`plot_hinge_convergence`) without re-running anything.
 
-"Opens" means: status ok, the door turned by at least :data:`OPEN_THRESHOLD_DEG` during the
-arc, and the handle is still between the fingers at the end.
+"Opens" means: status ok, the door turned by at least :data:`OPEN_THRESHOLD_DEG` by the arc's
+end (t = 21 s of the seed's timeline), and the handle is still between the fingers at the
+episode's end.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from doorlab.geometry import DoorGeometry, true_door_geometry
 from doorlab.simulation import EpisodeResult
 
 OPEN_THRESHOLD_DEG = 39.0
-"""A door counts as opened from this rotation during the arc on [deg] (the acceptance's)."""
+"""A door counts as opened from this rotation at the arc's end on [deg] (the acceptance's)."""
 
 ACCEPTANCE_YAW_ERRORS_DEG = (-10.0, -5.0, 0.0, 5.0, 10.0)
 """The acceptance grid of cupboard yaw errors [deg]."""
@@ -44,7 +45,9 @@ class RobustnessRow:
     Attributes:
         controller: Registry name. yaw_error_rad: station.cupboard_yaw_error [rad].
         status: The run's status (ok, slipped, speed_limit, diverged, ik_failed).
-        door_opening_rad: Door rotation during the arc [rad].
+        door_opening_rad: Door rotation at the arc's end (t = arc_window[1]) [rad]: the
+            primary figure, the one "opens" is judged by.
+        door_opening_final_rad: Door rotation at the episode's end [rad].
         handle_held: Handle between the fingers at the end.
         peak_contact_torque_arc_Nm: Peak |external joint torque| during the arc [N m].
         peak_contact_force_arc_N: Peak |contact force at Q| during the arc [N].
@@ -56,6 +59,7 @@ class RobustnessRow:
     yaw_error_rad: float
     status: str
     door_opening_rad: float
+    door_opening_final_rad: float
     handle_held: bool | None
     peak_contact_torque_arc_Nm: float
     peak_contact_force_arc_N: float
@@ -111,7 +115,8 @@ def run_case(
         controller=controller,
         yaw_error_rad=float(yaw_error_rad),
         status=m.status,
-        door_opening_rad=m.door_opening_rad,
+        door_opening_rad=m.door_opening_arc_end_rad,
+        door_opening_final_rad=m.door_opening_rad,
         handle_held=m.handle_held,
         peak_contact_torque_arc_Nm=m.peak_external_torque_arc_Nm,
         peak_contact_force_arc_N=m.peak_contact_force_arc_N,
@@ -206,7 +211,8 @@ def largest_opening_yaw(
 def robustness_table(rows: Iterable[RobustnessRow]) -> str:
     """Markdown table: one line per (controller, yaw error), in the given order."""
     lines = [
-        "| controller | yaw error [deg] | status | door opened [deg] | handle held | "
+        "| controller | yaw error [deg] | status | door opened at the arc's end / at the "
+        "episode's end [deg] | handle held | "
         "peak contact torque in the arc [N m] | peak contact force at Q [N] | "
         "max radial error, true arc [mm] | final hinge estimate error [mm] |",
         "|---|---|---|---|---|---|---|---|---|",
@@ -221,7 +227,8 @@ def robustness_table(rows: Iterable[RobustnessRow]) -> str:
         held = {True: "yes", False: "no"}.get(r.handle_held, "-")
         lines.append(
             f"| {r.controller} | {math.degrees(r.yaw_error_rad):+.1f} | {r.status} | "
-            f"{num(r.door_opening_rad, 180.0 / math.pi, 1)} | "
+            f"{num(r.door_opening_rad, 180.0 / math.pi, 1)} / "
+            f"{num(r.door_opening_final_rad, 180.0 / math.pi, 1)} | "
             f"{held} | {num(r.peak_contact_torque_arc_Nm)} | {num(r.peak_contact_force_arc_N)} | "
             f"{num(r.max_radial_error_m, 1e3, 1)} | {num(r.hinge_estimate_error_m, 1e3, 1)} |"
         )
@@ -251,7 +258,7 @@ def plot_robustness(rows: Sequence[RobustnessRow]):
     ax_door.axhline(OPEN_THRESHOLD_DEG, color="k", lw=0.8, ls="--")
     ax_door.set(
         xlabel="cupboard yaw error [deg]",
-        ylabel="door opened during the arc [deg]",
+        ylabel="door opened at the arc's end [deg]",
         title=f"Door opened (x: not opened, i.e. < {OPEN_THRESHOLD_DEG:g} deg or handle lost)",
     )
     ax_torque.set(
