@@ -7,7 +7,8 @@ hinge, radius or arc from the model. Per control tick it
 2. estimates the contact wrench at Q from tau_external (least squares through J^T);
 3. updates the hinge estimate from Q's path (:class:`doorlab.hinge_estimation.HingeEstimator`);
 4. commands q_ref = q + q_dot dt with q_dot from :func:`doorlab.laws.adaptive_law`: speed
-   along the estimated tangent (ramped up, slowed down near the target angle), radial
+   along the estimated tangent (ramped up, kept on the planned progress by feedback of the
+   measured one, slowed down near the target angle), radial
    admittance, Q's grasp height held, L7 turned by the estimated door yaw (from the
    tangent's rotation, then from the hinge fit; rate-limited);
 5. records its running estimates (a named table, see :meth:`AdaptivePlan.log_table`).
@@ -103,6 +104,8 @@ class AdaptivePlan:
         self._z0 = 0.0
         self._yaw_ref = 0.0
         self._tangent_ref: np.ndarray | None = None
+        self._s = 0.0  # [m] measured progress along the tangent
+        self._s_ref = 0.0  # [m] planned progress
         self._rows: list[tuple[float, ...]] = []
 
     def _start(self, X_WL7: RigidTransform, p_WQ: np.ndarray) -> None:
@@ -133,10 +136,21 @@ class AdaptivePlan:
         estimate = self._estimator.update(p_WQ, V_WQ[3:], self.control_period)
         wrench = estimate_contact_wrench(J, state.tau_external)
 
-        speed = c.speed * min(1.0, t / c.ramp_time)
+        # Progress along the tangent: the planned arc length s_ref against the measured one
+        # (Q's velocity along the tangent estimate, integrated). Feeding back their difference
+        # keeps the planned timeline whatever the door's resistance slows the arm by.
+        dt = self.control_period
+        planned = c.speed * min(1.0, t / c.ramp_time)
+        self._s += float(V_WQ[3:5] @ estimate.tangent) * dt
+        speed = planned + c.progress_gain * (self._s_ref - self._s)
+        speed = min(max(speed, 0.0), 2.0 * c.speed)
         if estimate.fit_ready:
             left = max(self._target - abs(estimate.door_angle), 0.0) * estimate.radius
-            speed = min(speed, c.approach_gain * left)
+            if c.approach_gain * left < speed:  # near the target: slow down, no wind-up
+                speed = c.approach_gain * left
+                planned = speed
+                self._s_ref = self._s
+        self._s_ref += planned * dt
         # The door's yaw: from the hinge fit once it is trusted; before, the rotation of the
         # measured tangent since it settled (ramp plus three filter time constants: by then it
         # has turned from the initial guess onto the true tangent), which misses only the

@@ -165,9 +165,10 @@ class AdaptivePlanConfig:
     """
 
     target_angle: float = SEED_SWEEP_DEG  # [deg] door rotation to open, estimated online
-    speed: float = 0.03  # [m/s] Q's speed along the estimated tangent
+    speed: float = 0.022  # [m/s] Q's planned speed along the estimated tangent
     ramp_time: float = 0.5  # [s] the speed ramps up from 0 over this time
     approach_gain: float = 3.0  # [1/s] speed <= this x the estimated arc length left
+    progress_gain: float = 10.0  # [1/s] speed += this x (planned - measured arc length)
     force_gain: float = 0.01  # [m/(N s)] radial admittance: velocity per newton
     force_target: float = 0.0  # [N] outward pull on the handle (may be negative)
     kz: float = 10.0  # [1/s] gain holding Q at its grasp height
