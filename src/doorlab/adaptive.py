@@ -140,7 +140,10 @@ class AdaptivePlan:
         # (Q's velocity along the tangent estimate, integrated). Feeding back their difference
         # keeps the planned timeline whatever the door's resistance slows the arm by.
         dt = self.control_period
-        planned = c.speed * min(1.0, t / c.ramp_time)
+        # A smoothstep ramp: slow while the tangent estimate turns from the initial guess
+        # onto the true tangent, so the radial force of that transient stays small.
+        x = min(t / c.ramp_time, 1.0)
+        planned = c.speed * x * x * (3.0 - 2.0 * x)
         self._s += float(V_WQ[3:5] @ estimate.tangent) * dt
         speed = planned + c.progress_gain * (self._s_ref - self._s)
         speed = min(max(speed, 0.0), 2.0 * c.speed)

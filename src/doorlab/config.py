@@ -166,7 +166,7 @@ class AdaptivePlanConfig:
 
     target_angle: float = SEED_SWEEP_DEG  # [deg] door rotation to open, estimated online
     speed: float = 0.022  # [m/s] Q's planned speed along the estimated tangent
-    ramp_time: float = 0.5  # [s] the speed ramps up from 0 over this time
+    ramp_time: float = 1.5  # [s] the speed ramps up from 0 over this time (smoothstep)
     approach_gain: float = 3.0  # [1/s] speed <= this x the estimated arc length left
     progress_gain: float = 10.0  # [1/s] speed += this x (planned - measured arc length)
     force_gain: float = 0.01  # [m/(N s)] radial admittance: velocity per newton
