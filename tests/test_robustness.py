@@ -15,6 +15,7 @@ from doorlab.robustness import (
     plot_robustness,
     robustness_findings,
     robustness_table,
+    row_from_metrics,
 )
 
 
@@ -82,3 +83,25 @@ def test_case_scenario_sets_the_case_and_validates():
     assert scenario.station.cupboard_yaw_error == pytest.approx(math.radians(5))
     with pytest.raises(ConfigError, match="cupboard_yaw_error"):
         case_scenario(Scenario(), "adaptive", math.radians(60))
+
+
+def test_rows_from_metrics_json_match_the_metrics():
+    """A run folder's metrics.json gives the same row (the report re-runs nothing); a failed
+    run's short metrics give NaNs and its status."""
+    metrics = {
+        "controller": "adaptive",
+        "status": "ok",
+        "door_opening_arc_end_rad": 0.71,
+        "door_opening_rad": 0.712,
+        "handle_held": True,
+        "peak_external_torque_arc_Nm": 0.3,
+        "peak_contact_force_arc_N": 0.7,
+        "max_radial_error_m": 2e-4,
+        "hinge_estimate_error_m": 1e-3,
+    }
+    r = row_from_metrics(metrics, 0.1)
+    assert (r.door_opening_rad, r.door_opening_final_rad) == (0.71, 0.712)
+    assert r.opened and r.hinge_estimate_error_m == 1e-3 and r.yaw_error_rad == 0.1
+    failed = row_from_metrics({"controller": "ik", "status": "ik_failed", "error": "x"}, 0.5)
+    assert failed.status == "ik_failed" and not failed.opened
+    assert math.isnan(failed.door_opening_rad) and failed.hinge_estimate_error_m is None

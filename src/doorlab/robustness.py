@@ -126,6 +126,32 @@ def run_case(
     return row, result
 
 
+def row_from_metrics(metrics: Mapping, yaw_error_rad: float) -> RobustnessRow:
+    """A row from a run folder's ``metrics.json`` (a dict with DoorMetrics' keys, or the
+    ``{"controller", "doors", "status", "error"}`` of a failed run): for a report that ran the
+    cases as run folders and re-runs nothing.
+    """
+    nan = float("nan")
+
+    def number(key: str) -> float:
+        value = metrics.get(key)
+        return nan if value is None else float(value)
+
+    hinge = metrics.get("hinge_estimate_error_m")
+    return RobustnessRow(
+        controller=str(metrics["controller"]),
+        yaw_error_rad=float(yaw_error_rad),
+        status=str(metrics["status"]),
+        door_opening_rad=number("door_opening_arc_end_rad"),
+        door_opening_final_rad=number("door_opening_rad"),
+        handle_held=metrics.get("handle_held"),
+        peak_contact_torque_arc_Nm=number("peak_external_torque_arc_Nm"),
+        peak_contact_force_arc_N=number("peak_contact_force_arc_N"),
+        max_radial_error_m=number("max_radial_error_m"),
+        hinge_estimate_error_m=None if hinge is None else float(hinge),
+    )
+
+
 def _row_only(base: Scenario, controller: str, yaw_error_rad: float) -> RobustnessRow:
     return run_case(base, controller, yaw_error_rad)[0]
 
