@@ -6,8 +6,8 @@ follow the believed arc; the adaptive plan estimates the hinge. This module
 
 - runs a controller on a yaw error and reduces the episode to one :class:`RobustnessRow`
   (:func:`run_case`, :func:`run_grid` in parallel processes);
-- finds the largest yaw error a controller still opens the door at (:func:`largest_opening_yaw`,
-  bisection);
+- finds the largest yaw error up to which a controller opens the door
+  (:func:`largest_opening_yaw`: a scan outwards, then bisection);
 - turns rows and results into a Markdown table and figures (:func:`robustness_table`,
   :func:`plot_robustness`, :func:`plot_hinge_convergence`) without re-running anything.
 
@@ -184,7 +184,7 @@ class LargestYaw:
     Attributes:
         controller: Registry name. sign: +1 or -1 (the side of the yaw error).
         opened_rad: Largest |yaw| found that opens [rad] (the lower end of the bracket).
-        failed_rad: Smallest |yaw| found that does not open [rad] (nan if none up to the cap).
+        failed_rad: The |yaw| past opened_rad found not to open [rad] (nan: none up to the cap).
         runs: Episodes it took.
     """
 
@@ -201,29 +201,36 @@ def largest_opening_yaw(
     sign: int,
     *,
     opened_rad: float = 0.0,
-    failed_rad: float | None = None,
+    step_rad: float = math.radians(2.5),
     cap_rad: float = math.radians(45.0),
     tolerance_rad: float = math.radians(0.5),
 ) -> LargestYaw:
-    """Bisection for the largest |yaw error| on one side at which ``controller`` opens.
+    """The largest |yaw error| on one side up to which ``controller`` opens the door at every
+    yaw tried: a scan outwards in ``step_rad`` steps to the first failure, then bisection
+    between the last success and it.
 
-    Assumes success is monotone in |yaw| on each side (what the grid shows; a controller that
-    fails, then succeeds again further out would be missed past the first failure).
+    Success need not be monotone (the adaptive plan's grasp hits the door at some large yaw
+    errors and not at larger ones), so the result is the edge of the range that opens from
+    ``opened_rad`` outwards; a failing island narrower than the step could be missed.
 
     Args:
-        opened_rad: A |yaw| known to open (e.g. from the grid) [rad].
-        failed_rad: A |yaw| known to fail [rad]; None: try ``cap_rad`` first.
+        opened_rad: A |yaw| known to open (e.g. from the grid) [rad]: the scan starts there.
+        step_rad: Scan step [rad].
         cap_rad: Largest |yaw| tried [rad] (the scenario's own limit is 45 deg).
-        tolerance_rad: Stop when the bracket is this narrow [rad].
+        tolerance_rad: Bisection stops when the bracket is this narrow [rad].
     """
     runs = 0
-    lo = float(opened_rad)
-    if failed_rad is None:
+    lo, hi = float(opened_rad), float("nan")
+    while lo < cap_rad:
+        trial = min(lo + step_rad, cap_rad)
         runs += 1
-        if run_case(base, controller, sign * cap_rad)[0].opened:
-            return LargestYaw(controller, sign, cap_rad, float("nan"), runs)
-        failed_rad = cap_rad
-    hi = float(failed_rad)
+        if run_case(base, controller, sign * trial)[0].opened:
+            lo = trial
+        else:
+            hi = trial
+            break
+    if not math.isfinite(hi):
+        return LargestYaw(controller, sign, lo, hi, runs)
     while hi - lo > tolerance_rad:
         mid = (lo + hi) / 2
         runs += 1
