@@ -105,3 +105,38 @@ def test_rows_from_metrics_json_match_the_metrics():
     failed = row_from_metrics({"controller": "ik", "status": "ik_failed", "error": "x"}, 0.5)
     assert failed.status == "ik_failed" and not failed.opened
     assert math.isnan(failed.door_opening_rad) and failed.hinge_estimate_error_m is None
+
+
+def test_largest_yaw_scans_to_the_first_failure_then_bisects(monkeypatch):
+    """With a stand-in for the simulation that opens for |yaw| < 13.7 deg and again from
+    40 deg, the scan (from 10 deg in 2.5 deg steps) stops at the first failure, 15 deg, and
+    bisection brackets 13.7 deg to the tolerance; the island of success further out is not
+    reported."""
+    import doorlab.robustness as robustness
+
+    calls = []
+
+    def fake_run_case(base, controller, yaw):
+        calls.append(yaw)
+        opens = abs(math.degrees(yaw)) < 13.7 or abs(math.degrees(yaw)) >= 40
+        return row(controller, math.degrees(yaw), door_deg=41.0 if opens else 20.0), None
+
+    monkeypatch.setattr(robustness, "run_case", fake_run_case)
+    found = robustness.largest_opening_yaw(
+        Scenario(), "velocity", -1, opened_rad=math.radians(10), tolerance_rad=math.radians(0.5)
+    )
+    assert math.degrees(found.opened_rad) < 13.7 <= math.degrees(found.failed_rad)
+    assert found.failed_rad - found.opened_rad <= math.radians(0.5)
+    assert all(y < 0 for y in calls) and found.runs == len(calls)
+    assert max(abs(math.degrees(y)) for y in calls) == pytest.approx(15.0)
+
+
+def test_largest_yaw_reports_the_cap_when_nothing_fails(monkeypatch):
+    import doorlab.robustness as robustness
+
+    monkeypatch.setattr(
+        robustness, "run_case", lambda base, c, yaw: (row(c, math.degrees(yaw)), None)
+    )
+    found = robustness.largest_opening_yaw(Scenario(), "adaptive", 1)
+    assert found.opened_rad == pytest.approx(math.radians(45.0))
+    assert math.isnan(found.failed_rad) and found.runs == 18

@@ -221,8 +221,9 @@ def largest_opening_yaw(
     """
     runs = 0
     lo, hi = float(opened_rad), float("nan")
-    while lo < cap_rad:
-        trial = min(lo + step_rad, cap_rad)
+    steps = math.ceil((cap_rad - lo) / step_rad - 1e-9)  # no float drift past the cap
+    for k in range(1, steps + 1):
+        trial = min(float(opened_rad) + k * step_rad, cap_rad)
         runs += 1
         if run_case(base, controller, sign * trial)[0].opened:
             lo = trial
