@@ -1,4 +1,5 @@
-"""doorlab: three ways of commanding a simulated KUKA iiwa 7 to open a cupboard door.
+"""doorlab: three ways of commanding a simulated KUKA iiwa 7 to open a cupboard door, and a
+fourth (``adaptive``) that opens one whose hinge it does not know.
 
 Public API (see the README): :class:`Scenario` and :func:`load_scenario` (configuration),
 :func:`run_controller` (one episode of a registered controller), :func:`run_episode`

@@ -136,12 +136,13 @@ class AdaptivePlan:
         estimate = self._estimator.update(p_WQ, V_WQ[3:], self.control_period)
         wrench = estimate_contact_wrench(J, state.tau_external)
 
-        # Progress along the tangent: the planned arc length s_ref against the measured one
-        # (Q's velocity along the tangent estimate, integrated). Feeding back their difference
-        # keeps the planned timeline whatever the door's resistance slows the arm by.
+        # The planned speed ramps up along a smoothstep: slow while the tangent estimate
+        # turns from the initial guess onto the true tangent, so the radial force of that
+        # transient stays small. Progress along the tangent: the planned arc length s_ref
+        # against the measured one (Q's velocity along the tangent estimate, integrated);
+        # feeding back their difference keeps the planned timeline whatever the door's
+        # resistance slows the arm by.
         dt = self.control_period
-        # A smoothstep ramp: slow while the tangent estimate turns from the initial guess
-        # onto the true tangent, so the radial force of that transient stays small.
         x = min(t / c.ramp_time, 1.0)
         planned = c.speed * x * x * (3.0 - 2.0 * x)
         self._s += float(V_WQ[3:5] @ estimate.tangent) * dt
