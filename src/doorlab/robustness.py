@@ -333,7 +333,7 @@ def plot_hinge_convergence(results: Mapping[str, tuple[EpisodeResult, DoorGeomet
         title="Adaptive plan: hinge estimate convergence (nan until the fit is trusted)",
     )
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
+    ax.legend(loc="upper right", fontsize="small")
     return fig
 
 
