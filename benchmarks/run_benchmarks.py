@@ -282,9 +282,9 @@ def bench_tick(controller: str) -> Callable[[Settings, Context], list[Metric]]:
         import numpy as np
 
         from doorlab import Scenario
-        from doorlab.controllers import build_impedance_plan, build_velocity_plan
+        from doorlab.controllers import REGISTRY
 
-        build = build_velocity_plan if controller == "velocity" else build_impedance_plan
+        build = REGISTRY[controller].build
         scenario = Scenario(controller=controller)
         plan = build(scenario, ctx.geometry(), ctx.plant()).plan
         times, states = _arc_states(ctx)
@@ -678,7 +678,7 @@ def _trim_pstats(text: str) -> str:
 # Registry and selection.
 
 EPISODES = tuple(f"episode/{c}_{d}" for c in CONTROLLERS for d in DOORS)
-TICKS = ("tick/velocity", "tick/impedance")
+TICKS = ("tick/velocity", "tick/impedance", "tick/adaptive")
 IKS = tuple(f"ik/{n}_knots" for n in IK_KNOTS)
 RUNS = tuple(f"run/{c}" for c in CONTROLLERS)
 ALL = (*TICKS, *IKS, *EPISODES, *RUNS, "memory/episode", "profile/episode")
