@@ -23,11 +23,11 @@ from __future__ import annotations
 import base64
 import concurrent.futures
 import copy
+import dataclasses
 import datetime
 import html
 import json
 import math
-import multiprocessing
 import os
 import platform
 import shutil
@@ -134,17 +134,36 @@ def _record_failure(name: str, run_dir: Path, scenario: Scenario | None, error: 
     return RunRecord(name, run_dir, "error", message, elapsed)
 
 
-def _run_experiment(name: str, scenario: Scenario, run_dir: str) -> RunRecord:
-    """Worker: runs one experiment into ``run_dir``; never raises for a failed run."""
+def _run_experiment(name: str, scenario: Scenario) -> tuple[RunRecord, dict[str, bytes]]:
+    """Worker: runs one experiment; returns its record and its run folder's files.
+
+    The folder is written in the worker's temporary directory and shipped back as bytes, so a
+    worker on another machine (a Dask cluster) needs no shared file system. Never raises for a
+    failed run.
+    """
+    import tempfile
+
     from doorlab.runs import run_to_folder
 
     start = time.perf_counter()
-    folder = Path(run_dir)
-    try:
-        outcome = run_to_folder(scenario, folder, replay=True)
-    except Exception as e:  # one failed run must not lose the others
-        return _record_failure(name, folder, scenario, e, time.perf_counter() - start)
-    return RunRecord(name, folder, outcome.status, outcome.message, time.perf_counter() - start)
+    with tempfile.TemporaryDirectory(prefix="doorlab_run_") as tmp:
+        folder = Path(tmp) / name
+        try:
+            outcome = run_to_folder(scenario, folder, replay=True)
+            record = RunRecord(name, folder, outcome.status, outcome.message,
+                               time.perf_counter() - start)
+        except Exception as e:  # one failed run must not lose the others
+            record = _record_failure(name, folder, scenario, e, time.perf_counter() - start)
+        files = {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()}
+    return record, files
+
+
+def _write_run(record: RunRecord, files: dict[str, bytes], run_dir: Path) -> RunRecord:
+    """Writes a worker's run folder files into ``run_dir``; the record now points there."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    for file_name, data in files.items():
+        (run_dir / file_name).write_bytes(data)
+    return dataclasses.replace(record, run_dir=run_dir)
 
 
 class _Progress:
@@ -195,6 +214,7 @@ def run_report(
     base: Scenario | None = None,
     progress: bool = True,
     experiments: Sequence[tuple[str, Scenario]] | None = None,
+    scheduler: str | None = None,
 ) -> int:
     """Runs the experiments in parallel and writes the report folder atomically.
 
@@ -206,6 +226,8 @@ def run_report(
         base: The scenario the experiments vary (see :func:`make_experiments`); validated.
         progress: Show a progress bar on stderr.
         experiments: (name, scenario) pairs to run instead of ``make_experiments(base)``.
+        scheduler: Run on this Dask cluster (``tcp://HOST:PORT``) instead of ``jobs`` local
+            processes (:mod:`doorlab.executor`).
 
     Returns:
         0 if every run's status is ``ok``, 1 otherwise (failed runs are on the page).
@@ -214,8 +236,11 @@ def run_report(
         ConfigError: ``jobs`` < 1, duplicate or unsafe experiment names, invalid ``base``.
         OutputError: ``out_dir`` exists (without ``force``) or cannot be written.
     """
+    from doorlab.executor import check_scheduler, open_executor
     from doorlab.runs import commit_output, prepare_output
 
+    if scheduler is not None:
+        check_scheduler(scheduler)
     if not isinstance(jobs, int) or jobs < 1:
         raise ConfigError(f"jobs must be an integer >= 1, got {jobs!r}")
     if base is not None:
@@ -236,31 +261,21 @@ def run_report(
         records: dict[str, RunRecord] = {}
         bar = _Progress(len(experiments), enabled=progress)
         if experiments:
-            context = multiprocessing.get_context("spawn")  # pydrake and fork do not mix
-            pool = concurrent.futures.ProcessPoolExecutor(
-                max_workers=min(jobs, len(experiments)), mp_context=context
-            )
-            try:
+            with open_executor(jobs=min(jobs, len(experiments)), scheduler=scheduler) as pool:
                 futures = {
-                    pool.submit(_run_experiment, name, scenario, str(runs_dir / name)): (
-                        name, scenario,
-                    )
+                    pool.submit(_run_experiment, name, scenario): (name, scenario)
                     for name, scenario in experiments
                 }
                 for future in concurrent.futures.as_completed(futures):
                     name, scenario = futures[future]
                     try:
-                        record = future.result()
+                        record = _write_run(*future.result(), runs_dir / name)
                     except Exception as e:  # e.g. a worker process died
                         record = _record_failure(
                             name, runs_dir / name, scenario, e, time.perf_counter() - start
                         )
                     records[name] = record
                     bar.update(record)
-            except BaseException:
-                pool.shutdown(wait=False, cancel_futures=True)
-                raise
-            pool.shutdown(wait=True)
         total = time.perf_counter() - start
         ordered = [records[name] for name in names]
         bar.close(f"runs done; {bar.failed} not ok; writing the page")
