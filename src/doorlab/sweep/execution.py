@@ -29,7 +29,7 @@ from doorlab.sweep.results import (
 )
 from doorlab.sweep.spec import PlannedRun, SweepSpec, plan_runs
 
-PAGE_FILES = ("index.html", "figures")
+PAGE_FILES = ("index.html", "figures", "sweep.json")
 TABLE_INTERVAL_S = 1.0
 """Shortest time between two rewrites of the table while runs finish [s] (the last is always
 written); keeps a sweep of thousands of short runs from spending its time rewriting."""
@@ -178,12 +178,14 @@ def run_sweep(
     bar = _progress_bar(len(runs), initial=len(rows), enabled=progress)
     failures = sum(r.get("status") != "ok" for r in rows.values())
     start = time.perf_counter()
+    description = "none (every run was in the table)"
     try:
         save(now=True)
         if todo:
             with open_executor(jobs=min(jobs, len(todo)), scheduler=scheduler) as executor:
+                description = executor.description
                 if bar is not None:
-                    bar.write(f"doorlab sweep: {len(todo)} runs on {executor.description}")
+                    bar.write(f"doorlab sweep: {len(todo)} runs on {description}")
                 futures = {executor.submit(run_one, run.scenario): run for run in todo}
                 for future in concurrent.futures.as_completed(futures):
                     run = futures[future]
@@ -213,7 +215,14 @@ def run_sweep(
     if out is not None and page:
         from doorlab.sweep.page import build_sweep_page
 
-        build_sweep_page(frame, spec, out, wall_time_s=time.perf_counter() - start)
+        build_sweep_page(
+            frame,
+            spec,
+            out,
+            wall_time_s=time.perf_counter() - start,
+            executor=description,
+            total_runs=len(runs),
+        )
     return frame
 
 
