@@ -82,8 +82,9 @@ def _positions(axis: Axis, column: pd.Series) -> tuple[np.ndarray, list[str] | N
     values = list(column)
     if _numeric(values):
         return np.asarray(values, float) * axis.display_scale, None
-    categories = list(dict.fromkeys(str(v) for v in (axis.values or values)))
-    return np.array([categories.index(str(v)) for v in values], float), categories
+    categories = [_key(v) for v in (axis.values or values)]
+    categories = list(dict.fromkeys(categories))
+    return np.array([categories.index(_key(v)) for v in values], float), categories
 
 
 def plot_metrics_vs_axis(
@@ -180,24 +181,22 @@ def plot_heatmaps(
     pairs = groups(frame)
     fig = Figure(figsize=(4.2 * len(metrics), 3.4 * len(pairs) + 0.6), layout="constrained")
     axes = fig.subplots(len(pairs), len(metrics), squeeze=False)
-    xs = list(x_axis.values)
-    ys = list(y_axis.values)
+    xs = [repr(v) for v in x_axis.values]
+    ys = [repr(v) for v in y_axis.values]
+    keys = frame.assign(_xk=frame[x_axis.field].map(_key), _yk=frame[y_axis.field].map(_key))
     for r, (controller, doors) in enumerate(pairs):
-        mine = frame[(frame["controller"] == controller) & (frame["doors"] == doors)]
+        mine = keys[(keys["controller"] == controller) & (keys["doors"] == doors)]
         for c, key in enumerate(metrics):
             ax = axes[r, c]
             unit, scale = metric_display(key)
             grid = np.full((len(ys), len(xs)), np.nan)
             bad = np.zeros_like(grid, dtype=bool)
-            for (xv, yv), cell in mine.groupby([x_axis.field, y_axis.field]):
+            for (xv, yv), cell in mine.groupby(["_xk", "_yk"]):
                 if xv not in xs or yv not in ys:
                     continue
                 i, j = ys.index(yv), xs.index(xv)
-                grid[i, j] = (
-                    float(np.nanmedian(cell[key].astype(float))) * scale
-                    if (cell[key].notna().any())
-                    else np.nan
-                )
+                values = cell[key].astype(float) * scale
+                grid[i, j] = float(values.median()) if values.notna().any() else np.nan
                 bad[i, j] = bool((cell["status"] != "ok").any())
             image = ax.imshow(grid, origin="lower", aspect="auto", cmap="viridis")
             fig.colorbar(image, ax=ax, label=f"[{unit}]" if unit else None, shrink=0.9)
@@ -225,14 +224,23 @@ def plot_heatmaps(
                             color="white",
                             fontsize=7,
                         )
-            ax.set_xticks(range(len(xs)), [_tick(x_axis, v) for v in xs], fontsize=7)
-            ax.set_yticks(range(len(ys)), [_tick(y_axis, v) for v in ys], fontsize=7)
+            ax.set_xticks(range(len(xs)), [_tick(x_axis, v) for v in x_axis.values], fontsize=7)
+            ax.set_yticks(range(len(ys)), [_tick(y_axis, v) for v in y_axis.values], fontsize=7)
             ax.set_xlabel(x_axis.label, fontsize=8)
             ax.set_ylabel(y_axis.label, fontsize=8)
             title = METRIC_TITLES.get(key, key)
             ax.set_title(f"{controller}, {doors}: {title}", fontsize=8)
     fig.suptitle(f"{y_axis.field} x {x_axis.field} (x: a run not ok)")
     return fig
+
+
+def _key(value: object) -> str:
+    """A hashable key of an axis value (list values come back from Parquet as arrays)."""
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if isinstance(value, (np.floating, np.integer)):
+        value = value.item()
+    return repr(value)
 
 
 def _tick(axis: Axis, value: object) -> str:

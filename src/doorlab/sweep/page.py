@@ -8,6 +8,7 @@ import itertools
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from doorlab.pages import Figures, format_number, machine_rows, metric_header, metric_unit, render
@@ -38,6 +39,11 @@ def _cell(value: object, key: str | None = None, axis: Axis | None = None) -> di
 
 
 def _shown(value: object, key: str | None, axis: Axis | None) -> dict:
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return {
+            "value": "[" + ", ".join(format_number(float(v)) for v in value) + "]",
+            "text": False,
+        }
     if value is None or (not isinstance(value, str) and pd.isna(value)):
         return {"value": "\u2013", "text": False}
     if isinstance(value, bool):
