@@ -156,7 +156,8 @@ def compute_metrics(
     Args:
         result: The episode's logs.
         scenario: The scenario that produced them (controller, doors, knots).
-        geometry: The door geometry the plans used.
+        geometry: The TRUE door geometry (:func:`doorlab.geometry.true_door_geometry`): the
+            arc the handle really follows; equal to the plans' with no cupboard yaw error.
         kinematics: Reusable forward kinematics (built if not given).
     """
     kinematics = kinematics or Kinematics()

@@ -43,7 +43,7 @@ import numpy as np
 
 from doorlab.config import Scenario, validate
 from doorlab.errors import ConfigError
-from doorlab.geometry import DoorGeometry, default_door_geometry
+from doorlab.geometry import DoorGeometry, true_door_geometry
 from doorlab.metrics import Kinematics, Tracking, compute_tracking
 from doorlab.simulation import EpisodeResult
 
@@ -380,7 +380,7 @@ def _load_run(record: RunRecord, kinematics: Kinematics) -> _Run:
         yaml_path = folder / "scenario.yaml"
         text = yaml_path.read_text() if yaml_path.is_file() else result.scenario_yaml
         scenario = yaml_load_typed(schema=Scenario, data=text) if text else Scenario()
-        geometry = default_door_geometry(scenario.arc.angle_end_deg)
+        geometry = true_door_geometry(scenario)
         run.result, run.scenario, run.geometry = result, scenario, geometry
         run.tracking = compute_tracking(result, geometry, kinematics=kinematics)
         run.tracking_cmd = compute_tracking(
