@@ -50,7 +50,7 @@ def run_one(scenario: Scenario) -> dict:
         run produced (none for ik_failed, diverged and error).
     """
     from doorlab.controllers import run_controller
-    from doorlab.geometry import scenario_door_geometry
+    from doorlab.geometry import true_door_geometry
     from doorlab.metrics import compute_metrics
     from doorlab.runs import status_message
 
@@ -59,7 +59,7 @@ def run_one(scenario: Scenario) -> dict:
     try:
         result, _ = run_controller(scenario)
         metrics = compute_metrics(
-            result, scenario, scenario_door_geometry(scenario), kinematics=_kinematics()
+            result, scenario, true_door_geometry(scenario), kinematics=_kinematics()
         )
         row = {**metrics.to_dict(), "error": status_message(metrics)}
     except (IkError, SimulationError) as e:
