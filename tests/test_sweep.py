@@ -8,7 +8,9 @@ handle fails, status ik_failed). The local sweep is run once per module and shar
 
 from __future__ import annotations
 
+import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -136,6 +138,19 @@ def test_degree_axes_are_stored_in_radians():
     assert spec.axes[1].values == (0.5, 1.0)
     deg = parse_spec({"axes": {"ik.theta_bound": {"low": 1, "high": 2, "num": 2, "unit": "deg"}}})
     np.testing.assert_allclose(deg.axes[0].values, np.radians([1.0, 2.0]), rtol=1e-15)
+
+
+EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
+
+
+@pytest.mark.parametrize("path", sorted(EXAMPLES_DIR.glob("sweep_*.yaml")), ids=lambda p: p.name)
+def test_shipped_sweep_specs_load(path):
+    """Every shipped SPEC loads, and each run's scenario validates (checked by load_spec)."""
+    spec = load_spec(path)
+    runs = plan_runs(spec)
+    assert len(runs) == len(spec.controllers) * len(spec.doors) * np.prod(
+        [len(a.values) for a in spec.axes]
+    )
 
 
 def test_grid_shorthand_adds_list_axes(tmp_path: Path):
@@ -350,3 +365,46 @@ def test_run_sweep_api_returns_the_table_without_writing(tmp_path: Path, monkeyp
     frame = run_sweep(spec, jobs=1)
     assert list(frame["status"]) == ["ik_failed"] and list(frame["run"]) == [0]
     assert not list(tmp_path.iterdir())
+
+
+def test_sweep_page_renders_in_chromium(local_sweep, tmp_path: Path):
+    """The sweep page is self-contained and renders in headless Chromium: every embedded plot
+    decodes, every table has rows; one plot per axis, a heatmap for the pair of grid axes."""
+    from test_report_browser import BROWSER_TIMEOUT_S, CHECK_SCRIPT, chromium
+
+    _, out, table = local_sweep
+    page = (out / "index.html").read_text(encoding="utf-8")
+    assert "http://" not in page and "https://" not in page and "<script" not in page.lower()
+    images = re.findall(r'<img src="data:image/png;base64,', page)
+    assert len(images) == 2 + 1  # two axes, one pair of axes
+    rows = re.findall(r'<tr data-run="(\d+)"', page)
+    assert [int(r) for r in rows] == list(table["run"])
+    binary = chromium()
+    if binary is None:
+        pytest.skip("chromium not installed: apt-get install chromium")
+    copy = tmp_path / "index_check.html"
+    copy.write_text(page.replace("</body>", CHECK_SCRIPT + "</body>"), encoding="utf-8")
+    command = [
+        binary,
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        f"--user-data-dir={tmp_path / 'profile'}",
+        "--virtual-time-budget=5000",
+        "--dump-dom",
+        copy.as_uri(),
+    ]
+    done = subprocess.run(
+        command, capture_output=True, text=True, timeout=BROWSER_TIMEOUT_S, check=False
+    )
+    match = re.search(r'<pre id="render-check">(.*?)</pre>', done.stdout, flags=re.S)
+    assert match, f"no render check in the DOM (exit {done.returncode}): {done.stderr[-2000:]}"
+    result = json.loads(match.group(1).replace("&quot;", '"').replace("&amp;", "&"))
+    assert result["images"] == len(images)
+    assert result["broken_images"] == []
+    assert result["tables"] == len(re.findall(r"<table\b", page)) >= 3
+    assert result["empty_tables"] == []
