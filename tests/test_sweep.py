@@ -210,6 +210,7 @@ def test_bad_spec_is_one_line_exit_2_and_writes_nothing(tmp_path: Path, capsys, 
         (["sweep", "--grid", "impedance.kv"], "KEY=V1,V2"),
         (["sweep", "--grid", "impedance.kv=1", "--scheduler", "localhost"], "tcp://HOST:PORT"),
         (["sweep", "--grid", "impedance.kv=1", "--resume", "--force"], "exclude"),
+        (["report", "--scheduler", "127.0.0.1:8786"], "tcp://HOST:PORT"),
     ],
 )
 def test_bad_command_line_is_exit_2(tmp_path: Path, capsys, argv, expected):
