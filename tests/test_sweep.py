@@ -409,3 +409,51 @@ def test_sweep_page_renders_in_chromium(local_sweep, tmp_path: Path):
     assert result["broken_images"] == []
     assert result["tables"] == len(re.findall(r"<table\b", page)) >= 3
     assert result["empty_tables"] == []
+
+
+def test_page_of_random_samples_marks_failures_without_simulating(tmp_path: Path):
+    """A page from a hand-made table (random draws of two axes, no heatmaps): every run is a
+    table row, runs without metrics and runs not ok are marked, nothing is simulated."""
+    from doorlab.sweep.page import build_sweep_page
+    from doorlab.sweep.results import make_table
+
+    spec = parse_spec(
+        {
+            "controllers": ["ik", "impedance"],
+            "doors": ["closed"],
+            "axes": {
+                "station.hinge_damping": {"low": 0.2, "high": 5.0, "log": True},
+                "station.cupboard_yaw_error": {"low": -10, "high": 10, "unit": "deg"},
+            },
+            "samples": 6,
+        }
+    )
+    rows = []
+    for run in plan_runs(spec):
+        status = ("ok", "slipped", "ik_failed")[run.index % 3]
+        row = {
+            "run": run.index,
+            "key": run.key,
+            "controller": run.scenario.controller,
+            "doors": "closed",
+            **run.values,
+            "status": status,
+            "run_wall_time_s": 1.0,
+        }
+        if status != "ik_failed":
+            row.update(
+                door_opening_rad=0.1 * run.index,
+                peak_external_torque_arc_Nm=2.0,
+                max_radial_error_m=0.001,
+                max_orientation_error_rad=0.01,
+            )
+        else:
+            row["error"] = "IK found no solution"
+        rows.append(row)
+    frame = make_table(rows, [a.field for a in spec.axes])
+    page = build_sweep_page(frame, spec, tmp_path).read_text()
+    assert len(re.findall(r"<img ", page)) == 2  # one figure per axis, no heatmaps
+    assert len(re.findall(r'<tr data-run="\d+" class="failed">', page)) == 4
+    assert len(re.findall(r'<tr data-run="\d+" class="warn">', page)) == 4
+    assert "IK found no solution" in page and "log-uniform in [0.200, 5.00]" in page
+    assert "uniform in [-10.0, 10.0] deg" in page

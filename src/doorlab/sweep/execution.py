@@ -27,7 +27,7 @@ from doorlab.sweep.results import (
     read_table,
     write_table,
 )
-from doorlab.sweep.spec import PlannedRun, SweepSpec, plan_runs
+from doorlab.sweep.spec import PlannedRun, SweepSpec, load_spec, plan_runs
 
 PAGE_FILES = ("index.html", "figures", "sweep.json")
 TABLE_INTERVAL_S = 1.0
@@ -112,7 +112,7 @@ def _row(run: PlannedRun, outcome: dict) -> dict:
 
 
 def run_sweep(
-    spec: SweepSpec,
+    spec: SweepSpec | str | Path,
     out_dir: str | Path | None = None,
     *,
     jobs: int = 1,
@@ -125,7 +125,7 @@ def run_sweep(
     """Runs every run of ``spec`` and returns the results table (one row per run).
 
     Args:
-        spec: The sweep (see :func:`doorlab.sweep.load_spec`).
+        spec: The sweep, or the path of its SPEC file (see :func:`doorlab.sweep.load_spec`).
         out_dir: Folder for ``results.parquet``, ``results.csv`` and ``index.html`` (None:
             write nothing, return the table).
         jobs: Local worker processes (ignored with ``scheduler``).
@@ -145,6 +145,8 @@ def run_sweep(
     """
     from doorlab.executor import check_scheduler, open_executor
 
+    if not isinstance(spec, SweepSpec):
+        spec = load_spec(spec)
     runs = plan_runs(spec)
     axes = [axis.field for axis in spec.axes]
     if scheduler is not None:
