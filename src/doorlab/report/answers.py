@@ -8,13 +8,21 @@ from __future__ import annotations
 
 import html
 import math
-from collections.abc import Sequence
 
 import numpy as np
 
-from doorlab.metrics import Tracking
 from doorlab.pages import format_number
-from doorlab.report.context import AnswerPage, span
+from doorlab.report.context import (
+    AnswerPage,
+    door_lag_deg,
+    knot_profile,
+    order_phrase,
+    ratio_phrase,
+    side,
+    signed_range_mm,
+    span,
+    tau_of_max,
+)
 from doorlab.report.experiments import IK_KNOTS
 from doorlab.report.folders import LoadedRun
 
@@ -68,90 +76,6 @@ TASK_TITLES = {
 }
 
 
-def _order_phrase(values: Sequence[float], *, falling: str = "falls", rising: str = "grows") -> str:
-    """Describes a sequence by its actual order: monotone falling/rising or not monotone."""
-    diffs = np.diff(np.asarray(values, float))
-    if len(diffs) and np.all(diffs < 0):
-        return falling
-    if len(diffs) and np.all(diffs > 0):
-        return rising
-    return "changes, not monotonically,"
-
-
-def _ratio_phrase(a: float | None, b: float | None) -> str:
-    """'3.2 times smaller than' / 'larger than' / 'equal to' for a vs b (both > 0)."""
-    if a is None or b is None or not (math.isfinite(a) and math.isfinite(b)):
-        return "not comparable with"
-    if a == b:
-        return "equal to"
-    if a < b:
-        ratio = b / a if a > 0 else math.inf
-        return (
-            f"{span(format_number(ratio))} times smaller than"
-            if math.isfinite(ratio)
-            else ("smaller than")
-        )
-    ratio = a / b if b > 0 else math.inf
-    return (
-        f"{span(format_number(ratio))} times larger than"
-        if math.isfinite(ratio)
-        else ("larger than")
-    )
-
-
-def _signed_range_mm(tracking: Tracking, *, skip: float = 0.05) -> tuple[float, float]:
-    """(min, max) of the signed radial error [mm] for tau >= skip (after the start transient)."""
-    mask = tracking.tau >= skip
-    e = 1000.0 * tracking.radial_error[mask if np.any(mask) else slice(None)]
-    return float(np.min(e)), float(np.max(e))
-
-
-def _knot_profile(run: LoadedRun) -> tuple[float, list[float]] | None:
-    """(max |e| at the knots [mm], peak |e| per knot segment [mm]) of an IK run."""
-    knots = run.scenario.ik.knots if run.scenario else None
-    if not knots or knots < 2:
-        return None
-    tau = run.tracking.tau
-    e = np.abs(1000.0 * run.tracking.radial_error)
-    knot_taus = np.linspace(0.0, 1.0, knots)
-    at_knots = [float(e[int(np.argmin(np.abs(tau - k)))]) for k in knot_taus]
-    peaks = []
-    for a, b in zip(knot_taus[:-1], knot_taus[1:], strict=True):
-        mask = (tau >= a) & (tau <= b)
-        peaks.append(float(np.max(e[mask])) if np.any(mask) else float("nan"))
-    return max(at_knots), peaks
-
-
-def _tau_of_max(tracking: Tracking) -> float:
-    """Arc parameter tau in [0, 1] where |radial error| is largest."""
-    return float(tracking.tau[int(np.argmax(np.abs(tracking.radial_error)))])
-
-
-def _side(tracking: Tracking) -> str:
-    """ "outside" or "inside": where Q is at its largest radial error."""
-    e = tracking.radial_error
-    return "inside" if len(e) and e[int(np.argmax(np.abs(e)))] < 0 else "outside"
-
-
-def _door_lag_deg(run: LoadedRun) -> float | None:
-    """Largest lag of the left door behind the plan's hinge angle over the arc window [deg].
-
-    The arc plan implies a hinge angle of -sweep * tau (the door following the handle arc
-    from closed); positive lag: the door is less open than planned.
-    """
-    if run.result is None or run.geometry is None:
-        return None
-    result = run.result
-    t0, t1 = result.arc_window
-    mask = result.window(t0, t1)
-    if not np.any(mask):
-        return None
-    tau = np.clip((result.t[mask] - t0) / (t1 - t0), 0.0, 1.0)
-    planned = -run.geometry.sweep * tau
-    lag = result.door_angles[mask, 0] - planned
-    return float(np.degrees(np.max(lag)))
-
-
 def _closed_sentence(page: AnswerPage, closed: str, opened: str, *, explain: bool = True) -> str:
     """What closing the doors did for one controller: door, error, torques, grip."""
     c = page.runs[closed]
@@ -181,7 +105,7 @@ def _closed_sentence(page: AnswerPage, closed: str, opened: str, *, explain: boo
             if held
             else "The gripper did not hold the handle at the end."
         )
-    lag = _door_lag_deg(c)
+    lag = door_lag_deg(c)
     if lag is not None:
         parts.append(
             f"Over the arc the door trails the plan's hinge angle by up to "
@@ -192,7 +116,7 @@ def _closed_sentence(page: AnswerPage, closed: str, opened: str, *, explain: boo
         b = page.value(opened, "max_radial_error_m")
         parts.append(
             f"Its max radial error is {page.num(closed, 'max_radial_error_m')}, "
-            f"{_ratio_phrase(a, b)} the {page.num(opened, 'max_radial_error_m')} with the doors "
+            f"{ratio_phrase(a, b)} the {page.num(opened, 'max_radial_error_m')} with the doors "
             f"open (RMS {page.num(closed, 'rms_radial_error_m')} vs "
             f"{page.num(opened, 'rms_radial_error_m')}); max orientation error "
             f"{page.num(closed, 'max_orientation_error_rad')} vs "
@@ -237,7 +161,7 @@ def _answer_t1q1(page: AnswerPage) -> tuple[str, str]:
     if runs:
         knots = [r.scenario.ik.knots for r in runs]
         max_e = [page.value(r.name, "max_radial_error_m") for r in runs]
-        phrase = (_order_phrase(max_e) + " as knots are added") if len(runs) > 1 else "is"
+        phrase = (order_phrase(max_e) + " as knots are added") if len(runs) > 1 else "is"
         listing = ", ".join(
             f"{page.num(r.name, 'max_radial_error_m')} with {k} knots"
             for r, k in zip(runs, knots, strict=True)
@@ -330,12 +254,12 @@ def _answer_t1q2(page: AnswerPage) -> tuple[str, str]:
     text = page.missing(*names, "ik_10_closed")
     bulging, floor = [], []
     for run in runs:
-        profile = _knot_profile(run)
+        profile = knot_profile(run)
         if profile is None:
             continue
         at_knots, peaks = profile
         worst = max(peaks)
-        sign = _side(run.tracking)
+        sign = side(run.tracking)
         k = run.scenario.ik.knots
         segments = "segment" if k == 2 else f"{k - 1} segments"
         ratio = worst / max(at_knots, 1e-9)
@@ -405,11 +329,11 @@ def _answer_t2q1(page: AnswerPage) -> tuple[str, str]:
     if page.logged("velocity_open") and ref is not None:
         v = page.value("velocity_open", "max_radial_error_m")
         sentences = [
-            f"{_ratio_phrase(v, page.value(ik.name, 'max_radial_error_m'))} the "
+            f"{ratio_phrase(v, page.value(ik.name, 'max_radial_error_m'))} the "
             f"{page.num(ik.name, 'max_radial_error_m')} of {html.escape(ik.label)}"
             for ik in iks
         ]
-        tau_max = _tau_of_max(page.runs["velocity_open"].tracking)
+        tau_max = tau_of_max(page.runs["velocity_open"].tracking)
         where = (
             f" (reached at {span(format_number(100 * tau_max))} % of the arc: the start "
             "transient, while the arm picks up speed)"
@@ -464,14 +388,14 @@ def _answer_t2q2(page: AnswerPage) -> tuple[str, str]:
     text = page.missing("velocity_open", "ik_10_open", "velocity_closed")
     if page.logged("velocity_open"):
         run = page.runs["velocity_open"]
-        lo, hi = _signed_range_mm(run.tracking)
+        lo, hi = signed_range_mm(run.tracking)
         text += (
             f"<p>Along the arc (after the first 5 % of it) the velocity plan's signed radial "
             f"error stays between {span(format_number(lo))} and {span(format_number(hi))} mm, "
             f"a spread of {span(format_number(hi - lo))} mm"
         )
         if ref is not None:
-            ilo, ihi = _signed_range_mm(ref.tracking)
+            ilo, ihi = signed_range_mm(ref.tracking)
             spread, ispread = hi - lo, ihi - ilo
             text += (
                 f"; for {html.escape(ref.label)} it spans {span(format_number(ilo))} to "
@@ -533,7 +457,7 @@ def _answer_t3q1(page: AnswerPage) -> tuple[str, str]:
                 f"{span(format_number(kv))} N/m, which has to drag the arm against the inner "
                 "loop's joint damping (D<sub>q</sub> q&#775;, and the stiffness term acting on a "
                 "q_ref one control period old). So Q lags its reference and drifts "
-                f"{_side(imp.tracking)} the arc: the max error of "
+                f"{side(imp.tracking)} the arc: the max error of "
                 f"{page.num('impedance_open', 'max_radial_error_m')} is a spring force of about "
                 f"{span(format_number(kv * e))} N. The position-commanding plans do not need a "
                 "force to move, so their error does not scale with 1/K<sub>v</sub>.</p>"
@@ -566,7 +490,7 @@ def _answer_t3q2(page: AnswerPage) -> tuple[str, str]:
                     "this comparison does not isolate the door's effect.</p>"
                 )
             elif a < b:
-                lag = _door_lag_deg(page.runs["impedance_closed"])
+                lag = door_lag_deg(page.runs["impedance_closed"])
                 text += (
                     "With the doors open the soft spring lets Q drift off the arc while it "
                     "lags; with the door closed the hinge holds the handle, and so Q, on the "

@@ -8,7 +8,12 @@ key, so tests can check the printed value against the folder.
 from __future__ import annotations
 
 import html
+import math
+from collections.abc import Sequence
 
+import numpy as np
+
+from doorlab.metrics import Tracking
 from doorlab.pages import Figures, format_number, metric_unit
 from doorlab.report.folders import LoadedRun, line_style
 
@@ -145,3 +150,90 @@ class AnswerPage:
             ),
             f"Norm of the external (contact) joint torques [N m]: {what}.",
         )
+
+
+# Helpers of the answers: describing measured sequences and logs in words.
+
+
+def order_phrase(values: Sequence[float], *, falling: str = "falls", rising: str = "grows") -> str:
+    """Describes a sequence by its actual order: monotone falling/rising or not monotone."""
+    diffs = np.diff(np.asarray(values, float))
+    if len(diffs) and np.all(diffs < 0):
+        return falling
+    if len(diffs) and np.all(diffs > 0):
+        return rising
+    return "changes, not monotonically,"
+
+
+def ratio_phrase(a: float | None, b: float | None) -> str:
+    """'3.2 times smaller than' / 'larger than' / 'equal to' for a vs b (both > 0)."""
+    if a is None or b is None or not (math.isfinite(a) and math.isfinite(b)):
+        return "not comparable with"
+    if a == b:
+        return "equal to"
+    if a < b:
+        ratio = b / a if a > 0 else math.inf
+        return (
+            f"{span(format_number(ratio))} times smaller than"
+            if math.isfinite(ratio)
+            else ("smaller than")
+        )
+    ratio = a / b if b > 0 else math.inf
+    return (
+        f"{span(format_number(ratio))} times larger than"
+        if math.isfinite(ratio)
+        else ("larger than")
+    )
+
+
+def signed_range_mm(tracking: Tracking, *, skip: float = 0.05) -> tuple[float, float]:
+    """(min, max) of the signed radial error [mm] for tau >= skip (after the start transient)."""
+    mask = tracking.tau >= skip
+    e = 1000.0 * tracking.radial_error[mask if np.any(mask) else slice(None)]
+    return float(np.min(e)), float(np.max(e))
+
+
+def knot_profile(run: LoadedRun) -> tuple[float, list[float]] | None:
+    """(max |e| at the knots [mm], peak |e| per knot segment [mm]) of an IK run."""
+    knots = run.scenario.ik.knots if run.scenario else None
+    if not knots or knots < 2:
+        return None
+    tau = run.tracking.tau
+    e = np.abs(1000.0 * run.tracking.radial_error)
+    knot_taus = np.linspace(0.0, 1.0, knots)
+    at_knots = [float(e[int(np.argmin(np.abs(tau - k)))]) for k in knot_taus]
+    peaks = []
+    for a, b in zip(knot_taus[:-1], knot_taus[1:], strict=True):
+        mask = (tau >= a) & (tau <= b)
+        peaks.append(float(np.max(e[mask])) if np.any(mask) else float("nan"))
+    return max(at_knots), peaks
+
+
+def tau_of_max(tracking: Tracking) -> float:
+    """Arc parameter tau in [0, 1] where |radial error| is largest."""
+    return float(tracking.tau[int(np.argmax(np.abs(tracking.radial_error)))])
+
+
+def side(tracking: Tracking) -> str:
+    """ "outside" or "inside": where Q is at its largest radial error."""
+    e = tracking.radial_error
+    return "inside" if len(e) and e[int(np.argmax(np.abs(e)))] < 0 else "outside"
+
+
+def door_lag_deg(run: LoadedRun) -> float | None:
+    """Largest lag of the left door behind the plan's hinge angle over the arc window [deg].
+
+    The arc plan implies a hinge angle of -sweep * tau (the door following the handle arc
+    from closed); positive lag: the door is less open than planned.
+    """
+    if run.result is None or run.geometry is None:
+        return None
+    result = run.result
+    t0, t1 = result.arc_window
+    mask = result.window(t0, t1)
+    if not np.any(mask):
+        return None
+    tau = np.clip((result.t[mask] - t0) / (t1 - t0), 0.0, 1.0)
+    planned = -run.geometry.sweep * tau
+    lag = result.door_angles[mask, 0] - planned
+    return float(np.degrees(np.max(lag)))
