@@ -48,6 +48,8 @@ def _shown(value: object, key: str | None, axis: Axis | None) -> dict:
         return {"value": "\u2013", "text": False}
     if isinstance(value, bool):
         return {"value": "yes" if value else "no", "text": False}
+    if isinstance(value, (int, np.integer)) and axis is None and key is None:
+        return {"value": str(int(value)), "text": False}  # the run number
     if isinstance(value, (int, float)):
         scale = axis.display_scale if axis is not None else metric_unit(key or "")[1]
         return {"value": format_number(float(value) * scale), "text": False}
