@@ -111,6 +111,8 @@ BAD_VALUES = [
     ("kq[6]=inf", _with_entry("station.inner_loop.kq", 6, INF), "station.inner_loop.kq[6]"),
     ("dq[2]=-1", _with_entry("station.inner_loop.dq", 2, -1.0), "station.inner_loop.dq[2]"),
     ("dq[6]=nan", _with_entry("station.inner_loop.dq", 6, NAN), "station.inner_loop.dq[6]"),
+    ("dq_scale=-1", _with("station.inner_loop.dq_scale", -1.0), "station.inner_loop.dq_scale"),
+    ("dq_scale=nan", _with("station.inner_loop.dq_scale", NAN), "station.inner_loop.dq_scale"),
     ("id_kp=0", _with("station.inner_loop.id_kp", 0.0), "station.inner_loop.id_kp"),
     ("id_ki=-1", _with("station.inner_loop.id_ki", -1.0), "station.inner_loop.id_ki"),
     # inner-loop gains: 7 entries

@@ -248,16 +248,18 @@ def test_table_has_a_row_per_run_with_metrics_and_failures(local_sweep):
     # The cupboard out of reach: ik_failed rows with the IK's message and no metrics.
     assert (table.loc[far, "status"] == "ik_failed").all()
     assert table.loc[far, "error"].str.contains("IK").all()
-    assert table.loc[far, "door_opening_rad"].isna().all()
+    assert table.loc[far, "door_opening_arc_end_rad"].isna().all()
     # In reach: finished episodes, every metric of metrics.json present.
     done = table[~far]
     assert done["status"].isin(["ok", "slipped", "speed_limit"]).all()
-    assert done["sim_time_s"].gt(5.0).all() and done["door_opening_rad"].notna().all()
+    assert done["sim_time_s"].gt(5.0).all() and done["door_opening_arc_end_rad"].notna().all()
     assert list(done["velocity.kv"]) == [100.0, 200.0]
     # CSV and Parquet hold the same table.
     csv = pd.read_csv(out / RESULTS_CSV)
     assert list(csv.columns) == list(table.columns)
-    np.testing.assert_allclose(csv["door_opening_rad"], table["door_opening_rad"].astype(float))
+    np.testing.assert_allclose(
+        csv["door_opening_arc_end_rad"], table["door_opening_arc_end_rad"].astype(float)
+    )
     assert (out / "index.html").is_file() and not list(out.glob(".*.tmp"))
 
 
@@ -442,7 +444,7 @@ def test_page_of_random_samples_marks_failures_without_simulating(tmp_path: Path
         }
         if status != "ik_failed":
             row.update(
-                door_opening_rad=0.1 * run.index,
+                door_opening_arc_end_rad=0.1 * run.index,
                 peak_external_torque_arc_Nm=2.0,
                 max_radial_error_m=0.001,
                 max_orientation_error_rad=0.01,

@@ -285,7 +285,8 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
         for actuator, kq, dq in zip(
             arm_actuators, config.inner_loop.kq, config.inner_loop.dq, strict=True
         ):
-            actuator.set_controller_gains(PdControllerGains(p=float(kq), d=float(dq)))
+            d = float(dq) * config.inner_loop.dq_scale
+            actuator.set_controller_gains(PdControllerGains(p=float(kq), d=d))
     plant.Finalize()
     _set_friction(plant, scene_graph, config.friction)
     _filter_scene_collisions(plant, scene_graph)

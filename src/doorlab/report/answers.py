@@ -81,11 +81,12 @@ def _closed_sentence(page: AnswerPage, closed: str, opened: str, *, explain: boo
     c = page.runs[closed]
     geometry = c.geometry
     planned = math.degrees(geometry.sweep) if geometry else float("nan")
-    opening = page.value(closed, "door_opening_rad")
+    opening = page.value(closed, "door_opening_arc_end_rad")
     parts = [
-        f"With the doors closed ({html.escape(c.label)}) the door opened by "
-        f"{page.num(closed, 'door_opening_rad')} of the {span(format_number(planned))} deg "
-        f"the arc asks for (final hinge angle {page.num(closed, 'final_door_angle_rad')})"
+        f"With the doors closed ({html.escape(c.label)}) the door had opened by "
+        f"{page.num(closed, 'door_opening_arc_end_rad')} at the arc's end, of the "
+        f"{span(format_number(planned))} deg the arc asks for "
+        f"({page.num(closed, 'door_opening_rad')} at the episode's end, after the hold)"
     ]
     if opening is not None and math.isfinite(planned):
         share = 100.0 * math.degrees(opening) / planned
@@ -517,14 +518,41 @@ def _answer_t3q2(page: AnswerPage) -> tuple[str, str]:
                 "<p>Doors closed, all controllers: "
                 + ", ".join(
                     f"{html.escape(r.label)} {page.num(r.name, 'max_radial_error_m')} max radial "
-                    f"error, door opened {page.num(r.name, 'door_opening_rad')}"
+                    f"error, door at the arc's end {page.num(r.name, 'door_opening_arc_end_rad')}"
                     for r in closed_all
                 )
                 + ".</p>"
             )
         text += _contact_paragraph(page)
+        text += _damping_paragraph(page.runs["impedance_closed"])
         text += page.status_note("impedance_closed", "impedance_open")
     return figs, text
+
+
+def _damping_paragraph(run: LoadedRun) -> str:
+    """The inner loop's damping behind the impedance plan's lag (issue 12's trade-off)."""
+    from doorlab.metrics import joint_damping_ratios
+
+    if run.result is None or run.scenario is None:
+        return ""
+    i0 = int(np.argmin(np.abs(run.result.t - run.result.arc_window[0])))
+    zeta = joint_damping_ratios(run.scenario, run.result.q_measured[i0])
+    if zeta is None:
+        return (
+            "<p>This run used the original station's inverse-dynamics PID: with q_ref = q its "
+            "derivative term damps almost nothing, so the impedance plan's J<sup>T</sup> F "
+            "meets only the arm's inertia.</p>"
+        )
+    return (
+        "<p>Why the door trails: with q_ref = q the stiffness loop's damping D<sub>q</sub> "
+        "q&#775; is all that resists the plan's J<sup>T</sup> F. This run's joint damping "
+        f"ratios at the grasp are {span(format_number(float(zeta.min())))}-"
+        f"{span(format_number(float(zeta.max())))} (motors' reflected inertia included); "
+        "more damping leaves the door further behind at the arc's end, less lets the "
+        "position plans ring. The measured trade-off over D<sub>q</sub> is in the README "
+        "(<code>benchmarks/inner_loop_sweep.py</code>, <code>station.inner_loop.dq_scale</code>)."
+        "</p>"
+    )
 
 
 def _contact_paragraph(page: AnswerPage) -> str:

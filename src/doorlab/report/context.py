@@ -221,19 +221,6 @@ def side(tracking: Tracking) -> str:
 
 
 def door_lag_deg(run: LoadedRun) -> float | None:
-    """Largest lag of the left door behind the plan's hinge angle over the arc window [deg].
-
-    The arc plan implies a hinge angle of -sweep * tau (the door following the handle arc
-    from closed); positive lag: the door is less open than planned.
-    """
-    if run.result is None or run.geometry is None:
-        return None
-    result = run.result
-    t0, t1 = result.arc_window
-    mask = result.window(t0, t1)
-    if not np.any(mask):
-        return None
-    tau = np.clip((result.t[mask] - t0) / (t1 - t0), 0.0, 1.0)
-    planned = -run.geometry.sweep * tau
-    lag = result.door_angles[mask, 0] - planned
-    return float(np.degrees(np.max(lag)))
+    """Largest lag of the left door behind the arc plan over the arc [deg] (metrics.py)."""
+    lag = run.metrics.get("door_lag_max_rad")
+    return None if lag is None else math.degrees(lag)
