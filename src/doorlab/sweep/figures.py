@@ -217,13 +217,14 @@ def plot_heatmaps(
                             fontweight="bold",
                         )
                     elif small and np.isfinite(grid[i, j]):
+                        bright = image.norm(grid[i, j]) > 0.6  # viridis is light on top
                         ax.text(
                             j,
                             i,
                             f"{grid[i, j]:.3g}",
                             ha="center",
                             va="center",
-                            color="white",
+                            color="black" if bright else "white",
                             fontsize=7,
                         )
             ax.set_xticks(range(len(xs)), [_tick(x_axis, v) for v in x_axis.values], fontsize=7)
