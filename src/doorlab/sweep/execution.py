@@ -74,8 +74,8 @@ def run_one(scenario: Scenario) -> dict:
     return row
 
 
-def _prepare_dir(out_dir: Path, *, resume: bool, force: bool) -> pd.DataFrame | None:
-    """Checks ``out_dir`` may be written; returns the table to resume from (or None)."""
+def _check_dir(out_dir: Path, *, resume: bool, force: bool) -> pd.DataFrame | None:
+    """Checks ``out_dir`` may be written (writing nothing); returns the table to resume from."""
     if out_dir.exists() and not out_dir.is_dir():
         raise OutputError(f"--out {str(out_dir)!r} is a file, not a folder")
     existing = out_dir.is_dir() and any(out_dir.iterdir())
@@ -89,15 +89,22 @@ def _prepare_dir(out_dir: Path, *, resume: bool, force: bool) -> pd.DataFrame | 
             f"--out {str(out_dir)!r} already exists; pass --resume to continue its sweep or "
             "--force to start over"
         )
+    for ancestor in out_dir.resolve().parents:
+        if ancestor.exists() and not ancestor.is_dir():
+            raise OutputError(f"--out {str(out_dir)!r}: {str(ancestor)!r} is a file")
+    return None
+
+
+def _make_dir(out_dir: Path, *, resume: bool) -> None:
+    """Creates ``out_dir``; without ``resume``, removes an earlier sweep's files from it."""
     try:
-        if existing:
+        if not resume and out_dir.is_dir():
             for name in (RESULTS_PARQUET, RESULTS_CSV, *PAGE_FILES):
                 path = out_dir / name
                 shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise OutputError(f"cannot write --out {str(out_dir)!r}: {e.strerror}") from None
-    return None
 
 
 def _row(run: PlannedRun, outcome: dict) -> dict:
@@ -154,7 +161,7 @@ def run_sweep(
     elif not isinstance(jobs, int) or isinstance(jobs, bool) or jobs < 1:
         raise ConfigError(f"jobs must be an integer >= 1, got {jobs!r}")
     out = Path(out_dir) if out_dir is not None else None
-    previous = _prepare_dir(out, resume=resume, force=force) if out is not None else None
+    previous = _check_dir(out, resume=resume, force=force) if out is not None else None
 
     rows: dict[int, dict] = {}
     if previous is not None:
@@ -181,10 +188,19 @@ def run_sweep(
     failures = sum(r.get("status") != "ok" for r in rows.values())
     start = time.perf_counter()
     description = "none (every run was in the table)"
+    started = False  # the folder is ours to write from here on
     try:
-        save(now=True)
+        if not todo and out is not None:
+            _make_dir(out, resume=resume)
+            started = True
+            save(now=True)
         if todo:
+            # The executor first: a scheduler that cannot be reached leaves nothing written.
             with open_executor(jobs=min(jobs, len(todo)), scheduler=scheduler) as executor:
+                if out is not None:
+                    _make_dir(out, resume=resume)
+                    started = True
+                    save(now=True)
                 description = executor.description
                 if bar is not None:
                     bar.write(f"doorlab sweep: {len(todo)} runs on {description}")
@@ -211,7 +227,7 @@ def run_sweep(
     finally:
         if bar is not None:
             bar.close()
-        if out is not None:
+        if out is not None and started:
             write_table(table(), out)  # the finished runs, whatever ended the loop
     frame = table()
     if out is not None and page:
