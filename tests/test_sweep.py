@@ -221,6 +221,18 @@ def test_bad_command_line_is_exit_2(tmp_path: Path, capsys, argv, expected):
     assert not out.exists()
 
 
+def test_an_unreachable_scheduler_is_exit_2_and_writes_nothing(tmp_path, capsys, monkeypatch):
+    import doorlab.executor
+
+    monkeypatch.setattr(doorlab.executor, "CONNECT_TIMEOUT_S", 2.0)
+    out = tmp_path / "out"
+    argv = ["sweep", "--grid", "impedance.kv=100", "--out", str(out)]
+    assert main([*argv, "--scheduler", "tcp://127.0.0.1:9"]) == 2  # port 9: nobody listens
+    err = capsys.readouterr().err
+    assert "cannot reach the Dask scheduler at tcp://127.0.0.1:9" in err and err.count("\n") == 1
+    assert not out.exists()
+
+
 def test_an_exception_in_a_run_is_a_row(monkeypatch):
     """A bug inside a run (here: the controller raises) gives status error, not a crash."""
     import doorlab.controllers

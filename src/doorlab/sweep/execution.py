@@ -184,7 +184,7 @@ def run_sweep(
             write_table(table(), out)
             last_write = time.monotonic()
 
-    bar = _progress_bar(len(runs), initial=len(rows), enabled=progress)
+    bar = None
     failures = sum(r.get("status") != "ok" for r in rows.values())
     start = time.perf_counter()
     description = "none (every run was in the table)"
@@ -202,6 +202,7 @@ def run_sweep(
                     started = True
                     save(now=True)
                 description = executor.description
+                bar = _progress_bar(len(runs), initial=len(rows), enabled=progress)
                 if bar is not None:
                     bar.write(f"doorlab sweep: {len(todo)} runs on {description}")
                 futures = {executor.submit(run_one, run.scenario): run for run in todo}
