@@ -315,56 +315,52 @@ def test_resume_runs_only_the_missing_runs(local_sweep, tmp_path: Path):
 
 
 def test_ctrl_c_leaves_the_finished_runs_and_resume_completes(local_sweep, tmp_path: Path):
-    """SIGINT while the second run simulates: exit 130, a table of exactly the finished run;
-    --resume then runs only the rest and gives the local sweep's row for it."""
+    """SIGINT while the last run simulates: exit 130, a table of exactly the finished runs;
+    --resume then runs only that run, and the others keep their rows (the short episode's
+    equal to the local sweep's run of the same scenario)."""
     _, _, local = local_sweep
-    data = {**SPEC, "axes": {"station.cupboard_position": [FAR, HOME], "velocity.kv": [100.0]}}
-    spec_path = write_spec(tmp_path, data)
+    # Runs in order (one worker): two ik_failed, the short episode, a long one (40 s more).
+    axes = {"station.cupboard_position": [FAR, HOME], "timeline.extra_time": [0.5, 40.0]}
+    spec_path = write_spec(tmp_path, {**SPEC, "axes": axes})
     out = tmp_path / "out"
-    command = [
-        sys.executable,
-        "-m",
-        "doorlab.cli",
-        "sweep",
-        str(spec_path),
-        "--out",
-        str(out),
-        "--jobs",
-        "1",
-    ]
+    command = [sys.executable, "-m", "doorlab.cli", "sweep", str(spec_path), "--out", str(out)]
     process = subprocess.Popen(
-        command, stderr=subprocess.PIPE, text=True, env={**os.environ, "MPLBACKEND": "Agg"}
+        [*command, "--jobs", "1"],
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "MPLBACKEND": "Agg"},
     )
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:
         table = read_table(out) if (out / RESULTS_PARQUET).is_file() else None
-        if table is not None and len(table) == 1:
+        if table is not None and len(table) >= 3:
             break
         assert process.poll() is None, process.stderr.read()
-        time.sleep(0.2)
+        time.sleep(0.05)
     else:
         process.kill()
-        pytest.fail("the first run did not finish in time")
-    time.sleep(1.0)  # the second run (an episode of several seconds) is now simulating
-    process.send_signal(signal.SIGINT)
+        pytest.fail("the first three runs did not finish in time")
+    process.send_signal(signal.SIGINT)  # the long episode has just started
     _, err = process.communicate(timeout=60)
     assert process.returncode == 130, err
-    assert "interrupted; 1 finished runs" in err
+    assert "interrupted; 3 finished runs" in err
     table = read_table(out)
-    assert list(table["status"]) == ["ik_failed"]
-    assert len(pd.read_csv(out / RESULTS_CSV)) == 1
+    assert list(table["run"]) == [0, 1, 2]
+    assert list(table["status"].iloc[:2]) == ["ik_failed", "ik_failed"]
+    assert len(pd.read_csv(out / RESULTS_CSV)) == 3
     assert not list(out.glob(".*.tmp"))
 
-    assert main(["sweep", str(spec_path), "--out", str(out), "--resume", "--jobs", "1"]) == 0
+    assert main([*command[3:], "--resume", "--jobs", "1"]) == 0
     done = read_table(out)
-    assert list(done["status"].iloc[:1]) == ["ik_failed"] and len(done) == 2
-    # The resumed run is the local sweep's run with the same scenario (same key, same metrics).
-    row = done.iloc[[1]].drop(columns=["run"])
-    match = local[local["key"] == row["key"].iloc[0]].drop(columns=["run"])
+    assert list(done["run"]) == [0, 1, 2, 3]
+    pd.testing.assert_frame_equal(done.iloc[:3], table)  # kept as they were, not re-run
+    assert done["sim_time_s"].iloc[3] == pytest.approx(done["sim_time_s"].iloc[2] + 39.5)
+    # The short episode is the local sweep's run with the same scenario (same key, metrics).
+    row = done.iloc[[2]].drop(columns=["run", "timeline.extra_time"])
+    match = local[local["key"] == row["key"].iloc[0]].drop(columns=["run", "velocity.kv"])
     assert len(match) == 1
     pd.testing.assert_frame_equal(
-        metrics_only(row.drop(columns=["velocity.kv"])),
-        metrics_only(match.drop(columns=["velocity.kv"])),
+        metrics_only(row).reset_index(drop=True), metrics_only(match).reset_index(drop=True)
     )
 
 

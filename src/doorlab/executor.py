@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import multiprocessing
+import os
 import re
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -28,6 +29,11 @@ from doorlab.errors import ConfigError
 
 SCHEDULER_PATTERN = re.compile(r"^(tcp|tls|inproc|ws|wss)://[^\s/]+(:\d+)?/?$")
 """Addresses ``--scheduler`` accepts, e.g. ``tcp://10.0.0.5:8786``."""
+
+WORKER_ENVIRONMENT = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+"""Set for local worker processes (as Dask's nanny does for its workers): one process per core,
+each single-threaded, instead of every process's BLAS/OpenMP threads competing for the cores.
+A value the user exported is kept."""
 
 CONNECT_TIMEOUT_S = 20.0
 """How long to wait for a Dask scheduler to answer [s]."""
@@ -55,6 +61,26 @@ class LocalExecutor(concurrent.futures.ProcessPoolExecutor):
         super().__init__(max_workers=jobs, mp_context=multiprocessing.get_context("spawn"))
         self.jobs = jobs
         self.description = f"{jobs} local worker process{'es' if jobs > 1 else ''}"
+        self._environment: dict[str, str | None] | None = None
+
+    def submit(self, fn, /, *args, **kwargs) -> concurrent.futures.Future:  # noqa: D102
+        # Workers are spawned on demand by submit() and inherit os.environ then: set the
+        # single-threaded environment for them, and restore the caller's at shutdown.
+        if self._environment is None:
+            self._environment = {k: os.environ.get(k) for k in WORKER_ENVIRONMENT}
+            for key, value in WORKER_ENVIRONMENT.items():
+                os.environ.setdefault(key, value)
+        return super().submit(fn, *args, **kwargs)
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:  # noqa: D102
+        super().shutdown(wait=wait, cancel_futures=cancel_futures)
+        if self._environment is not None:
+            for key, value in self._environment.items():
+                if value is None:
+                    os.environ.pop(key, None)
+                else:
+                    os.environ[key] = value
+            self._environment = None
 
     def stop(self) -> None:
         """Cancels pending tasks and terminates the worker processes (no waiting)."""

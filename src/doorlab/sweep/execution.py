@@ -30,9 +30,11 @@ from doorlab.sweep.results import (
 from doorlab.sweep.spec import PlannedRun, SweepSpec, load_spec, plan_runs
 
 PAGE_FILES = ("index.html", "figures", "sweep.json")
-TABLE_INTERVAL_S = 1.0
-"""Shortest time between two rewrites of the table while runs finish [s] (the last is always
-written); keeps a sweep of thousands of short runs from spending its time rewriting."""
+TABLE_WRITE_SHARE = 0.1
+"""Most of the sweep's time spent rewriting the table: after a write that took d seconds, the
+next waits until 10 d have passed (the last one is always written). Small tables are written
+after every run; a table of many thousand rows finished at a high rate is not rewritten for
+every row."""
 
 
 @functools.cache
@@ -173,16 +175,19 @@ def run_sweep(
                 rows[run.index] = {**record, "run": run.index}
     todo = [run for run in runs if run.index not in rows]
 
-    last_write = -float("inf")
+    last_write, write_duration = -float("inf"), 0.0
 
     def table() -> pd.DataFrame:
         return make_table(list(rows.values()), axes)
 
     def save(*, now: bool) -> None:
-        nonlocal last_write
-        if out is not None and (now or time.monotonic() - last_write >= TABLE_INTERVAL_S):
+        nonlocal last_write, write_duration
+        due = time.monotonic() - last_write >= write_duration / TABLE_WRITE_SHARE
+        if out is not None and (now or due):
+            begin = time.monotonic()
             write_table(table(), out)
             last_write = time.monotonic()
+            write_duration = last_write - begin
 
     bar = None
     failures = sum(r.get("status") != "ok" for r in rows.values())
