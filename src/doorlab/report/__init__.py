@@ -3,7 +3,8 @@
 - :mod:`doorlab.report.experiments`: :data:`EXPERIMENTS` and :func:`run_report` (the runs
   through :mod:`doorlab.executor`, locally or on a Dask cluster);
 - :mod:`doorlab.report.folders`: reading run folders (metrics, logs, trackings);
-- :mod:`doorlab.report.context` and :mod:`doorlab.report.answers`: the seed's six questions
+- :mod:`doorlab.report.context`, :mod:`doorlab.report.answers` and
+  :mod:`doorlab.report.closed_door`: the seed's six questions
   and answers GENERATED from the measured metrics;
 - :mod:`doorlab.report.page`: ``index.html`` from the Jinja2 templates in
   ``doorlab/templates`` (shared with the sweep page), ``summary.json`` and ``figures/``.
