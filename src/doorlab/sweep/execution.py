@@ -10,9 +10,9 @@ those that ended with ``error`` (an exception may be transient: a lost worker).
 from __future__ import annotations
 
 import concurrent.futures
-import functools
 import shutil
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -37,11 +37,17 @@ after every run; a table of many thousand rows finished at a high rate is not re
 every row."""
 
 
-@functools.cache
+_local = threading.local()
+
+
 def _kinematics():
+    """This thread's forward kinematics (a Dask worker may run runs in several threads; a
+    Kinematics holds one Context, so threads must not share it)."""
     from doorlab.metrics import Kinematics
 
-    return Kinematics()
+    if not hasattr(_local, "kinematics"):
+        _local.kinematics = Kinematics()
+    return _local.kinematics
 
 
 def run_one(scenario: Scenario) -> dict:
