@@ -386,6 +386,7 @@ def test_sweep_page_renders_in_chromium(local_sweep, tmp_path: Path):
     _, out, table = local_sweep
     page = (out / "index.html").read_text(encoding="utf-8")
     assert "http://" not in page and "https://" not in page and "<script" not in page.lower()
+    assert "@media print" in page  # the shared stylesheet: figures do not break across pages
     images = re.findall(r'<img src="data:image/png;base64,', page)
     assert len(images) == 2 + 1  # two axes, one pair of axes
     rows = re.findall(r'<tr data-run="(\d+)"', page)
