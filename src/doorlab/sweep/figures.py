@@ -144,7 +144,7 @@ def plot_metrics_vs_axis(
             transform = blended_transform_factory(ax.transData, ax.transAxes)
             ax.scatter(
                 frame["_x"][lost],
-                np.full(int(lost.sum()), 0.03),
+                np.full(int(lost.sum()), 0.06),
                 transform=transform,
                 marker="v",
                 color="black",
