@@ -172,6 +172,8 @@ BAD_SPECS = [
     ("group, not a field", {"axes": {"station.gripper": [1.0]}}, ["station.gripper.kp"]),
     ("wrong type", {"axes": {"impedance.kv": [1.0, "stiff"]}}, ["axes.impedance.kv[1]", "number"]),
     ("empty axis", {"axes": {"impedance.kv": []}}, ["axes.impedance.kv is empty"]),
+    ("key type", {"axes": {"impedance.kv": [1.0]}, "samples": "many"}, ["samples", "integer"]),
+    ("list key type", {"axes": {"impedance.kv": [1.0]}, "doors": "closed"}, ["doors", "list"]),
     ("no axes", {"controllers": ["ik"]}, ["axes is empty"]),
     ("out of range", {"axes": {"impedance.kv": [100.0, -5.0]}}, ["impedance.kv", "> 0"]),
     ("bad controller", {"controllers": ["pid"], "axes": {"impedance.kv": [1.0]}}, ["pid"]),

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from pydrake.common.yaml import yaml_load_typed
 
 from doorlab.config import (
     DOOR_STATES,
@@ -43,6 +44,7 @@ from doorlab.config import (
     validate,
 )
 from doorlab.errors import ConfigError
+from doorlab.sweep.document import SpecDocument
 
 SPEC_KEYS = ("base", "scenario", "controllers", "doors", "axes", "samples", "seed")
 RANGE_KEYS = ("low", "high", "num", "log", "unit")
@@ -256,11 +258,14 @@ def parse_spec(data: object, *, base_dir: Path | None = None) -> SweepSpec:
             raise ConfigError(f"unknown key {key!r}; valid keys: {', '.join(SPEC_KEYS)}")
     from doorlab.controllers import REGISTRY
 
-    base_path = data.get("base")
-    if base_path is not None and not isinstance(base_path, str):
-        raise ConfigError(f"base must be a scenario file name, got {base_path!r}")
-    if base_path:
-        path = Path(base_path)
+    # The typed keys: the scenario's shape check (naming the key), then yaml_load_typed.
+    typed = {k: v for k, v in data.items() if k not in ("scenario", "axes")}
+    _check_shape(typed, SpecDocument, "")
+    document = yaml_load_typed(
+        schema=SpecDocument, data=yaml.safe_dump(typed), defaults=SpecDocument()
+    )
+    if document.base:
+        path = Path(document.base)
         if not path.is_absolute() and base_dir is not None:
             path = base_dir / path
         base = load_scenario(path)
@@ -273,15 +278,13 @@ def parse_spec(data: object, *, base_dir: Path | None = None) -> SweepSpec:
         except ConfigError as e:
             raise ConfigError(f"scenario: {e}") from None
 
-    controllers = data.get("controllers", list(REGISTRY))
-    _check_shape(controllers, list[str], "controllers")
+    controllers = document.controllers if document.controllers is not None else list(REGISTRY)
     for name in controllers:
         if name not in REGISTRY:
             raise ConfigError(
                 f"controllers: unknown controller {name!r}; choose from {', '.join(REGISTRY)}"
             )
-    doors = data.get("doors", [base.doors])
-    _check_shape(doors, list[str], "doors")
+    doors = document.doors if document.doors is not None else [base.doors]
     for state in doors:
         if state not in DOOR_STATES:
             raise ConfigError(
@@ -292,14 +295,10 @@ def parse_spec(data: object, *, base_dir: Path | None = None) -> SweepSpec:
             raise ConfigError(f"{name} is empty; give at least one")
         if len(set(values)) != len(values):
             raise ConfigError(f"{name} lists a value twice: {values}")
-
-    samples = data.get("samples", 0)
-    if samples is None:
-        samples = 0
-    if not isinstance(samples, int) or isinstance(samples, bool) or samples < 0:
+    samples, seed = document.samples, document.seed
+    if samples < 0:
         raise ConfigError(f"samples must be an integer >= 0 (0: the full grid), got {samples!r}")
-    seed = data.get("seed", 0)
-    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+    if seed < 0:
         raise ConfigError(f"seed must be an integer >= 0, got {seed!r}")
 
     raw_axes = data.get("axes")
