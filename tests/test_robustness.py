@@ -140,3 +140,31 @@ def test_largest_yaw_reports_the_cap_when_nothing_fails(monkeypatch):
     found = robustness.largest_opening_yaw(Scenario(), "adaptive", 1)
     assert found.opened_rad == pytest.approx(math.radians(45.0))
     assert math.isnan(found.failed_rad) and found.runs == 18
+
+
+def test_rows_from_a_sweep_table():
+    """A sweep's results table (pandas) gives one row per run; NaN cells (no hinge estimate,
+    a failed run's handle) become None."""
+    import pandas as pd
+
+    from doorlab.robustness import rows_from_sweep
+
+    frame = pd.DataFrame(
+        {
+            "controller": ["velocity", "adaptive"],
+            "station.cupboard_yaw_error": [0.1, 0.1],
+            "status": ["slipped", "ok"],
+            "door_opening_arc_end_rad": [0.70, 0.71],
+            "door_opening_rad": [0.70, 0.71],
+            "handle_held": [False, True],
+            "peak_external_torque_arc_Nm": [4.8, 0.3],
+            "peak_contact_force_arc_N": [16.0, 0.7],
+            "max_radial_error_m": [0.02, 1e-4],
+            "hinge_estimate_error_m": [float("nan"), 7e-4],
+        }
+    )
+    adaptive, velocity = rows_from_sweep(frame)
+    assert (adaptive.controller, velocity.controller) == ("adaptive", "velocity")
+    assert adaptive.opened and adaptive.hinge_estimate_error_m == 7e-4
+    assert not velocity.opened and velocity.hinge_estimate_error_m is None
+    assert velocity.handle_held is False and velocity.yaw_error_rad == 0.1

@@ -138,18 +138,41 @@ def row_from_metrics(metrics: Mapping, yaw_error_rad: float) -> RobustnessRow:
         return nan if value is None else float(value)
 
     hinge = metrics.get("hinge_estimate_error_m")
+    if hinge is not None and not math.isfinite(float(hinge)):
+        hinge = None
+    held = metrics.get("handle_held")
+    held = None if held is None or (isinstance(held, float) and math.isnan(held)) else bool(held)
     return RobustnessRow(
         controller=str(metrics["controller"]),
         yaw_error_rad=float(yaw_error_rad),
         status=str(metrics["status"]),
         door_opening_rad=number("door_opening_arc_end_rad"),
         door_opening_final_rad=number("door_opening_rad"),
-        handle_held=metrics.get("handle_held"),
+        handle_held=held,
         peak_contact_torque_arc_Nm=number("peak_external_torque_arc_Nm"),
         peak_contact_force_arc_N=number("peak_contact_force_arc_N"),
         max_radial_error_m=number("max_radial_error_m"),
         hinge_estimate_error_m=None if hinge is None else float(hinge),
     )
+
+
+def rows_from_sweep(frame, *, yaw_field: str = "station.cupboard_yaw_error") -> list:
+    """Rows from a :mod:`doorlab.sweep` results table (one row per run, doors closed, an axis
+    over ``station.cupboard_yaw_error``), e.g. ``examples/sweep_hinge_error.yaml``'s: the
+    report can build its robustness section from a sweep without re-running anything.
+
+    Args:
+        frame: The sweep's results table (a pandas DataFrame).
+        yaw_field: The column holding the yaw error [rad].
+
+    Returns:
+        RobustnessRow per run, in (controller, yaw error) order.
+    """
+    rows = [
+        row_from_metrics(record, float(record[yaw_field]))
+        for record in frame.to_dict(orient="records")
+    ]
+    return sorted(rows, key=lambda r: (r.controller, r.yaw_error_rad))
 
 
 def _row_only(base: Scenario, controller: str, yaw_error_rad: float) -> RobustnessRow:
