@@ -71,7 +71,12 @@ def test_figure_plots_the_rows_sorted_by_yaw():
 def test_findings_name_where_each_controller_opens():
     velocity, adaptive = robustness_findings(ROWS)
     assert velocity.startswith("velocity: opens the door at yaw errors +0 deg, not at -10")
-    assert "+10 (ok)" in velocity
+    assert "+10 (38.0 deg by the arc's end)" in velocity
+    (stuck,) = robustness_findings([row("impedance", 0, door_deg=31.0)])
+    assert stuck == (
+        "impedance: opens the door at none of them (+0 (31.0 deg by the arc's end)); "
+        "peak contact torque in the arc 1.00-1.00 N m."
+    )
     assert "0.50-5.00 N m" in velocity
     assert adaptive.startswith("adaptive: opens the door at yaw errors -10, +0, +10 deg;")
     assert "within 4.0 mm" in adaptive

@@ -386,6 +386,15 @@ class RobustnessSection:
     findings: tuple[str, ...]
 
 
+def _why_not(row: RobustnessRow) -> str:
+    """Why a row did not open the door: its status, a lost handle, or the door's angle."""
+    if row.status != "ok":
+        return row.status
+    if not row.handle_held:
+        return "handle lost"
+    return f"{math.degrees(row.door_opening_rad):.1f} deg by the arc's end"
+
+
 def robustness_findings(rows: Sequence[RobustnessRow]) -> tuple[str, ...]:
     """One sentence per controller: where it opens the door and its contact torque range."""
     out = []
@@ -393,16 +402,19 @@ def robustness_findings(rows: Sequence[RobustnessRow]) -> tuple[str, ...]:
         mine = sorted((r for r in rows if r.controller == name), key=lambda r: r.yaw_error_rad)
         opened = [f"{math.degrees(r.yaw_error_rad):+.0f}" for r in mine if r.opened]
         failed = [
-            f"{math.degrees(r.yaw_error_rad):+.0f} ({r.status})" for r in mine if not r.opened
+            f"{math.degrees(r.yaw_error_rad):+.0f} ({_why_not(r)})" for r in mine if not r.opened
         ]
         torques = [
             r.peak_contact_torque_arc_Nm
             for r in mine
             if math.isfinite(r.peak_contact_torque_arc_Nm)
         ]
-        sentence = f"{name}: opens the door at yaw errors {', '.join(opened) or 'none'} deg"
-        if failed:
-            sentence += f", not at {', '.join(failed)}"
+        if opened:
+            sentence = f"{name}: opens the door at yaw errors {', '.join(opened)} deg"
+            if failed:
+                sentence += f", not at {', '.join(failed)}"
+        else:
+            sentence = f"{name}: opens the door at none of them ({', '.join(failed)})"
         if torques:
             sentence += (
                 f"; peak contact torque in the arc {min(torques):.2f}-{max(torques):.2f} N m"
