@@ -167,13 +167,25 @@ def test_time_step_above_control_period_names_both_fields():
     assert "timeline.control_period" in str(info.value)
 
 
-def test_tamsi_with_the_stiffness_loop_is_rejected():
-    """contact_approximation tamsi cannot run the implicit stiffness loop (names the field)."""
-    with pytest.raises(ConfigError, match="station.contact_approximation"):
-        validate(_with("station.contact_approximation", "tamsi"))
+def test_tamsi_with_pd_actuators_is_rejected():
+    """contact_approximation tamsi cannot run the implicit_pd loop (names the field); the
+    stiffness and inverse_dynamics loops need no PD actuators and run with it."""
     scenario = _with("station.contact_approximation", "tamsi")
-    scenario.station.inner_loop.kind = "inverse_dynamics"
-    assert validate(scenario) is scenario
+    scenario.station.inner_loop.kind = "implicit_pd"
+    with pytest.raises(ConfigError, match="station.contact_approximation"):
+        validate(scenario)
+    for kind in ("stiffness", "inverse_dynamics"):
+        scenario.station.inner_loop.kind = kind
+        assert validate(scenario) is scenario
+
+
+def test_implicit_pd_needs_dq_above_h_kq():
+    """implicit_pd's PD actuators damp with d + h Kq: a Dq below h Kq names the joint's field."""
+    scenario = _with("station.inner_loop.kind", "implicit_pd")
+    assert validate(scenario) is scenario  # the defaults: Dq = (35, ...) + 2 ms * Kq
+    scenario.station.inner_loop.dq = [43.0, 7.9, 21.0, 21.0, 6.2, 6.2, 1.1]  # h Kq_2 = 8
+    with pytest.raises(ConfigError, match=r"station\.inner_loop\.dq\[1\]"):
+        validate(scenario)
 
 
 def test_door_angles_of_the_wrong_type_is_a_config_error():

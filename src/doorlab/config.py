@@ -28,7 +28,7 @@ from doorlab.errors import ConfigError
 CONTROLLERS = ("ik", "velocity", "impedance")
 """Names of the three door-opening controllers (the seed's tasks 1-3)."""
 DOOR_STATES = tuple(DOOR_ANGLES)
-INNER_LOOPS = ("stiffness", "inverse_dynamics")
+INNER_LOOPS = ("stiffness", "implicit_pd", "inverse_dynamics")
 IK_OBJECTIVES = ("feasible", "centered")
 CONTACT_APPROXIMATIONS = ("sap", "lagged", "similar", "tamsi")
 LEFT_HINGE_RANGE = (-math.pi / 2, 0.0)
@@ -40,19 +40,27 @@ RIGHT_HINGE_RANGE = (0.0, math.pi / 2)
 class InnerLoopConfig:
     """The robot's joint-level controller (the seed's "robot controller").
 
-    ``stiffness`` is the seed's law tau = Kq (q_ref - q) - Dq qdot + g(q) + tau_ff, integrated
-    implicitly by the plant. ``inverse_dynamics`` is the original station's PID through M(q).
+    ``stiffness`` is the seed's law tau = Kq (q_ref - q) - Dq qdot + g(q) + tau_ff: the spring,
+    g(q) and tau_ff are one explicit torque per step (C++ systems), Dq is the joints' own
+    viscous damping, integrated implicitly by the plant. ``implicit_pd`` is the same law
+    through the plant's PD actuators (the design before issue 9, kept for comparison: slower,
+    same physics). ``inverse_dynamics`` is the original station's PID through M(q).
+
+    ``dq`` is the damping that acts on the joints, whatever the time step and kind. (The PD
+    actuators of the earlier design, which SAP integrates with the spring at q_{n+1}, damped
+    with their d plus time_step * Kq: its d = (35, 35, 17, 17, 5, 5, 0.9) acted as the
+    defaults below at the 2 ms step.)
     """
 
     kind: str = "stiffness"  # one of INNER_LOOPS
     # Joint stiffness Kq [N m/rad] and damping Dq [N m s/rad], per joint (README, "Inner loop
     # gains"). Kq follows the arm's inertia at the grasp pose (natural frequencies 40-200
-    # rad/s); Dq/Kq ~ 9 ms keeps a position plan's lag under ~1 mm at Q; Dq is kept low
-    # (damping ratios 0.2-0.9) because it is all that resists the impedance plan's J^T F.
+    # rad/s); Dq/Kq ~ 11 ms keeps a position plan's lag about 1 mm at Q; Dq is kept low
+    # (damping ratios 0.25-1.1) because it is all that resists the impedance plan's J^T F.
     kq: list[float] = field(
         default_factory=lambda: [4000.0, 4000.0, 2000.0, 2000.0, 600.0, 600.0, 100.0]
     )
-    dq: list[float] = field(default_factory=lambda: [35.0, 35.0, 17.0, 17.0, 5.0, 5.0, 0.9])
+    dq: list[float] = field(default_factory=lambda: [43.0, 43.0, 21.0, 21.0, 6.2, 6.2, 1.1])
     # Inverse-dynamics PID gains of the original station (act through M(q)).
     id_kp: float = 100.0  # [1/s^2]
     id_ki: float = 1.0  # [1/s^3]
@@ -77,7 +85,7 @@ class StationConfig:
 
     time_step: float = 0.002  # [s] plant discrete step (the original's)
     contact_approximation: str = (
-        "sap"  # one of CONTACT_APPROXIMATIONS ("tamsi" needs kind=inverse_dynamics)
+        "sap"  # one of CONTACT_APPROXIMATIONS ("tamsi" cannot run kind=implicit_pd)
     )
     arm_collision: bool = False  # the original arm had no collision geometry
     # Cupboard frame C in W [m] (rotation fixed at RotZ(pi)); move it to test reachability.
@@ -336,10 +344,18 @@ def validate(scenario: Scenario) -> Scenario:
         _positive(f"station.inner_loop.{name}", getattr(loop, name))
     _non_negative("station.inner_loop.id_ki", loop.id_ki)
     _check(
-        not (station.contact_approximation == "tamsi" and loop.kind == "stiffness"),
-        "station.contact_approximation 'tamsi' cannot integrate the implicit stiffness loop; "
-        "use sap, lagged or similar, or station.inner_loop.kind: inverse_dynamics",
+        not (station.contact_approximation == "tamsi" and loop.kind == "implicit_pd"),
+        "station.contact_approximation 'tamsi' cannot integrate PD actuators (implicit_pd); "
+        "use sap, lagged or similar, or station.inner_loop.kind: stiffness or inverse_dynamics",
     )
+    if loop.kind == "implicit_pd":
+        for joint, (kq, dq) in enumerate(zip(loop.kq, loop.dq, strict=True)):
+            _check(
+                dq >= station.time_step * kq,
+                f"station.inner_loop.dq[{joint}] must be >= station.time_step * kq "
+                f"= {station.time_step * kq:g} N m s/rad for kind 'implicit_pd' (its PD "
+                f"actuators damp with d + time_step * kq), got {dq:g}; or use kind 'stiffness'",
+            )
     gripper = station.gripper
     for name in ("kp", "force_limit"):
         _positive(f"station.gripper.{name}", getattr(gripper, name))

@@ -52,7 +52,11 @@ from pydrake.multibody.plant import (
     MultibodyPlantConfig,
 )
 from pydrake.multibody.tree import ModelInstanceIndex, PdControllerGains, SpatialInertia
-from pydrake.systems.controllers import InverseDynamics, InverseDynamicsController
+from pydrake.systems.controllers import (
+    InverseDynamics,
+    InverseDynamicsController,
+    JointStiffnessController,
+)
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import (
     Adder,
@@ -68,6 +72,7 @@ from pydrake.systems.primitives import (
 from doorlab import models
 from doorlab.config import StationConfig
 from doorlab.constants import JOINT_TORQUE_LIMITS, NUM_JOINTS
+from doorlab.errors import ConfigError
 from doorlab.frames import (
     ARM_JOINTS,
     CUPBOARD_MODEL,
@@ -221,6 +226,27 @@ def _set_friction(plant: MultibodyPlant, scene_graph: SceneGraph, friction: floa
         scene_graph.AssignRole(source_id, geometry_id, new_props, RoleAssign.kReplace)
 
 
+def implicit_pd_damping(config: StationConfig) -> np.ndarray:
+    """The PD actuators' d that makes the ``implicit_pd`` loop damp with exactly Dq (7,).
+
+    SAP evaluates a PD actuator's spring at q_{n+1} = q_n + h v_{n+1}, so a PD gain pair
+    (Kq, d) damps with d + h Kq; the ``implicit_pd`` loop therefore gets d = Dq - h Kq [N m s/rad].
+
+    Raises:
+        ConfigError: Dq < h Kq on some joint (no such PD actuator exists).
+    """
+    loop = config.inner_loop
+    d = np.asarray(loop.dq, float) - config.time_step * np.asarray(loop.kq, float)
+    if np.any(d < 0):
+        joint = int(np.argmax(d < 0))
+        raise ConfigError(
+            f"station.inner_loop.kind 'implicit_pd' needs dq >= time_step * kq on every joint "
+            f"(joint {joint + 1}: dq {loop.dq[joint]} < {config.time_step * loop.kq[joint]}); "
+            "use kind 'stiffness'"
+        )
+    return d
+
+
 def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> Station:
     """Builds the station Diagram.
 
@@ -230,6 +256,9 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
 
     Returns:
         The built station.
+
+    Raises:
+        ConfigError: ``implicit_pd`` with Dq < h Kq (see :func:`implicit_pd_damping`).
     """
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(_plant_config(config), builder)
@@ -239,15 +268,20 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
     )
     for hinge in (LEFT_HINGE, RIGHT_HINGE):
         plant.GetJointByName(hinge, cupboard).set_default_damping(config.hinge_damping)
-    stiffness = config.inner_loop.kind == "stiffness"
+    kind = config.inner_loop.kind
+    kq = np.asarray(config.inner_loop.kq, float)
+    dq = np.asarray(config.inner_loop.dq, float)
     arm_actuators = [plant.GetJointActuatorByName(name, iiwa) for name in ARM_JOINTS]
     for actuator, limit in zip(arm_actuators, JOINT_TORQUE_LIMITS, strict=True):
         actuator.set_effort_limit(float(limit))
-    if stiffness:
-        for actuator, kq, dq in zip(
-            arm_actuators, config.inner_loop.kq, config.inner_loop.dq, strict=True
-        ):
-            actuator.set_controller_gains(PdControllerGains(p=float(kq), d=float(dq)))
+    if kind == "stiffness":
+        # The damping half of the law is the joints' own viscous damping: SAP integrates it
+        # implicitly (stable at any step), and no PD constraint is left for the solver.
+        for name, d in zip(ARM_JOINTS, dq, strict=True):
+            plant.GetJointByName(name, iiwa).set_default_damping(float(d))
+    elif kind == "implicit_pd":
+        for actuator, p, d in zip(arm_actuators, kq, implicit_pd_damping(config), strict=True):
+            actuator.set_controller_gains(PdControllerGains(p=float(p), d=float(d)))
     plant.Finalize()
     _set_friction(plant, scene_graph, config.friction)
     _filter_scene_collisions(plant, scene_graph)
@@ -271,8 +305,35 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
     builder.ExportOutput(q_ref.get_output_port(), "iiwa_position_commanded")
 
     interpolator = None
-    if stiffness:
-        # tau = Kq (q_ref - q) + Dq (0 - qdot) [plant PD] + g(q) + tau_ff [actuation input].
+    if kind == "stiffness":
+        # tau = sat(Kq (q_ref - q) + g(q) + tau_ff) [actuation input, explicit: evaluated at
+        # the step's start] - Dq qdot [joint damping, implicit in SAP].
+        desired = add(Multiplexer([NUM_JOINTS, NUM_JOINTS]), "desired_state")
+        zero_velocity = add(ConstantVectorSource(np.zeros(NUM_JOINTS)), "zero_velocity")
+        builder.Connect(q_ref.get_output_port(), desired.get_input_port(0))
+        builder.Connect(zero_velocity.get_output_port(), desired.get_input_port(1))
+        spring = add(
+            JointStiffnessController(controller_plant, kq, np.zeros(NUM_JOINTS)),
+            "stiffness_plus_gravity",
+        )
+        builder.Connect(arm_state, spring.get_input_port_estimated_state())
+        builder.Connect(desired.get_output_port(), spring.get_input_port_desired_state())
+        adder = add(Adder(2, NUM_JOINTS), "stiffness_plus_feedforward")
+        builder.Connect(spring.get_output_port_actuation(), adder.get_input_port(0))
+        builder.Connect(tau_ff.get_output_port(), adder.get_input_port(1))
+        saturation = add(Saturation(-JOINT_TORQUE_LIMITS, JOINT_TORQUE_LIMITS), "torque_saturation")
+        builder.Connect(adder.get_output_port(), saturation.get_input_port())
+        builder.Connect(saturation.get_output_port(), plant.get_actuation_input_port(iiwa))
+        # The torque the joints receive includes the damping the joints apply themselves.
+        damping = add(MatrixGain(-np.diag(dq)), "joint_damping_torque")
+        builder.Connect(demux.get_output_port(1), damping.get_input_port())
+        commanded = add(Adder(2, NUM_JOINTS), "torque_commanded")
+        builder.Connect(saturation.get_output_port(), commanded.get_input_port(0))
+        builder.Connect(damping.get_output_port(), commanded.get_input_port(1))
+        builder.ExportOutput(commanded.get_output_port(), "iiwa_torque_commanded")
+    elif kind == "implicit_pd":
+        # The 353b732 design: the plant's PD actuators with desired state (q_ref, 0) + g(q) +
+        # tau_ff; SAP adds one PD constraint per joint.
         gravity = add(
             InverseDynamics(
                 controller_plant, InverseDynamics.InverseDynamicsMode.kGravityCompensation
