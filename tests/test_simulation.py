@@ -49,7 +49,7 @@ def test_plan_runner_picks_the_active_plan_in_any_order():
     """At each boundary the next plan takes over; after the schedule the last plan holds;
     asking for an earlier time (e.g. a re-initialized simulator) steps back."""
     schedule = seed_schedule(Scenario())
-    runner = PlanRunner(schedule, control_period=0.005, q_initial=Q_HOME, gripper_width=0.025)
+    runner = PlanRunner(schedule, control_period=0.005)
     names = [runner.active(t).plan.name for t in (0.0, 1.999, 2.0, 9.0, 10.99, 11.0, 30.0)]
     assert names == ["hold", "hold", "move_to_start", "grasp", "grasp", "arc", "arc"]
     assert runner.active(0.5).plan.name == "hold"
@@ -110,3 +110,22 @@ def test_a_plan_sending_nan_stops_the_run_with_a_simulation_error():
     t.hold_duration, t.approach_duration, t.extra_time = 0.1, 0.2, 0.1
     with pytest.raises(SimulationError, match=r"failed at t = 2\.30\d s: .*NaN"):
         run_episode(scenario, [NanPlan()], [0.02], q_start=Q_HOME)
+
+
+def test_joint_space_prefix_trajectory_is_what_the_runner_would_send():
+    """The C++ trajectory of the joint-space plans at the start gives, at every time before
+    the first feedback plan, exactly the q_ref the plan runner would have computed."""
+    from doorlab.plans import ArmState
+    from doorlab.simulation import joint_space_prefix, prefix_trajectory
+
+    schedule = seed_schedule(Scenario())
+    k = joint_space_prefix(schedule)
+    assert k == len(schedule)  # all four are joint-space plans here
+    schedule = schedule[:3]  # hold, move, grasp: then a feedback plan would take over
+    trajectory = prefix_trajectory(schedule[:3], 3, schedule[2].t_end)
+    runner = PlanRunner(schedule, control_period=0.005)
+    state = ArmState(Q_HOME, np.zeros(7), np.zeros(7))
+    for t in np.arange(0.0, schedule[2].t_end, 0.0137):
+        scheduled = runner.active(t)
+        expected = scheduled.plan.command(t - scheduled.t_start, state).q_ref
+        np.testing.assert_allclose(trajectory.value(t).ravel(), expected, atol=1e-12, rtol=0)

@@ -88,6 +88,9 @@ class StationConfig:
         "sap"  # one of CONTACT_APPROXIMATIONS ("tamsi" cannot run kind=implicit_pd)
     )
     arm_collision: bool = False  # the original arm had no collision geometry
+    # Keep the collision geometry of the cupboard's carcass, right door and the table also
+    # without arm collision (only the gripper could touch them; it touches the left door only).
+    scene_collision: bool = False
     # Cupboard frame C in W [m] (rotation fixed at RotZ(pi)); move it to test reachability.
     cupboard_position: list[float] = field(default_factory=lambda: [0.9057, 0.0, 0.4148])
     hinge_damping: float = 1.0  # [N m s/rad]

@@ -17,8 +17,14 @@ import numpy as np
 from pydrake.common.yaml import yaml_dump_typed
 from pydrake.geometry import Meshcat
 from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
-from pydrake.systems.framework import BasicVector, DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import (
+    Adder,
+    ConstantVectorSource,
+    LogVectorOutput,
+    TrajectorySource,
+)
+from pydrake.trajectories import PiecewisePolynomial
 
 from doorlab.config import Scenario
 from doorlab.constants import NUM_JOINTS, Q_HOME
@@ -84,12 +90,55 @@ def make_schedule(
     return schedule
 
 
-class PlanRunner(LeafSystem):
-    """Executes a schedule of plans at a fixed control period (the outer loop).
+def joint_space_prefix(schedule: Sequence[ScheduledPlan]) -> int:
+    """How many scheduled plans, from the start, are pure joint trajectories (no feedback)."""
+    k = 0
+    while k < len(schedule) and isinstance(schedule[k].plan, JointSpacePlan):
+        k += 1
+    return k
 
-    Input ports: ``iiwa_position_measured``, ``iiwa_velocity_estimated``,
-    ``iiwa_torque_external`` (7 each). Output ports (state outputs, no Python per simulation
-    step): ``iiwa_position`` (q_ref), ``iiwa_feedforward_torque`` (tau_ff), ``wsg_position``.
+
+def prefix_trajectory(
+    schedule: Sequence[ScheduledPlan], k: int, t_final: float
+) -> PiecewisePolynomial:
+    """The q_ref of the first ``k`` (joint-space) scheduled plans as one trajectory in episode
+    time: each plan's trajectory from its start, its end value held until the next plan (the
+    last one's until ``t_final``) [rad].
+
+    Args:
+        schedule: The episode's schedule. k: :func:`joint_space_prefix` of it (>= 1).
+        t_final: Where the trajectory ends [s].
+    """
+    pieces: list[PiecewisePolynomial] = []
+    for i, scheduled in enumerate(schedule[:k]):
+        trajectory = scheduled.plan.trajectory
+        piece = trajectory.Clone()
+        piece.shiftRight(scheduled.t_start - trajectory.start_time())
+        t_next = schedule[i + 1].t_start if i + 1 < k else t_final
+        q_end = trajectory.value(trajectory.end_time())
+        if t_next > piece.end_time():
+            hold = PiecewisePolynomial.ZeroOrderHold(
+                [piece.end_time(), t_next], np.hstack([q_end, q_end])
+            )
+            piece.ConcatenateInTime(hold)
+        pieces.append(piece)
+    total = pieces[0]
+    for piece in pieces[1:]:
+        total.ConcatenateInTime(piece)
+    return total
+
+
+class PlanRunner(LeafSystem):
+    """Executes a schedule of plans at a fixed control period (the outer loop), in Python.
+
+    The episode hands it only the part of the schedule that needs feedback, from ``t_first``
+    (the first tick) on; before that its outputs are zero. It sends q_ref - ``q_offset``: the
+    episode adds ``q_offset`` back in C++ (the joint-space trajectory's end value, which the
+    trajectory source keeps sending), so q_ref is continuous at the handoff.
+
+    Input ports: ``iiwa_state`` (14: q [rad], v [rad/s]), ``iiwa_torque_external`` (7).
+    Output ports (state outputs, no Python per simulation step): ``iiwa_position`` (q_ref),
+    ``iiwa_feedforward_torque`` (tau_ff).
     """
 
     def __init__(
@@ -97,24 +146,24 @@ class PlanRunner(LeafSystem):
         schedule: Sequence[ScheduledPlan],
         *,
         control_period: float,
-        q_initial: np.ndarray,
-        gripper_width: float,
+        t_first: float = 0.0,
+        q_offset: np.ndarray | None = None,
     ):
         super().__init__()
         self.set_name("plan_runner")
         self._schedule = list(schedule)
         self._starts = [s.t_start for s in self._schedule]
         self._cursor = 0
-        self._q = self.DeclareVectorInputPort("iiwa_position_measured", NUM_JOINTS)
-        self._v = self.DeclareVectorInputPort("iiwa_velocity_estimated", NUM_JOINTS)
+        self._x = self.DeclareVectorInputPort("iiwa_state", 2 * NUM_JOINTS)
         self._tau_ext = self.DeclareVectorInputPort("iiwa_torque_external", NUM_JOINTS)
-        self._q_ref = self.DeclareDiscreteState(BasicVector(np.asarray(q_initial, float)))
+        self._q_offset = (
+            np.zeros(NUM_JOINTS) if q_offset is None else np.asarray(q_offset, float).copy()
+        )
+        self._q_ref = self.DeclareDiscreteState(NUM_JOINTS)
         self._tau_ff = self.DeclareDiscreteState(NUM_JOINTS)
-        self._wsg = self.DeclareDiscreteState(BasicVector([gripper_width]))
         self.DeclareStateOutputPort("iiwa_position", self._q_ref)
         self.DeclareStateOutputPort("iiwa_feedforward_torque", self._tau_ff)
-        self.DeclareStateOutputPort("wsg_position", self._wsg)
-        self.DeclarePeriodicDiscreteUpdateEvent(control_period, 0.0, self._tick)
+        self.DeclarePeriodicDiscreteUpdateEvent(control_period, t_first, self._tick)
 
     def active(self, t: float) -> ScheduledPlan:
         """The scheduled plan active at time t [s] (the last one after the schedule ends)."""
@@ -128,11 +177,11 @@ class PlanRunner(LeafSystem):
     def _tick(self, context, discrete_state) -> None:
         t = context.get_time()
         scheduled = self.active(t)
-        state = ArmState(self._q.Eval(context), self._v.Eval(context), self._tau_ext.Eval(context))
+        x = self._x.Eval(context)
+        state = ArmState(x[:NUM_JOINTS], x[NUM_JOINTS:], self._tau_ext.Eval(context))
         command = scheduled.plan.command(t - scheduled.t_start, state)
-        discrete_state.get_mutable_vector(self._q_ref).SetFromVector(command.q_ref)
-        discrete_state.get_mutable_vector(self._tau_ff).SetFromVector(command.tau_ff)
-        discrete_state.get_mutable_vector(self._wsg).SetAtIndex(0, scheduled.gripper_width)
+        discrete_state.set_value(self._q_ref, command.q_ref - self._q_offset)
+        discrete_state.set_value(self._tau_ff, command.tau_ff)
 
 
 @dataclass(frozen=True)
@@ -257,21 +306,62 @@ def run_episode(
         plans, gripper_widths, q_initial=q_initial, q_start=q_start, scenario=scenario
     )
     timeline = scenario.timeline
+    t_final = schedule[-1].t_end + timeline.extra_time
     builder = DiagramBuilder()
     station = build_station(scenario.station, meshcat=meshcat)
     station_system = builder.AddSystem(station.diagram)
-    runner = builder.AddSystem(
-        PlanRunner(
-            schedule,
-            control_period=timeline.control_period,
-            q_initial=q_initial,
-            gripper_width=schedule[0].gripper_width,
+
+    def add(system, name: str):
+        system.set_name(name)
+        return builder.AddSystem(system)
+
+    # q_ref: the joint-space plans at the start (hold, move, grasp; all of an IK episode) come
+    # from a C++ trajectory source; the Python plan runner takes over at the first plan that
+    # needs feedback (its first tick), with no Python before it. The source then keeps sending
+    # its end value q_handoff, and the runner sends q_ref - q_handoff: the sum is q_ref.
+    k = joint_space_prefix(schedule)
+    t_handoff = schedule[k].t_start if k < len(schedule) else t_final
+    q_ref_sum = add(Adder(2, NUM_JOINTS), "q_ref")
+    if k > 0:
+        prefix = prefix_trajectory(schedule, k, t_final + 1.0)
+        q_handoff = prefix.value(t_handoff).ravel()
+        joint_source = add(TrajectorySource(prefix), "joint_space_plans")
+    else:
+        q_handoff = np.asarray(q_initial, float)
+        joint_source = add(ConstantVectorSource(q_handoff), "joint_space_plans")
+    builder.Connect(joint_source.get_output_port(), q_ref_sum.get_input_port(0))
+    if k < len(schedule):
+        runner = add(
+            PlanRunner(
+                schedule[k:],
+                control_period=timeline.control_period,
+                t_first=t_handoff,
+                q_offset=q_handoff,
+            ),
+            "plan_runner",
         )
+        for name in ("iiwa_state", "iiwa_torque_external"):
+            builder.Connect(station_system.GetOutputPort(name), runner.GetInputPort(name))
+        q_ref_runner = runner.GetOutputPort("iiwa_position")
+        tau_ff_port = runner.GetOutputPort("iiwa_feedforward_torque")
+    else:
+        zero = np.zeros(NUM_JOINTS)
+        q_ref_runner = add(ConstantVectorSource(zero), "no_runner").get_output_port()
+        tau_ff_port = add(ConstantVectorSource(zero), "no_feedforward").get_output_port()
+    builder.Connect(q_ref_runner, q_ref_sum.get_input_port(1))
+    builder.Connect(q_ref_sum.get_output_port(), station_system.GetInputPort("iiwa_position"))
+    builder.Connect(tau_ff_port, station_system.GetInputPort("iiwa_feedforward_torque"))
+    # The gripper's setpoint: one C++ zero-order hold over the schedule.
+    widths = [s.gripper_width for s in schedule]
+    wsg = add(
+        TrajectorySource(
+            PiecewisePolynomial.ZeroOrderHold(
+                [*(s.t_start for s in schedule), t_final + 1.0], np.array([[*widths, widths[-1]]])
+            )
+        ),
+        "wsg_position",
     )
-    for name in ("iiwa_position_measured", "iiwa_velocity_estimated", "iiwa_torque_external"):
-        builder.Connect(station_system.GetOutputPort(name), runner.GetInputPort(name))
-    for name in ("iiwa_position", "iiwa_feedforward_torque", "wsg_position"):
-        builder.Connect(runner.GetOutputPort(name), station_system.GetInputPort(name))
+    builder.Connect(wsg.get_output_port(), station_system.GetInputPort("wsg_position"))
     force_limit = builder.AddSystem(ConstantVectorSource([scenario.station.gripper.force_limit]))
     force_limit.set_name("wsg_force_limit")
     builder.Connect(force_limit.get_output_port(), station_system.GetInputPort("wsg_force_limit"))
@@ -282,7 +372,7 @@ def run_episode(
         "q_measured": station_system.GetOutputPort("iiwa_position_measured"),
         "v_measured": station_system.GetOutputPort("iiwa_velocity_estimated"),
         "tau_external": station_system.GetOutputPort("iiwa_torque_external"),
-        "tau_feedforward": runner.GetOutputPort("iiwa_feedforward_torque"),
+        "tau_feedforward": tau_ff_port,
         "tau_commanded": station_system.GetOutputPort("iiwa_torque_commanded"),
         "door_angles": station_system.GetOutputPort("door_angles"),
         "wsg_state": station_system.GetOutputPort("wsg_state_measured"),
@@ -300,7 +390,6 @@ def run_episode(
     context = simulator.get_mutable_context()
     _initialize(station, context, np.asarray(q_initial, float), scenario)
     simulator.set_target_realtime_rate(realtime_rate)
-    t_final = schedule[-1].t_end + timeline.extra_time
     if meshcat is not None:
         meshcat.StartRecording()
     wall_start = time.perf_counter()

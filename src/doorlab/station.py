@@ -7,17 +7,23 @@ inputs
     ``wsg_position`` (1) finger separation setpoint [m], ``wsg_force_limit`` (1) [N].
 outputs
     ``iiwa_position_commanded`` (7), ``iiwa_position_measured`` (7) [rad],
-    ``iiwa_velocity_estimated`` (7) [rad/s], ``iiwa_torque_commanded`` (7) [N m] (the torque the
-    joints receive, after saturation), ``iiwa_torque_external`` (7) [N m] (generalized contact
-    forces on the arm joints), ``wsg_state_measured`` (2) separation [m] and its rate [m/s],
+    ``iiwa_velocity_estimated`` (7) [rad/s], ``iiwa_state`` (14) both as [q; v],
+    ``iiwa_torque_commanded`` (7) [N m] (the torque the joints receive: the actuators'
+    after saturation plus, for ``stiffness``, the joints' damping -Dq qdot),
+    ``iiwa_torque_external`` (7) [N m] (generalized contact forces on the arm joints),
+    ``wsg_state_measured`` (2) separation [m] and its rate [m/s],
     ``plant_state`` (the whole plant's [q; v]), ``door_angles`` (2) left/right hinge [rad].
 
 The inner loop is built from Drake's C++ systems only (no Python per simulation step):
 
-- ``stiffness`` (the seed's law) tau = Kq (q_ref - q) - Dq qdot + g(q) + tau_ff: the plant's
-  own PD actuators (integrated implicitly by the SAP solver, so stiff gains stay stable at the
-  2 ms step) with desired state (q_ref, 0), plus g(q) from an ``InverseDynamics`` system in
-  gravity-compensation mode and tau_ff; the plant clamps the total at the effort limits.
+- ``stiffness`` (the seed's law) tau = Kq (q_ref - q) - Dq qdot + g(q) + tau_ff: the spring
+  and g(q) from a ``JointStiffnessController`` (kd = 0) on the controller plant, plus tau_ff,
+  clamped at the effort limits (``Saturation``), one explicit torque per step; -Dq qdot is
+  the arm joints' own viscous damping, which SAP integrates implicitly (so the damping stays
+  stable at any step, and SAP has no PD constraint to solve).
+- ``implicit_pd`` (the design before issue 9, for comparison): the plant's own PD actuators
+  (Kq, Dq - h Kq) with desired state (q_ref, 0), SAP evaluating the spring at the step's end
+  (so they damp with exactly Dq), plus g(q) from ``InverseDynamics`` and tau_ff.
 - ``inverse_dynamics`` (the original station): ``InverseDynamicsController`` PID through M(q),
   the desired velocity from a discrete derivative of q_ref, plus tau_ff, then ``Saturation``.
 
@@ -174,6 +180,34 @@ def _filter_scene_collisions(plant: MultibodyPlant, scene_graph: SceneGraph) -> 
     )
 
 
+WORKING_GEOMETRIES = (
+    ("left_door", f"{CUPBOARD_MODEL}::slab_collision"),
+    ("left_door", f"{CUPBOARD_MODEL}::handle_collision"),
+)
+"""(body, geometry name) of the cupboard collision geometries the experiments touch: the left
+door that the gripper opens. Without arm collision only these keep their proximity role."""
+
+
+def _drop_untouched_collisions(plant: MultibodyPlant, scene_graph: SceneGraph) -> None:
+    """Removes the proximity role of the cupboard and table geometries nothing touches.
+
+    With a collision-free arm only the gripper can touch the scene, and it only ever touches
+    the left door (its pads on the handle): the carcass, the right door and the table cost
+    contact queries on every step (3-10 %) and change no result.
+    """
+    inspector = scene_graph.model_inspector()
+    source_id = plant.get_source_id()
+    keep = set()
+    for body_name, geometry_name in WORKING_GEOMETRIES:
+        frame_id = plant.GetBodyFrameIdOrThrow(plant.GetBodyByName(body_name).index())
+        keep.add(inspector.GetGeometryIdByName(frame_id, Role.kProximity, geometry_name))
+    for name in (CUPBOARD_MODEL, "table"):
+        for body in plant.GetBodyIndices(plant.GetModelInstanceByName(name)):
+            for geometry_id in plant.GetCollisionGeometriesForBody(plant.get_body(body)):
+                if geometry_id not in keep:
+                    scene_graph.RemoveRole(source_id, geometry_id, Role.kProximity)
+
+
 def gripper_spatial_inertia(finger_separation: float = 0.01) -> SpatialInertia:
     """Spatial inertia of the whole WSG-50 (body and fingers) about G's origin, in G.
 
@@ -285,6 +319,8 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
     plant.Finalize()
     _set_friction(plant, scene_graph, config.friction)
     _filter_scene_collisions(plant, scene_graph)
+    if not (config.arm_collision or config.scene_collision):
+        _drop_untouched_collisions(plant, scene_graph)
 
     controller_plant = make_controller_plant()
 
@@ -380,6 +416,7 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
         builder.Connect(saturation.get_output_port(), plant.get_actuation_input_port(iiwa))
         builder.ExportOutput(saturation.get_output_port(), "iiwa_torque_commanded")
 
+    builder.ExportOutput(arm_state, "iiwa_state")
     builder.ExportOutput(demux.get_output_port(0), "iiwa_position_measured")
     builder.ExportOutput(demux.get_output_port(1), "iiwa_velocity_estimated")
     builder.ExportOutput(
