@@ -80,8 +80,10 @@ QUICK_SUBSET = ("tick/velocity", "tick/impedance", "ik/10_knots", "episode/veloc
 """What --quick runs when --only is not given."""
 
 # Targets (design notes: speed targets live here, never in timed unit tests).
-RTF_TARGET = 20.0
-"""An episode should simulate at least 20x faster than real time (24 s in < 1.2 s)."""
+RTF_TARGET_OPEN = 18.0
+"""An open-door episode (free space, no contact but the grasp) simulates at least 18x faster
+than real time (issue 9). Closed-door episodes are judged against Drake's floor instead
+(``design/*``: within 1.15x of it), which SAP's contact steps keep near 10x."""
 TICK_TARGET_US = 100.0
 """A control tick must fit well inside the 5 ms control period (and not dominate the step)."""
 IK10_TARGET_S = 0.1
@@ -389,7 +391,14 @@ def bench_episodes(names: Sequence[str], settings: Settings, ctx: Context) -> li
         s = samples[name]
         metrics += [
             Metric(f"{name}/sim_s", name, "s", s["sim_s"], info=info[name]),
-            Metric(f"{name}/rtf", name, "x", s["rtf"], better="higher", target=(">=", RTF_TARGET)),
+            Metric(
+                f"{name}/rtf",
+                name,
+                "x",
+                s["rtf"],
+                better="higher",
+                target=(">=", RTF_TARGET_OPEN) if name.endswith("_open") else None,
+            ),
             Metric(f"{name}/e2e_s", name, "s", s["e2e_s"]),
         ]
         for m in metrics[-3:]:
@@ -681,7 +690,8 @@ EPISODES = tuple(f"episode/{c}_{d}" for c in CONTROLLERS for d in DOORS)
 TICKS = ("tick/velocity", "tick/impedance")
 IKS = tuple(f"ik/{n}_knots" for n in IK_KNOTS)
 RUNS = tuple(f"run/{c}" for c in CONTROLLERS)
-ALL = (*TICKS, *IKS, *EPISODES, *RUNS, "memory/episode", "profile/episode")
+DESIGNS = tuple(f"design/{c}_closed" for c in CONTROLLERS)
+ALL = (*TICKS, *IKS, *EPISODES, *DESIGNS, *RUNS, "memory/episode", "profile/episode")
 """Every benchmark, in the order they run (cheap ones first)."""
 
 
@@ -737,6 +747,14 @@ def run_all(settings: Settings) -> tuple[list[Metric], dict[str, str], dict | No
     episodes = [n for n in selected if n.startswith("episode/")]
     if episodes:
         attempt("episode/*", lambda: bench_episodes(episodes, settings, ctx))
+    designs = [n for n in selected if n.startswith("design/")]
+    if designs:
+        from designs import bench_designs
+
+        attempt(
+            "design/*",
+            lambda: bench_designs(designs, settings, ctx, Metric=Metric, CpuWatch=CpuWatch),
+        )
     runs = [n for n in selected if n.startswith("run/")]
     if runs:
         attempt("run/*", lambda: bench_runs(runs, settings, ctx))

@@ -22,6 +22,7 @@ from pydrake.systems.primitives import (
     Adder,
     ConstantVectorSource,
     LogVectorOutput,
+    Multiplexer,
     TrajectorySource,
 )
 from pydrake.trajectories import PiecewisePolynomial
@@ -32,6 +33,8 @@ from doorlab.errors import ConfigError, SimulationError
 from doorlab.frames import FINGER_JOINTS, LEFT_HINGE, RIGHT_HINGE
 from doorlab.plans import ArmState, JointSpacePlan, Plan
 from doorlab.station import Station, build_station
+
+HINGES = (LEFT_HINGE, RIGHT_HINGE)
 
 PLAN_SETTLE_TIME = 1.0
 """Every plan stays active this long after its duration [s] (the original's timeline)."""
@@ -366,19 +369,19 @@ def run_episode(
     force_limit.set_name("wsg_force_limit")
     builder.Connect(force_limit.get_output_port(), station_system.GetInputPort("wsg_force_limit"))
 
-    period = timeline.log_period
+    # One logger of one C++ Multiplexer (one publish per sample, not one per channel); the
+    # arm's measured state, the hinges and the fingers are read from the plant state after.
     channels = {
         "q_commanded": station_system.GetOutputPort("iiwa_position_commanded"),
-        "q_measured": station_system.GetOutputPort("iiwa_position_measured"),
-        "v_measured": station_system.GetOutputPort("iiwa_velocity_estimated"),
-        "tau_external": station_system.GetOutputPort("iiwa_torque_external"),
         "tau_feedforward": tau_ff_port,
         "tau_commanded": station_system.GetOutputPort("iiwa_torque_commanded"),
-        "door_angles": station_system.GetOutputPort("door_angles"),
-        "wsg_state": station_system.GetOutputPort("wsg_state_measured"),
+        "tau_external": station_system.GetOutputPort("iiwa_torque_external"),
         "plant_state": station_system.GetOutputPort("plant_state"),
     }
-    loggers = {name: LogVectorOutput(port, builder, period) for name, port in channels.items()}
+    mux = add(Multiplexer([port.size() for port in channels.values()]), "log_channels")
+    for i, port in enumerate(channels.values()):
+        builder.Connect(port, mux.get_input_port(i))
+    logger = LogVectorOutput(mux.get_output_port(), builder, timeline.log_period)
     diagram = builder.Build()
     diagram.set_name("doorlab_episode")
 
@@ -406,10 +409,27 @@ def run_episode(
         meshcat.StopRecording()
         meshcat.PublishRecording()
 
-    logs = {name: logger.FindLog(context) for name, logger in loggers.items()}
-    t = logs["q_measured"].sample_times()
-    data = {name: log.data().T for name, log in logs.items()}
-    nq = station.plant.num_positions()
+    log = logger.FindLog(context)
+    t = log.sample_times()
+    columns = np.cumsum([0, *(port.size() for port in channels.values())])
+    samples = log.data().T
+    data = {
+        name: samples[:, start:end]
+        for name, start, end in zip(channels, columns[:-1], columns[1:], strict=True)
+    }
+    plant = station.plant
+    x = data["plant_state"]
+    nq = plant.num_positions()
+    q_all, v_all = x[:, :nq], x[:, nq:]
+    # Column indices of a model instance's positions/velocities in the plant's.
+    arm_q = plant.GetPositionsFromArray(station.iiwa, np.arange(nq)).astype(int)
+    arm_v = plant.GetVelocitiesFromArray(station.iiwa, np.arange(v_all.shape[1])).astype(int)
+    fingers = plant.GetPositionsFromArray(station.wsg, np.arange(nq)).astype(int)
+    hinges = [plant.GetJointByName(h, station.cupboard).position_start() for h in HINGES]
+    data["q_measured"] = q_all[:, arm_q]
+    data["v_measured"] = v_all[:, arm_v]
+    data["door_angles"] = q_all[:, hinges]
+    data["wsg_width"] = q_all[:, fingers[1]] - q_all[:, fingers[0]]  # right - left finger
     arc_index = (len(plans) - 1 if arc_plan_index is None else arc_plan_index) + 2
     arc = schedule[arc_index]
     result = EpisodeResult(
@@ -421,8 +441,8 @@ def run_episode(
         tau_feedforward=data["tau_feedforward"],
         tau_commanded=data["tau_commanded"],
         door_angles=data["door_angles"],
-        wsg_width=data["wsg_state"][:, 0],
-        plant_positions=data["plant_state"][:, :nq],
+        wsg_width=data["wsg_width"],
+        plant_positions=q_all,
         plan_names=tuple(s.plan.name for s in schedule),
         plan_starts=np.array([s.t_start for s in schedule]),
         arc_window=np.array([arc.t_start, arc.t_start + arc.plan.duration]),
