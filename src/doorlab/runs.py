@@ -21,7 +21,7 @@ from pydrake.geometry import Meshcat
 
 from doorlab.config import Scenario, validate
 from doorlab.errors import IkError, OutputError, SimulationError
-from doorlab.geometry import scenario_door_geometry
+from doorlab.geometry import true_door_geometry
 from doorlab.metrics import DoorMetrics, Kinematics, compute_metrics
 
 EXIT_CODES = {"ok": 0, "usage": 2, "slipped": 3, "speed_limit": 4, "diverged": 5, "ik_failed": 6}
@@ -113,7 +113,7 @@ def _write_plots(result, scenario: Scenario, out_dir: str) -> None:
     """Plot worker: the run's PNG plots into ``out_dir``."""
     from doorlab import plots as plotting
 
-    plotting.save_run_plots(result, scenario_door_geometry(scenario), Path(out_dir))
+    plotting.save_run_plots(result, true_door_geometry(scenario), Path(out_dir))
 
 
 def _plot_worker() -> concurrent.futures.ProcessPoolExecutor:
@@ -177,7 +177,7 @@ def run_to_folder(
                 plotted = worker.submit(_write_plots, result, scenario, str(staging))
             except concurrent.futures.process.BrokenProcessPool:
                 plotted = None  # the worker could not start: plot here instead
-        geometry = scenario_door_geometry(scenario)
+        geometry = true_door_geometry(scenario)
         kinematics = Kinematics()
         metrics = compute_metrics(result, scenario, geometry, kinematics=kinematics)
         result.save(staging / "log.npz")

@@ -9,7 +9,7 @@ outputs
     ``iiwa_position_commanded`` (7), ``iiwa_position_measured`` (7) [rad],
     ``iiwa_velocity_estimated`` (7) [rad/s], ``iiwa_state`` (14) both as [q; v],
     ``iiwa_torque_commanded`` (7) [N m] (the torque the joints receive: the actuators'
-    after saturation plus, for ``stiffness``, the joints' damping -Dq qdot),
+    after saturation plus, for ``stiffness``, the joints' damping -(Dq + h Kq) qdot),
     ``iiwa_torque_external`` (7) [N m] (generalized contact forces on the arm joints),
     ``wsg_state_measured`` (2) separation [m] and its rate [m/s],
     ``plant_state`` (the whole plant's [q; v]), ``door_angles`` (2) left/right hinge [rad].
@@ -18,12 +18,13 @@ The inner loop is built from Drake's C++ systems only (no Python per simulation 
 
 - ``stiffness`` (the seed's law) tau = Kq (q_ref - q) - Dq qdot + g(q) + tau_ff: the spring
   and g(q) from a ``JointStiffnessController`` (kd = 0) on the controller plant, plus tau_ff,
-  clamped at the effort limits (``Saturation``), one explicit torque per step; -Dq qdot is
-  the arm joints' own viscous damping, which SAP integrates implicitly (so the damping stays
-  stable at any step, and SAP has no PD constraint to solve).
+  clamped at the effort limits (``Saturation``), one explicit torque per step; the damping
+  -(Dq + h Kq) qdot is the arm joints' own viscous damping, which SAP integrates implicitly
+  (stable at any step, and SAP has no PD constraint to solve). The h Kq term is the one SAP's
+  implicit PD added (see ``InnerLoopConfig``), so both loops give the same physics.
 - ``implicit_pd`` (the design before issue 9, for comparison): the plant's own PD actuators
-  (Kq, Dq - h Kq) with desired state (q_ref, 0), SAP evaluating the spring at the step's end
-  (so they damp with exactly Dq), plus g(q) from ``InverseDynamics`` and tau_ff.
+  (Kq, Dq) with desired state (q_ref, 0), SAP evaluating the spring at the step's end (so
+  they damp with Dq + h Kq), plus g(q) from ``InverseDynamics`` and tau_ff.
 - ``inverse_dynamics`` (the original station): ``InverseDynamicsController`` PID through M(q),
   the desired velocity from a discrete derivative of q_ref, plus tau_ff, then ``Saturation``.
 
@@ -49,7 +50,7 @@ from pydrake.geometry import (
     SceneGraph,
 )
 from pydrake.manipulation import MakeMultibodyStateToWsgStateSystem, SchunkWsgPositionController
-from pydrake.math import RigidTransform
+from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import (
     AddMultibodyPlant,
@@ -78,12 +79,12 @@ from pydrake.systems.primitives import (
 from doorlab import models
 from doorlab.config import StationConfig
 from doorlab.constants import JOINT_TORQUE_LIMITS, NUM_JOINTS
-from doorlab.errors import ConfigError
 from doorlab.frames import (
     ARM_JOINTS,
     CUPBOARD_MODEL,
     GRIPPER_BODY,
     L7_FRAME,
+    LEFT_HANDLE_FRAME,
     LEFT_HINGE,
     RIGHT_HINGE,
 )
@@ -128,14 +129,18 @@ def add_cell(
     *,
     arm_collision: bool = False,
     p_WC: Sequence[float] | None = None,
+    yaw_error: float = 0.0,
 ) -> tuple[ModelInstanceIndex, ...]:
     """Adds the arm, gripper, cupboard and table to ``plant`` and welds them (before Finalize).
 
     Args:
         plant: A plant that is not finalized yet.
         arm_collision: Give the arm collision capsules (the original arm had none).
-        p_WC: Where the cupboard frame C sits in W (3,) [m]; its orientation is always
+        p_WC: Where the (believed) cupboard frame C sits in W (3,) [m]; its orientation is
             RotZ(pi) and the table follows it. Default: the original station's placement.
+        yaw_error: The cupboard actually stands turned by this angle [rad] about the left
+            handle's vertical axis (see :func:`cupboard_turned_about_handle`); the table
+            does not turn.
 
     Returns:
         The model instances (iiwa, wsg, cupboard).
@@ -158,11 +163,41 @@ def add_cell(
         X_W_table = RigidTransform(
             models.X_W_TABLE.translation() + p_WC - models.X_WC.translation()
         )
+    if yaw_error:
+        X_WC = cupboard_turned_about_handle(X_WC, yaw_error)
     plant.WeldFrames(world, plant.GetFrameByName("cupboard_body", cupboard), X_WC)
     plant.WeldFrames(world, plant.GetFrameByName("table_top", table), X_W_table)
     if arm_collision:
         models.add_arm_collision(plant, iiwa)
     return iiwa, wsg, cupboard
+
+
+@cache
+def _p_C_left_handle() -> tuple[float, float, float]:
+    """The left handle's centre in C with the door closed [m], read from the model."""
+    plant = MultibodyPlant(0.0)
+    parser = Parser(plant)
+    models.add_package(parser)
+    (cupboard,) = parser.AddModels(url=models.model_url("cupboard"))
+    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("cupboard_body", cupboard))
+    plant.Finalize()
+    context = plant.CreateDefaultContext()
+    plant.GetJointByName(LEFT_HINGE, cupboard).set_angle(context, 0.0)
+    p = plant.GetFrameByName(LEFT_HANDLE_FRAME, cupboard).CalcPoseInWorld(context).translation()
+    return (float(p[0]), float(p[1]), float(p[2]))
+
+
+def cupboard_turned_about_handle(X_WC: RigidTransform, yaw: float) -> RigidTransform:
+    """The cupboard pose X_WC turned by ``yaw`` [rad] about the closed left handle's vertical axis.
+
+    The left handle's centre stays where it is (a camera would find it there); the hinge,
+    0.267 m away, moves by 2 r sin(yaw / 2) (4.7 cm at 10 deg). Positive yaw is
+    counter-clockwise seen from above (about +z of W).
+    """
+    p_W_handle = X_WC @ np.array(_p_C_left_handle())
+    X_W_pivot = RigidTransform(p_W_handle)
+    X_pivot_turned = RigidTransform(RotationMatrix.MakeZRotation(yaw))
+    return X_W_pivot @ X_pivot_turned @ X_W_pivot.inverse() @ X_WC
 
 
 def _filter_scene_collisions(plant: MultibodyPlant, scene_graph: SceneGraph) -> None:
@@ -260,25 +295,15 @@ def _set_friction(plant: MultibodyPlant, scene_graph: SceneGraph, friction: floa
         scene_graph.AssignRole(source_id, geometry_id, new_props, RoleAssign.kReplace)
 
 
-def implicit_pd_damping(config: StationConfig) -> np.ndarray:
-    """The PD actuators' d that makes the ``implicit_pd`` loop damp with exactly Dq (7,).
+def joint_damping(config: StationConfig) -> np.ndarray:
+    """The damping that acts on each arm joint with the stiffness loop, (7,) [N m s/rad].
 
-    SAP evaluates a PD actuator's spring at q_{n+1} = q_n + h v_{n+1}, so a PD gain pair
-    (Kq, d) damps with d + h Kq; the ``implicit_pd`` loop therefore gets d = Dq - h Kq [N m s/rad].
-
-    Raises:
-        ConfigError: Dq < h Kq on some joint (no such PD actuator exists).
+    Dq dq_scale + h Kq (see :class:`doorlab.config.InnerLoopConfig`): the h Kq term is what
+    SAP's implicit PD actuators added by evaluating the spring at the step's end.
     """
     loop = config.inner_loop
-    d = np.asarray(loop.dq, float) - config.time_step * np.asarray(loop.kq, float)
-    if np.any(d < 0):
-        joint = int(np.argmax(d < 0))
-        raise ConfigError(
-            f"station.inner_loop.kind 'implicit_pd' needs dq >= time_step * kq on every joint "
-            f"(joint {joint + 1}: dq {loop.dq[joint]} < {config.time_step * loop.kq[joint]}); "
-            "use kind 'stiffness'"
-        )
-    return d
+    dq = np.asarray(loop.dq, float) * loop.dq_scale
+    return dq + config.time_step * np.asarray(loop.kq, float)
 
 
 def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> Station:
@@ -291,30 +316,32 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
     Returns:
         The built station.
 
-    Raises:
-        ConfigError: ``implicit_pd`` with Dq < h Kq (see :func:`implicit_pd_damping`).
     """
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(_plant_config(config), builder)
     plant.set_name("plant")
     iiwa, wsg, cupboard = add_cell(
-        plant, arm_collision=config.arm_collision, p_WC=config.cupboard_position
+        plant,
+        arm_collision=config.arm_collision,
+        p_WC=config.cupboard_position,
+        yaw_error=config.cupboard_yaw_error,
     )
     for hinge in (LEFT_HINGE, RIGHT_HINGE):
         plant.GetJointByName(hinge, cupboard).set_default_damping(config.hinge_damping)
     kind = config.inner_loop.kind
     kq = np.asarray(config.inner_loop.kq, float)
-    dq = np.asarray(config.inner_loop.dq, float)
+    dq = np.asarray(config.inner_loop.dq, float) * config.inner_loop.dq_scale
+    damping = joint_damping(config)
     arm_actuators = [plant.GetJointActuatorByName(name, iiwa) for name in ARM_JOINTS]
     for actuator, limit in zip(arm_actuators, JOINT_TORQUE_LIMITS, strict=True):
         actuator.set_effort_limit(float(limit))
     if kind == "stiffness":
         # The damping half of the law is the joints' own viscous damping: SAP integrates it
         # implicitly (stable at any step), and no PD constraint is left for the solver.
-        for name, d in zip(ARM_JOINTS, dq, strict=True):
+        for name, d in zip(ARM_JOINTS, damping, strict=True):
             plant.GetJointByName(name, iiwa).set_default_damping(float(d))
     elif kind == "implicit_pd":
-        for actuator, p, d in zip(arm_actuators, kq, implicit_pd_damping(config), strict=True):
+        for actuator, p, d in zip(arm_actuators, kq, dq, strict=True):
             actuator.set_controller_gains(PdControllerGains(p=float(p), d=float(d)))
     plant.Finalize()
     _set_friction(plant, scene_graph, config.friction)
@@ -361,11 +388,11 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
         builder.Connect(adder.get_output_port(), saturation.get_input_port())
         builder.Connect(saturation.get_output_port(), plant.get_actuation_input_port(iiwa))
         # The torque the joints receive includes the damping the joints apply themselves.
-        damping = add(MatrixGain(-np.diag(dq)), "joint_damping_torque")
-        builder.Connect(demux.get_output_port(1), damping.get_input_port())
+        damping_torque = add(MatrixGain(-np.diag(damping)), "joint_damping_torque")
+        builder.Connect(demux.get_output_port(1), damping_torque.get_input_port())
         commanded = add(Adder(2, NUM_JOINTS), "torque_commanded")
         builder.Connect(saturation.get_output_port(), commanded.get_input_port(0))
-        builder.Connect(damping.get_output_port(), commanded.get_input_port(1))
+        builder.Connect(damping_torque.get_output_port(), commanded.get_input_port(1))
         builder.ExportOutput(commanded.get_output_port(), "iiwa_torque_commanded")
     elif kind == "implicit_pd":
         # The 353b732 design: the plant's PD actuators with desired state (q_ref, 0) + g(q) +
