@@ -8,6 +8,7 @@ plus ``PLAN_SETTLE_TIME``; ``extra_time`` follows the last plan.
 from __future__ import annotations
 
 import io
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
@@ -99,6 +100,22 @@ def joint_space_prefix(schedule: Sequence[ScheduledPlan]) -> int:
     while k < len(schedule) and isinstance(schedule[k].plan, JointSpacePlan):
         k += 1
     return k
+
+
+def _first_tick(t: float, period: float) -> float:
+    """The first tick k * period at or after t [s] (float noise tolerated)."""
+    return math.ceil(t / period - 1e-9) * period
+
+
+def _tick_lag(time_step: float, period: float) -> float:
+    """How long after a tick its command may switch on without missing a plant step [s].
+
+    Ticks and plant steps share the grid of g = gcd(time_step, period); a discrete update at
+    tick t_k reaches the plant at its first step after t_k, which is at least g later: a
+    switch at t_k + g / 2 does the same, clear of float noise on either side.
+    """
+    ns = math.gcd(round(time_step * 1e9), round(period * 1e9))
+    return 0.5 * ns * 1e-9
 
 
 def prefix_trajectory(
@@ -319,28 +336,34 @@ def run_episode(
         return builder.AddSystem(system)
 
     # q_ref: the joint-space plans at the start (hold, move, grasp; all of an IK episode) come
-    # from a C++ trajectory source; the Python plan runner takes over at the first plan that
-    # needs feedback (its first tick), with no Python before it. The source then keeps sending
-    # its end value q_handoff, and the runner sends q_ref - q_handoff: the sum is q_ref.
+    # from C++ trajectory sources; the Python plan runner takes over at the first plan that
+    # needs feedback (its first tick), with no Python before it. The sources then keep sending
+    # their last value q_handoff, and the runner sends q_ref - q_handoff: the sum is q_ref.
+    # They send exactly what the runner would have: the plans sampled at its ticks t_k, each
+    # sample reaching the plant (and the logs) from the first step after t_k, as a discrete
+    # update at t_k does.
+    period = timeline.control_period
+    lag = _tick_lag(scenario.station.time_step, period)
     k = joint_space_prefix(schedule)
-    t_handoff = schedule[k].t_start if k < len(schedule) else t_final
+    t_first = _first_tick(schedule[k].t_start, period) if k < len(schedule) else t_final
     q_ref_sum = add(Adder(2, NUM_JOINTS), "q_ref")
     if k > 0:
         prefix = prefix_trajectory(schedule, k, t_final + 1.0)
-        q_handoff = prefix.value(t_handoff).ravel()
-        joint_source = add(TrajectorySource(prefix), "joint_space_plans")
+        ticks = np.arange(int(np.floor(t_first / period - 1e-9)) + 1) * period
+        ticks = ticks[ticks < t_first - 1e-9] if k < len(schedule) else ticks
+        samples = np.column_stack([prefix.value(t).ravel() for t in ticks])
+        q_handoff = samples[:, -1]
+        held = np.column_stack([samples, q_handoff])
+        end = t_final + 1.0
+        applied = PiecewisePolynomial.ZeroOrderHold([0.0, *(ticks[1:] + lag), end], held)
+        joint_source = add(TrajectorySource(applied), "joint_space_plans")
     else:
         q_handoff = np.asarray(q_initial, float)
         joint_source = add(ConstantVectorSource(q_handoff), "joint_space_plans")
     builder.Connect(joint_source.get_output_port(), q_ref_sum.get_input_port(0))
     if k < len(schedule):
         runner = add(
-            PlanRunner(
-                schedule[k:],
-                control_period=timeline.control_period,
-                t_first=t_handoff,
-                q_offset=q_handoff,
-            ),
+            PlanRunner(schedule[k:], control_period=period, t_first=t_first, q_offset=q_handoff),
             "plan_runner",
         )
         for name in ("iiwa_state", "iiwa_torque_external"):
@@ -354,12 +377,14 @@ def run_episode(
     builder.Connect(q_ref_runner, q_ref_sum.get_input_port(1))
     builder.Connect(q_ref_sum.get_output_port(), station_system.GetInputPort("iiwa_position"))
     builder.Connect(tau_ff_port, station_system.GetInputPort("iiwa_feedforward_torque"))
-    # The gripper's setpoint: one C++ zero-order hold over the schedule.
+    # The gripper's setpoint: a C++ zero-order hold switching at the first step after the
+    # tick that starts each plan (as the runner's state did).
     widths = [s.gripper_width for s in schedule]
+    switches = [_first_tick(s.t_start, period) + lag for s in schedule[1:]]
     wsg = add(
         TrajectorySource(
             PiecewisePolynomial.ZeroOrderHold(
-                [*(s.t_start for s in schedule), t_final + 1.0], np.array([[*widths, widths[-1]]])
+                [0.0, *switches, t_final + 1.0], np.array([[*widths, widths[-1]]])
             )
         ),
         "wsg_position",
