@@ -4,23 +4,21 @@ Both run here, side by side, on the same (current) physics, so the comparison st
 the models or the gains change. What differs between them is only machinery:
 
 - the inner loop's spring: an explicit torque Kq (q_ref - q_n) per step instead of SAP's PD
-  actuators evaluating it at q_{n+1}; the PD actuators' d = Dq - h Kq makes both damp with
-  Dq, so the two differ by Kq (q_{n+1} - q_n) = h Kq v_{n+1} in the spring, a torque that the
-  joint's own damping (integrated implicitly) absorbs; measured: joint angles within ~3e-5 rad;
-- the joint-space phases (0-11 s): q_ref from a C++ trajectory evaluated at every 2 ms step
-  instead of sampled by the Python runner every 5 ms (the move ends at rest, so the grasp
-  starts from the same place), and the gripper setpoint switching at the plan's start instead
-  of at the next tick;
+  actuators evaluating it at q_{n+1}; the joints' own damping Dq + h Kq (implicit) makes up
+  the difference to first order, so the two differ by O(h^2) per step: joint angles within
+  ~3e-6 rad in free motion, ~4e-5 rad once the fingers close on the handle;
+- the joint-space phases (0-11 s; an IK episode's arc too): q_ref from C++ zero-order holds
+  of the plans sampled at the runner's ticks instead of the Python runner (the same q_ref,
+  bit for bit, in the logs); the gripper setpoint likewise;
 - the cupboard carcass, right door and table without proximity roles (bit-identical alone).
 
 Tolerances (the issue's): door angles 0.1 deg; radial errors 2 % or 0.01 mm, whichever is
-larger. Orientation errors get the same 2 % or 0.01 deg. A 3e-5 rad joint difference moves Q by
-at most ~3e-5 rad x 1 m = 0.03 mm. Measured (drake 1.51.1, the models of 353b732): door angles
-within 0.014 deg (IK, closed; the others within 0.002 deg), radial errors within 1.3 % (the RMS
-of IK, closed, whose error is the spline's own between knots, sensitive to where the grasp
-starts) and 0.2 % elsewhere, orientation errors within 0.7 %. The IK runs sit closest to the
-bounds: their q_ref is where the two designs differ most (a continuous trajectory instead of
-5 ms samples).
+larger. Orientation errors get the same 2 % or 0.01 deg. A 4e-5 rad joint difference moves Q by
+at most ~4e-5 rad x 1 m = 0.04 mm; the impedance plan, whose q_ref = q feeds the measured state
+back, is the most sensitive. Measured (drake 1.51.1, the models and gains of main after the
+fidelity issue): door angles within 0.0002 deg; radial errors within 0.8 % (the impedance
+plan's RMS with the doors closed; 0.15 % for its max, 0.015 mm), orientation errors within
+0.2 %. The bounds are the issue's and leave room for the physics to change.
 """
 
 from __future__ import annotations
