@@ -29,6 +29,8 @@ import statistics
 import time
 from collections.abc import Iterator, Sequence
 
+from common import Context, CpuWatch, Metric, Settings
+
 NEW_OVER_FLOOR_TARGET = 1.15
 OLD_OVER_NEW_TARGET = 1.3
 
@@ -130,12 +132,8 @@ def time_episode(run, scenario) -> tuple[float, float, float]:
     return spent[0], spent[1], result.sim_time_s
 
 
-def bench_designs(names: Sequence[str], settings, ctx, *, Metric, CpuWatch) -> list:  # noqa: N803
-    """floor / new / old for each selected ``design/<controller>_<doors>``, round-robin.
-
-    ``Metric`` and ``CpuWatch`` are run_benchmarks' classes (passed in: that module is
-    ``__main__`` when run as a script).
-    """
+def bench_designs(names: Sequence[str], settings: Settings, ctx: Context) -> list[Metric]:
+    """floor / new / old for each selected ``design/<controller>_<doors>``, round-robin."""
     from doorlab import Scenario, run_controller
     from doorlab.legacy import run_legacy_controller
 
