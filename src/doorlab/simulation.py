@@ -37,6 +37,20 @@ from doorlab.station import Station, build_station
 
 HINGES = (LEFT_HINGE, RIGHT_HINGE)
 
+_SEPARATE_LOGGERS = False
+"""Also log the station's channels one logger each, as the 353b732 design did (its cost,
+for :mod:`doorlab.legacy`; the logs come from the one multiplexed logger either way)."""
+_SEPARATE_LOG_PORTS = (
+    "iiwa_position_commanded",
+    "iiwa_position_measured",
+    "iiwa_velocity_estimated",
+    "iiwa_torque_external",
+    "iiwa_torque_commanded",
+    "door_angles",
+    "wsg_state_measured",
+    "plant_state",
+)
+
 PLAN_SETTLE_TIME = 1.0
 """Every plan stays active this long after its duration [s] (the original's timeline)."""
 
@@ -407,6 +421,10 @@ def run_episode(
     for i, port in enumerate(channels.values()):
         builder.Connect(port, mux.get_input_port(i))
     logger = LogVectorOutput(mux.get_output_port(), builder, timeline.log_period)
+    if _SEPARATE_LOGGERS:  # the 353b732 design's nine loggers, for doorlab.legacy (unused)
+        for name in _SEPARATE_LOG_PORTS:
+            LogVectorOutput(station_system.GetOutputPort(name), builder, timeline.log_period)
+        LogVectorOutput(tau_ff_port, builder, timeline.log_period)
     diagram = builder.Build()
     diagram.set_name("doorlab_episode")
 
