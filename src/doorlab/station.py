@@ -103,7 +103,7 @@ class Station:
         scene_graph: The SceneGraph of the simulation plant.
         iiwa, wsg, cupboard: Model instances of the simulation plant.
         interpolator: The q_ref differentiator of the ``inverse_dynamics`` loop (None for
-            ``stiffness``); its state must be set to the initial q.
+            the other loops); its state must be set to the initial q.
     """
 
     diagram: Diagram
