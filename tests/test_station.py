@@ -431,3 +431,30 @@ def test_dq_scale_multiplies_the_joint_damping():
         gains = actuator.get_controller_gains()
         assert gains.p == kq
         assert gains.d == pytest.approx(2.5 * dq, rel=1e-15)
+
+
+def _colliding_bodies(station: Station) -> set[str]:
+    """Names of the cupboard's and table's bodies with a geometry of proximity role."""
+    plant = station.plant
+    inspector = station.scene_graph.model_inspector()
+    names = set()
+    for model in ("cupboard", "table"):
+        for index in plant.GetBodyIndices(plant.GetModelInstanceByName(model)):
+            body = plant.get_body(index)
+            geometries = plant.GetCollisionGeometriesForBody(body)
+            if any(inspector.GetProximityProperties(g) is not None for g in geometries):
+                names.add(body.name())
+    return names
+
+
+def test_only_the_left_door_collides_unless_asked(station):
+    """Without arm collision only the gripper can touch the scene, and it touches only the
+    left door: the carcass, the right door and the table lose their proximity roles, unless
+    station.scene_collision or station.arm_collision asks for them."""
+    assert _colliding_bodies(station) == {"left_door"}
+    for flag in ("scene_collision", "arm_collision"):
+        config = StationConfig()
+        setattr(config, flag, True)
+        assert {"left_door", "right_door", "cupboard_body", "table_top"} <= _colliding_bodies(
+            build_station(config)
+        )
