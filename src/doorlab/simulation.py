@@ -227,7 +227,8 @@ class EpisodeResult:
         q_commanded, q_measured: (n, 7) [rad]. v_measured: (n, 7) [rad/s].
         tau_external: Contact torques on the arm joints (n, 7) [N m].
         tau_feedforward: tau_ff sent by the plans (n, 7) [N m].
-        tau_commanded: Torque applied by the joints after saturation (n, 7) [N m].
+        tau_commanded: Torque the joints receive (n, 7) [N m]: the actuators' after
+            saturation plus, for the stiffness loop, the joints' damping -(Dq + h Kq) qdot.
         door_angles: Hinge angles (n, 2) [rad], columns (left, right).
         wsg_width: Finger separation (n,) [m].
         plant_positions: Positions of the whole plant (n, nq), for replays.
