@@ -110,7 +110,7 @@ def _warm_plotter() -> None:
 
 
 def _write_plots(result, scenario: Scenario, out_dir: str) -> None:
-    """Plot worker: the run's PNG plots into ``out_dir``."""
+    """The run's PNG plots into ``out_dir`` (in the plot worker, or here as a fallback)."""
     from doorlab import plots as plotting
 
     plotting.save_run_plots(result, true_door_geometry(scenario), Path(out_dir))
@@ -193,9 +193,7 @@ def run_to_folder(
             except concurrent.futures.process.BrokenProcessPool:
                 plotted = None
         if plots and plotted is None:
-            from doorlab import plots as plotting
-
-            plotting.save_run_plots(result, geometry, staging, kinematics=kinematics)
+            _write_plots(result, scenario, str(staging))
         commit_output(staging, out_dir)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
