@@ -137,9 +137,7 @@ def _law_case(rng: np.random.Generator, kin: ArmKinematics):
     p_Q_end = (p_WQ + delta - p_WQ_0) / tau if tau > 1e-6 else np.zeros(3)
     axis = rng.normal(size=3)
     axis /= np.linalg.norm(axis)
-    R_ref_end = X_WL7.rotation() @ RotationMatrix(
-        RollPitchYaw(*(axis * rng.uniform(0.002, 0.01)))
-    )
+    R_ref_end = X_WL7.rotation() @ RotationMatrix(RollPitchYaw(*(axis * rng.uniform(0.002, 0.01))))
 
     def calc_p_Q(s):
         return p_Q_end * s
@@ -366,8 +364,10 @@ def student_episode(folder: Path, controller: str) -> dict:
             q_initial_guess=old.q_home,
             position_tolerance=0.0005,
         )
-        cls = plans.IiwaTaskSpaceVelocityPlan if controller == "velocity" else (
-            plans.IiwaTaskSpaceImpedancePlan
+        cls = (
+            plans.IiwaTaskSpaceVelocityPlan
+            if controller == "velocity"
+            else (plans.IiwaTaskSpaceImpedancePlan)
         )
         make = lambda: cls(  # noqa: E731
             calc_p_Q=old.calc_p_Q,

@@ -164,9 +164,7 @@ def _combine(checks: list[tuple[bool, str]]) -> tuple[bool, str]:
 
 
 TESTS: tuple[TestSpec, ...] = (
-    TestSpec(
-        "Task 1 unit test: InverseKinPointwise", 2.0, ("unit:ik",), _judge_unit("unit:ik")
-    ),
+    TestSpec("Task 1 unit test: InverseKinPointwise", 2.0, ("unit:ik",), _judge_unit("unit:ik")),
     TestSpec("Task 2 unit test: calc_p_Q", 1.0, ("unit:calc_p_Q",), _judge_unit("unit:calc_p_Q")),
     TestSpec(
         "Task 2 unit test: calc_R_WL7_ref",
@@ -287,8 +285,7 @@ def grade(
     with tempfile.TemporaryDirectory(prefix="doorlab_grade_") as tmp:
         with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
             futures = {
-                job: pool.submit(_run_job, job, folder, Path(tmp), time_limit_scale)
-                for job in todo
+                job: pool.submit(_run_job, job, folder, Path(tmp), time_limit_scale) for job in todo
             }
             for job, future in futures.items():
                 results[job] = future.result()

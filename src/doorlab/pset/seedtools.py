@@ -2,7 +2,8 @@
 on doorlab's geometry, kinematics and plots.
 
 Every constant is read from doorlab's cupboard model
-(:func:`doorlab.geometry.default_door_geometry`), so the folder's numbers and the simulated cell cannot drift apart.
+(:func:`doorlab.geometry.default_door_geometry`), so the folder's numbers and the
+simulated cell cannot drift apart.
 """
 
 from __future__ import annotations
