@@ -68,7 +68,9 @@ def build_parser() -> argparse.ArgumentParser:
         "(pointwise IK, Jacobian velocity mapping, Jacobian-transpose impedance).",
     )
     parser.add_argument("--version", action="version", version=_version())
-    sub = parser.add_subparsers(dest="command", metavar="{run,report}", parser_class=OneLineParser)
+    sub = parser.add_subparsers(
+        dest="command", metavar="{run,report,pset}", parser_class=OneLineParser
+    )
 
     run = sub.add_parser("run", help="run one controller and write its metrics, logs and plots")
     run.add_argument(
@@ -123,7 +125,54 @@ def build_parser() -> argparse.ArgumentParser:
         help="parallel runs (default: the number of cores)",
     )
     _common(report)
+    add_pset_parser(sub)
     return parser
+
+
+def add_pset_parser(sub) -> None:
+    """``doorlab pset {init,grade}``: the problem-set folder and its grader."""
+    pset = sub.add_parser("pset", help="write the problem-set folder for students, or grade one")
+    actions = pset.add_subparsers(
+        dest="pset_command", metavar="{init,grade}", parser_class=OneLineParser, required=True
+    )
+    init = actions.add_parser("init", help="write the problem-set folder DIR")
+    init.add_argument("dir", type=Path, metavar="DIR", help="the folder to write")
+    init.add_argument(
+        "--solutions", action="store_true", help="write the reference solutions, not the stubs"
+    )
+    init.add_argument("--force", action="store_true", help="replace an existing DIR")
+    grade = actions.add_parser("grade", help="grade the problem-set folder DIR")
+    grade.add_argument("dir", type=Path, metavar="DIR", help="a folder written by pset init")
+    grade.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="results JSON (Gradescope format; default DIR/test_results.json)",
+    )
+    grade.add_argument(
+        "--jobs", type=bounded_int(1), default=2, help="tests run at a time (default 2)"
+    )
+
+
+def _pset(args: argparse.Namespace) -> int:
+    from doorlab.pset.folder import check_problem_set, init_folder
+
+    if args.pset_command == "init":
+        out = init_folder(args.dir, solutions=args.solutions, force=args.force)
+        kind = "solutions" if args.solutions else "student stubs"
+        print(f"doorlab pset: wrote {out} ({kind}); grade it with: doorlab pset grade {out}")
+        return 0
+    from doorlab.pset.grader import grade, pretty_format_json_results, write_results
+
+    folder = check_problem_set(args.dir)
+    out = args.out or folder / "test_results.json"
+    if out.parent and not out.parent.is_dir():
+        raise OutputError(f"cannot write {out}: {out.parent} is not a folder")
+    results = grade(folder, jobs=args.jobs)
+    write_results(results, out)
+    print(pretty_format_json_results(out))
+    print(f"doorlab pset: wrote {out} in {results['execution_time']:.0f} s")
+    return 0
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
@@ -276,7 +325,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as e:  # argparse: --help, --version, or a usage error already printed
         return e.code if isinstance(e.code, int) else USAGE_ERROR
     try:
-        return _run(args) if args.command == "run" else _report(args)
+        commands = {"run": _run, "report": _report, "pset": _pset}
+        return commands[args.command](args)
     except DoorlabError as e:
         print(f"doorlab {args.command}: error: {e}", file=sys.stderr)
         return USAGE_ERROR if isinstance(e, (ConfigError, OutputError)) else 1

@@ -166,3 +166,21 @@ def init_folder(out: str | Path, *, solutions: bool = False, force: bool = False
         shutil.rmtree(tmp, ignore_errors=True)
         raise OutputError(f"cannot write {out}: {e.strerror or e}") from None
     return out
+
+
+def check_problem_set(folder: str | Path) -> Path:
+    """``folder`` as a resolved path, if it holds a problem set (the student's files).
+
+    Raises:
+        OutputError: Not a folder, or files of the problem set are missing.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise OutputError(f"{folder} is not a folder; create one with: doorlab pset init DIR")
+    missing = [dest for _, dest in TEMPLATES if not (folder / dest).is_file()]
+    if missing:
+        raise OutputError(
+            f"{folder} is not a problem-set folder (missing {', '.join(missing)}); "
+            "create one with: doorlab pset init DIR"
+        )
+    return folder.resolve()
