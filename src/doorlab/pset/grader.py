@@ -271,8 +271,9 @@ def grade(
         time_limit_scale: Multiplies every job's time limit.
 
     Returns:
-        Gradescope results: ``{"score", "max_score", "tests": [{"name", "score",
-        "max_score", "output"}], "execution_time", "reference"}``.
+        Gradescope results: ``{"score", "tests": [{"name", "score", "max_score", "output"}],
+        "execution_time", "extra_data": {"max_score", "reference"}}`` (``reference``: the
+        figures of the reference episodes, reusable as the ``reference`` argument).
     """
     folder = Path(folder).resolve()
     specs = [t for t in TESTS if only is None or t.name in only]
@@ -302,10 +303,12 @@ def grade(
         )
     return {
         "score": sum(t["score"] for t in tests),
-        "max_score": sum(t["max_score"] for t in tests),
         "tests": tests,
         "execution_time": round(time.perf_counter() - start, 2),
-        "reference": {k: v for k, v in results.items() if k.startswith("reference:")},
+        "extra_data": {
+            "max_score": sum(t["max_score"] for t in tests),
+            "reference": {k: v for k, v in results.items() if k.startswith("reference:")},
+        },
     }
 
 
@@ -330,7 +333,7 @@ def pretty_format_json_results(path: str | Path) -> str:
         lines.append(f"[{mark}] {t['name']}: {t['score']:g} / {t['max_score']:g}")
         for line in str(t.get("output", "")).splitlines():
             lines.append(f"    {line}")
-    total = data.get("max_score", sum(t["max_score"] for t in data["tests"]))
+    total = sum(t["max_score"] for t in data["tests"])
     lines.append(f"Total score: {data['score']:g} / {total:g}")
     return "\n".join(lines)
 
