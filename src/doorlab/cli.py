@@ -124,6 +124,11 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="parallel runs (default: the number of cores)",
     )
+    report.add_argument(
+        "--pdf",
+        action="store_true",
+        help="also print the page to report.pdf (needs headless Chromium)",
+    )
     _common(report)
     add_pset_parser(sub)
     return parser
@@ -312,7 +317,18 @@ def _report(args: argparse.Namespace) -> int:
 
     base = _scenario(args)
     jobs = args.jobs or os.cpu_count() or 1
-    return run_report(args.out, jobs=jobs, force=args.force, base=base)
+    chromium = None
+    if args.pdf:
+        from doorlab.pdf import find_chromium
+
+        chromium = find_chromium()  # before any run: a missing browser is a one-line error
+    code = run_report(args.out, jobs=jobs, force=args.force, base=base)
+    if args.pdf:
+        from doorlab.pdf import print_pdf
+
+        pdf = print_pdf(args.out / "index.html", args.out / "report.pdf", chromium=chromium)
+        print(f"doorlab report: wrote {pdf}")
+    return code
 
 
 def main(argv: Sequence[str] | None = None) -> int:
