@@ -383,3 +383,24 @@ def pretty(results: dict) -> str:
     return "\n".join(
         f"{t['name']}: {t['score']}/{t['max_score']}\n{t['output']}" for t in results["tests"]
     )
+
+
+def test_our_notebook_runs_in_the_solutions_folder(solutions_run):
+    """The notebook `init` writes: every code cell but the last (the grader, run above) runs."""
+    folder, _ = solutions_run
+    notebook = json.loads((folder / "pset5_open_cabinet_door.ipynb").read_text())
+    cells = ["".join(c["source"]) for c in notebook["cells"] if c["cell_type"] == "code"]
+    assert "test_pset_5a" in cells[-1]
+    cells_file = folder.parent / "our_cells.json"
+    cells_file.write_text(json.dumps([_strip_magics(c) for c in cells[:-1]]))
+    env = dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=str(folder))
+    proc = subprocess.run(
+        [sys.executable, "-c", _DRIVER, str(cells_file)],
+        cwd=folder,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=SEED_CELLS_TIMEOUT_S,
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "--- all cells ran" in proc.stdout
