@@ -15,6 +15,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from doorlab.cli import main
@@ -84,6 +85,10 @@ for i, source in enumerate(cells):
         traceback.print_exc()
         sys.exit(10 + i)
 print("--- all cells ran", flush=True)
+log = namespace.get("iiwa_position_command_log")
+if log is not None:
+    facts = {"t": log.sample_times().tolist(), "t_plan": list(map(float, namespace["t_plan"]))}
+    print("FACTS " + json.dumps(facts), flush=True)
 """
 
 
@@ -218,6 +223,13 @@ def test_seed_cells_run_unchanged_in_a_solutions_folder(seed_cells, solutions_ru
     assert "--- all cells ran" in proc.stdout
     # The last cell printed the grader's summary.
     assert "Total score:" in proc.stdout
+    # The seed slices its logs by index (t_start = 11 -> sample 1100): samples every 0.01 s
+    # from t = 0, and the arc plan starts at 11 s (hold 2 s, move 7 s, grasp 1 + 1 s).
+    facts = json.loads(proc.stdout.split("FACTS ", 1)[1].splitlines()[0])
+    t = np.array(facts["t"])
+    assert t[0] == 0.0 and np.allclose(np.diff(t), 0.01)
+    assert t[1100] == pytest.approx(11.0) and t[2100] == pytest.approx(21.0)
+    assert facts["t_plan"] == pytest.approx([0.0, 2.0, 9.0, 11.0, 22.0])
 
 
 def test_solutions_score_full_marks_with_fresh_references(solutions_run):

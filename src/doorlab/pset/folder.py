@@ -84,12 +84,13 @@ def _context(solutions: bool) -> dict:
         "+-1 mm box, so two valid IKs can place a knot 2 sqrt(2) mm apart.",
         f"Arc end: {values['arc_end']:.0f} deg; a correct plan ends within a fraction of a "
         "degree of the reference, one that does not follow the whole arc misses by tens.",
-        "Velocity: below pointwise IK's error is the point of task 2 (the loop closes on Q "
-        f"at 200 Hz); the orientation margin {values['o_margin']} rad (0.6 deg) is ~2x the "
-        "reference's own error, a wrong rotational term is off by 0.05 rad or more.",
-        f"Impedance: {values['door']:.0f} deg of door opening; the reference opens ~40 deg "
-        "and a correct J^T F lands within a degree, a wrong sign or frame leaves the door "
-        "shut or loses the handle.",
+        "Velocity: staying below pointwise IK's error is the point of task 2 (the loop "
+        "closes on Q at 200 Hz); the orientation margin "
+        f"{values['o_margin']} rad is a few times the reference's own error, while a wrong "
+        "rotational term is off by tenths of a radian.",
+        f"Impedance: {values['door']:.0f} deg of door opening at the arc's end; a correct "
+        "J^T F lands within a degree of the reference, a wrong gain, sign or frame leaves "
+        "the door far behind or loses the handle.",
     ]
     return {
         "solutions": solutions,

@@ -33,11 +33,12 @@ ARC_END_MARGIN = math.radians(2.0)
 within a fraction of a degree of it; a plan that does not follow the whole arc misses by tens."""
 VELOCITY_ORIENTATION_MARGIN = 0.01
 """How much larger L7's orientation error may be than the reference velocity plan's [rad]
-(0.6 deg: the reference tracks to ~0.004 rad; a wrong rotational term is off by 0.05-1 rad)."""
+(0.6 deg: a few times the reference's own error; a wrong rotational term is off by tenths of
+a radian)."""
 DOOR_OPENING_MARGIN = math.radians(5.0)
-"""Door opening over the arc vs the reference impedance plan's [rad]: the reference opens
-~40 deg; a correct J^T F lands within a degree, a wrong sign or frame leaves the door shut
-or the handle lost."""
+"""Door opening by the arc's end vs the reference impedance plan's [rad]: a correct J^T F
+lands within a degree; a wrong gain, sign or frame leaves the door far behind or loses the
+handle."""
 UNIT_TIME_LIMIT_S = 60.0
 """Time limit of a unit test's process [s] (a correct one takes 2-5 s)."""
 EPISODE_TIME_LIMIT_S = 150.0
