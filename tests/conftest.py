@@ -11,13 +11,14 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 
 @cache
-def _run(controller: str, doors: str, knots: int | None):
+def _run(controller: str, doors: str, knots: int | None, inner_loop: str = "stiffness"):
     from doorlab.config import Scenario
     from doorlab.controllers import run_controller
     from doorlab.geometry import default_door_geometry
     from doorlab.metrics import compute_metrics
 
     scenario = Scenario(controller=controller, doors=doors)
+    scenario.station.inner_loop.kind = inner_loop
     if knots is not None:
         scenario.ik.knots = knots
     result, arc = run_controller(scenario)
@@ -27,9 +28,10 @@ def _run(controller: str, doors: str, knots: int | None):
 
 @pytest.fixture(scope="session")
 def episode():
-    """episode(controller, doors, knots=None) -> (scenario, result, arc, metrics), memoized."""
+    """episode(controller, doors, knots=None, inner_loop="stiffness") -> (scenario, result, arc,
+    metrics), memoized."""
 
-    def get(controller: str, doors: str, knots: int | None = None):
-        return _run(controller, doors, knots)
+    def get(controller: str, doors: str, knots: int | None = None, inner_loop: str = "stiffness"):
+        return _run(controller, doors, knots, inner_loop)
 
     return get

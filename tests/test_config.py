@@ -95,8 +95,12 @@ BAD_VALUES = [
     *[
         (f"{f}={v!r}", _with(f, v), f)
         for f in (
-            "velocity.kv", "velocity.kw", "velocity.joint_speed_limit",
-            "impedance.kv", "impedance.kw", "impedance.torque_limit",
+            "velocity.kv",
+            "velocity.kw",
+            "velocity.joint_speed_limit",
+            "impedance.kv",
+            "impedance.kw",
+            "impedance.torque_limit",
         )
         for v in (0.0, -1.0)
     ],
@@ -107,6 +111,8 @@ BAD_VALUES = [
     ("kq[6]=inf", _with_entry("station.inner_loop.kq", 6, INF), "station.inner_loop.kq[6]"),
     ("dq[2]=-1", _with_entry("station.inner_loop.dq", 2, -1.0), "station.inner_loop.dq[2]"),
     ("dq[6]=nan", _with_entry("station.inner_loop.dq", 6, NAN), "station.inner_loop.dq[6]"),
+    ("dq_scale=-1", _with("station.inner_loop.dq_scale", -1.0), "station.inner_loop.dq_scale"),
+    ("dq_scale=nan", _with("station.inner_loop.dq_scale", NAN), "station.inner_loop.dq_scale"),
     ("id_kp=0", _with("station.inner_loop.id_kp", 0.0), "station.inner_loop.id_kp"),
     ("id_ki=-1", _with("station.inner_loop.id_ki", -1.0), "station.inner_loop.id_ki"),
     # inner-loop gains: 7 entries
@@ -134,11 +140,22 @@ BAD_VALUES = [
         for f in ("initial_width", "approach_width", "grasp_width")
         for v in (-0.001, 0.111, NAN)
     ],
-    ("gripper.force_limit=0", _with("station.gripper.force_limit", 0.0),
-     "station.gripper.force_limit"),
+    (
+        "gripper.force_limit=0",
+        _with("station.gripper.force_limit", 0.0),
+        "station.gripper.force_limit",
+    ),
     # other physics
     ("hinge_damping=-1", _with("station.hinge_damping", -1.0), "station.hinge_damping"),
     ("friction=nan", _with("station.friction", NAN), "station.friction"),
+    *[
+        (
+            f"cupboard_yaw_error={v!r}",
+            _with("station.cupboard_yaw_error", v),
+            "station.cupboard_yaw_error",
+        )
+        for v in (0.786, -0.786, NAN, INF)
+    ],
     # arc end angle: [15, 90] deg
     *[
         (f"arc.angle_end_deg={v!r}", _with("arc.angle_end_deg", v), "arc.angle_end_deg")
@@ -204,6 +221,8 @@ def test_default_scenario_validates():
         ("arc.angle_end_deg", 90.0),
         ("station.inner_loop.dq", [0.0] * 7),
         ("timeline.extra_time", 0.0),
+        ("station.cupboard_yaw_error", math.pi / 4),
+        ("station.cupboard_yaw_error", -math.pi / 4),
     ],
 )
 def test_range_boundaries_validate(field, value):
@@ -292,9 +311,7 @@ def test_yaml_with_an_out_of_range_value_names_the_field(tmp_path):
         load_scenario(path)
 
 
-@pytest.mark.parametrize(
-    "path", sorted(EXAMPLES_DIR.glob("*.yaml")), ids=lambda p: p.name
-)
+@pytest.mark.parametrize("path", sorted(EXAMPLES_DIR.glob("*.yaml")), ids=lambda p: p.name)
 def test_shipped_example_loads_and_validates(path):
     """Every shipped examples/*.yaml loads and validates."""
     scenario = load_scenario(path)

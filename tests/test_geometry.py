@@ -98,3 +98,38 @@ def test_moving_the_cupboard_moves_the_geometry_read_from_the_model():
     np.testing.assert_allclose(moved.p_W_hinge, P_W_HINGE + shift, atol=1e-4)
     np.testing.assert_allclose(moved.p_W_handle, P_W_HANDLE + shift, atol=1e-4)
     assert moved.r_handle == pytest.approx(R_HANDLE, abs=1e-6)
+
+
+@pytest.mark.parametrize("yaw_deg", [-15.0, -10.0, 5.0, 10.0])
+def test_cupboard_yaw_error_turns_the_hinge_about_the_handle(geometry, yaw_deg):
+    """The true door keeps the handle, moves the hinge by 2 r sin(yaw/2) (4.7 cm at 10 deg),
+    shifts the closed-door angle by -yaw, sweeps the same angle and turns L7's reference by yaw."""
+    yaw = math.radians(yaw_deg)
+    true = default_door_geometry(yaw_error=yaw)
+    np.testing.assert_allclose(true.p_W_handle, geometry.p_W_handle, atol=1e-9)
+    moved = np.linalg.norm(true.p_W_hinge - geometry.p_W_hinge)
+    assert moved == pytest.approx(2 * R_HANDLE * abs(math.sin(yaw / 2)), abs=1e-6)
+    assert true.r_handle == pytest.approx(geometry.r_handle, abs=1e-9)
+    assert true.theta0 == pytest.approx(geometry.theta0 - yaw, abs=1e-9)
+    assert true.sweep == pytest.approx(geometry.sweep, abs=1e-12)
+    turn = (true.R_WL7_ref(0.3) @ geometry.R_WL7_ref(0.3).inverse()).ToAngleAxis()
+    assert turn.angle() == pytest.approx(abs(yaw), abs=1e-9)
+    np.testing.assert_allclose(turn.axis() * math.copysign(1, yaw), [0, 0, 1], atol=1e-9)
+
+
+def test_true_geometry_matches_the_turned_model_at_any_hinge_angle():
+    """With a yaw error, handle_position(angle) of the true geometry equals the simulated
+    model's left_handle frame (the plant built with the same yaw error) at that hinge angle."""
+    yaw = math.radians(10.0)
+    true = default_door_geometry(yaw_error=yaw)
+    plant = MultibodyPlant(0.0)
+    add_cell(plant, yaw_error=yaw)
+    plant.Finalize()
+    context = plant.CreateDefaultContext()
+    cupboard = plant.GetModelInstanceByName(CUPBOARD_MODEL)
+    for angle in (-0.001, -0.4, -0.72):
+        plant.GetJointByName(LEFT_HINGE, cupboard).set_angle(context, angle)
+        frame = plant.GetFrameByName(LEFT_HANDLE_FRAME, cupboard)
+        np.testing.assert_allclose(
+            true.handle_position(angle), frame.CalcPoseInWorld(context).translation(), atol=1e-9
+        )

@@ -74,6 +74,19 @@ IIWA_JOINTS = [
     ((0, 1, 0), 2.0944, 180, 40),
     ((0, 0, 1), 3.05433, 180, 40),
 ]
+# Motor side of Drake's official iiwa7 description (station_facts.md section 1, issue 12): gear
+# ratio and rotor inertia [kg m^2] of joints 1-7; Drake adds GEAR_RATIO^2 x rotor inertia.
+GEAR_RATIO = 160.0
+ROTOR_INERTIAS = (
+    7.171875e-5,
+    1.737109e-4,
+    1.266406e-4,
+    7.09765e-5,
+    5.4375e-5,
+    5.4765e-5,
+    5.4375e-5,
+)
+REFLECTED_INERTIAS = (1.84, 4.45, 3.24, 1.82, 1.39, 1.40, 1.39)  # [kg m^2], rounded (issue 12)
 Q_ZERO = np.zeros(7)
 Q_HOME = np.array([0, -0.2136, 0, -2.094, 0, 0.463, 0])
 Q0 = np.array([0, 0.6, 0, -1.75, 0, 1.0, 0])
@@ -389,6 +402,42 @@ def test_iiwa_limits_match_data_sheet() -> None:
         actuator = plant.GetJointActuatorByName(f"iiwa_joint_{i}", iiwa)
         assert actuator.joint().index() == joint.index()
         assert actuator.effort_limit() == torque
+
+
+def _arm_plants() -> list[tuple[MultibodyPlant, ModelInstanceIndex]]:
+    """The arm alone, the controllers' plant and the simulation plant of the station."""
+    from doorlab.config import StationConfig
+    from doorlab.station import build_station, make_controller_plant
+
+    sim = build_station(StationConfig())
+    controller = make_controller_plant()
+    return [
+        load_iiwa_alone(),
+        (controller, controller.GetModelInstanceByName("iiwa7")),
+        (sim.plant, sim.iiwa),
+    ]
+
+
+def test_iiwa_reflected_rotor_inertia() -> None:
+    """Every arm joint carries gear ratio 160 and the official rotor inertia, so its reflected
+    inertia is 160^2 x rotor inertia (1.4-4.4 kg m^2), in every plant built from the SDF; and
+    that is exactly what it adds to the diagonal of M(q) (nothing off the diagonal)."""
+    expected = GEAR_RATIO**2 * np.array(ROTOR_INERTIAS)
+    assert expected == pytest.approx(REFLECTED_INERTIAS, abs=0.005)
+    for plant, iiwa in _arm_plants():
+        context = plant.CreateDefaultContext()
+        actuators = [plant.GetJointActuatorByName(f"iiwa_joint_{i}", iiwa) for i in range(1, 8)]
+        for actuator, rotor, reflected in zip(actuators, ROTOR_INERTIAS, expected, strict=True):
+            assert actuator.default_gear_ratio() == GEAR_RATIO
+            assert actuator.default_rotor_inertia() == rotor
+            assert actuator.calc_reflected_inertia(context) == pytest.approx(reflected, rel=1e-12)
+        v = [a.joint().velocity_start() for a in actuators]
+        plant.SetPositions(context, iiwa, Q0)
+        with_rotors = plant.CalcMassMatrix(context)[np.ix_(v, v)]
+        for actuator in actuators:
+            actuator.SetRotorInertia(context, 0.0)
+        without = plant.CalcMassMatrix(context)[np.ix_(v, v)]
+        assert with_rotors - without == pytest.approx(np.diag(expected), abs=1e-12)
 
 
 # --- Cupboard -------------------------------------------------------------------

@@ -186,7 +186,7 @@ def test_answers_exist_for_the_questions_with_data(report):
     assert ("times smaller than" in t2q1) == (velocity < ik)
     assert ("contradicts the seed" in t2q1) == (velocity >= ik)
     t2q2 = answer(page, "t2q2")
-    assert 'data-run="velocity_closed" data-key="door_opening_rad"' in t2q2
+    assert 'data-run="velocity_closed" data-key="door_opening_arc_end_rad"' in t2q2
     for qid in ("t3q1", "t3q2"):
         assert "<code>impedance_open</code> was not run" in answer(page, qid)
 

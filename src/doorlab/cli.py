@@ -262,7 +262,19 @@ def _summary(outcome) -> str:
             "final left hinge angle",
             f"{m.final_door_angle_rad:.4f} rad ({math.degrees(m.final_door_angle_rad):.1f} deg)",
         ),
-        ("door opened during the arc", f"{math.degrees(m.door_opening_rad):.1f} deg"),
+        (
+            "door opened at the arc's end",
+            "n/a (open)"
+            if m.door_lag_max_rad is None
+            else f"{math.degrees(m.door_opening_arc_end_rad):.1f} deg "
+            f"({math.degrees(m.door_opening_rad):.1f} at the episode's end)",
+        ),
+        (
+            "largest door lag in the arc",
+            "n/a (open)"
+            if m.door_lag_max_rad is None
+            else f"{math.degrees(m.door_lag_max_rad):.1f} deg behind the plan",
+        ),
         ("handle held at the end", {True: "yes", False: "no"}.get(m.handle_held, "n/a (open)")),
         (
             "peak |external torque|",

@@ -12,6 +12,12 @@ The handle arc, with tau = t / duration in [0, 1]::
 
 theta is the angle of the handle-to-hinge vector (sin theta, cos theta) measured from W's +y
 axis towards +x; at theta0 the door is closed, and theta grows as the left door opens.
+
+Believed and true geometry: with ``station.cupboard_yaw_error`` the simulated cupboard stands
+turned about the handle's vertical axis. The plans use :func:`scenario_door_geometry` (the
+believed cupboard, what the model says); metrics use :func:`true_door_geometry` (where the
+handle really moves: same handle, moved hinge, L7's reference turned by the yaw error). With no
+yaw error the two are equal.
 """
 
 from __future__ import annotations
@@ -40,11 +46,14 @@ class DoorGeometry:
         p_W_hinge: A point on the left hinge axis at handle height (3,) [m].
         p_W_handle: The handle centre with the door closed (3,) [m].
         angle_end: Handle angle theta at the arc's end [rad].
+        yaw_offset: Yaw of the cupboard about W's z axis relative to the believed one [rad];
+            it turns L7's reference orientation (0 for the believed geometry).
     """
 
     p_W_hinge: np.ndarray
     p_W_handle: np.ndarray
     angle_end: float
+    yaw_offset: float = 0.0
 
     @cached_property
     def r_handle(self) -> float:
@@ -73,7 +82,7 @@ class DoorGeometry:
     def R_WL7_ref(self, tau: float) -> RotationMatrix:
         """Reference orientation of L7 at tau in [0, 1] (clipped)."""
         yaw = self.sweep * min(max(float(tau), 0.0), 1.0)
-        return RollPitchYaw(0.0, L7_PITCH, -yaw).ToRotationMatrix()
+        return RollPitchYaw(0.0, L7_PITCH, self.yaw_offset - yaw).ToRotationMatrix()
 
     def arc_points(self, n: int = 100) -> np.ndarray:
         """n points along the handle arc from closed to the arc's end, shape (n, 3) [m]."""
@@ -117,32 +126,56 @@ def door_geometry_from_plant(plant: MultibodyPlant, *, angle_end_deg: float = 50
 
 
 @cache
-def _model_geometry(p_WC: tuple[float, float, float] | None) -> tuple[np.ndarray, np.ndarray]:
+def _model_geometry(
+    p_WC: tuple[float, float, float] | None, yaw_error: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
     from doorlab.station import add_cell  # local: the station module imports this one
 
     plant = MultibodyPlant(0.0)
-    add_cell(plant, p_WC=p_WC)
+    add_cell(plant, p_WC=p_WC, yaw_error=yaw_error)
     plant.Finalize()
     g = door_geometry_from_plant(plant)
     return g.p_W_hinge, g.p_W_handle
 
 
 def default_door_geometry(
-    angle_end_deg: float = 50.0, *, p_WC: Sequence[float] | None = None
+    angle_end_deg: float = 50.0,
+    *,
+    p_WC: Sequence[float] | None = None,
+    yaw_error: float = 0.0,
 ) -> DoorGeometry:
     """The door geometry of the shipped cupboard model (cached).
 
     Args:
-        angle_end_deg: Handle angle at the arc's end [deg].
-        p_WC: Cupboard position in W (3,) [m]; default: the original placement.
+        angle_end_deg: Handle angle at the arc's end of the believed cupboard [deg].
+        p_WC: Believed cupboard position in W (3,) [m]; default: the original placement.
+        yaw_error: The cupboard turned by this angle [rad] about the left handle's vertical
+            axis (``station.cupboard_yaw_error``): the true geometry, whose arc sweeps the
+            same angle as the believed one from its own closed-door angle.
     """
     key = None if p_WC is None else tuple(float(v) for v in p_WC)
     p_W_hinge, p_W_handle = _model_geometry(key)
-    return DoorGeometry(p_W_hinge.copy(), p_W_handle.copy(), math.radians(angle_end_deg))
+    believed = DoorGeometry(p_W_hinge.copy(), p_W_handle.copy(), math.radians(angle_end_deg))
+    if not yaw_error:
+        return believed
+    p_W_hinge, p_W_handle = _model_geometry(key, float(yaw_error))
+    turned = DoorGeometry(p_W_hinge.copy(), p_W_handle.copy(), 0.0, float(yaw_error))
+    return DoorGeometry(
+        turned.p_W_hinge, turned.p_W_handle, turned.theta0 + believed.sweep, float(yaw_error)
+    )
 
 
 def scenario_door_geometry(scenario: Scenario) -> DoorGeometry:
-    """The door geometry of a scenario (its arc's end angle and cupboard position)."""
+    """The door geometry the plans believe: the scenario's arc end and cupboard position."""
     return default_door_geometry(
         scenario.arc.angle_end_deg, p_WC=scenario.station.cupboard_position
+    )
+
+
+def true_door_geometry(scenario: Scenario) -> DoorGeometry:
+    """The simulated door's geometry: :func:`scenario_door_geometry` turned by the yaw error."""
+    return default_door_geometry(
+        scenario.arc.angle_end_deg,
+        p_WC=scenario.station.cupboard_position,
+        yaw_error=scenario.station.cupboard_yaw_error,
     )

@@ -8,6 +8,14 @@ Tracking errors are taken over the arc window (the 10 s of the arc in the episod
 
 both from the MEASURED joint positions (what the robot did) and, as the seed's plots did, from
 the COMMANDED ones (q_ref). Forward kinematics uses the controllers' model of the arm.
+
+Door metrics (left door, opening measured from its angle at the arc's start, positive):
+
+- at the arc's END, t = arc_window[1] (the primary figure: the seed's arc takes 10 s, and a
+  plan that trails it may still creep open in the hold afterwards);
+- at the episode's end;
+- the largest LAG of the door behind the arc plan during the arc, max over the arc window of
+  (sweep * tau - opening(t)) [rad].
 """
 
 from __future__ import annotations
@@ -121,8 +129,11 @@ class DoorMetrics:
     rms_orientation_error_rad: float
     max_radial_error_cmd_m: float
     max_orientation_error_cmd_rad: float
-    final_door_angle_rad: float
-    door_opening_rad: float
+    final_door_angle_rad: float  # left hinge angle at the episode's end (opening is negative)
+    door_opening_arc_end_rad: float  # opened at the arc's end, t = arc_window[1] (primary)
+    door_opening_rad: float  # opened at the episode's end
+    # Largest lag of the door behind the arc plan during the arc; None with the doors open.
+    door_lag_max_rad: float | None
     handle_held: bool | None  # None with the doors open: there is no handle to hold
     handle_distance_m: float
     slip_time_s: float | None
@@ -138,6 +149,26 @@ class DoorMetrics:
     def to_dict(self) -> dict:
         """JSON-ready dictionary."""
         return dataclasses.asdict(self)
+
+
+def door_opening(result: EpisodeResult) -> np.ndarray:
+    """Left door opening since the arc's start at every sample (n,) [rad] (positive = open)."""
+    t0 = result.arc_window[0]
+    i0 = int(np.argmin(np.abs(result.t - t0)))
+    left = result.door_angles[:, 0]
+    return left[i0] - left
+
+
+def door_lag(result: EpisodeResult, geometry: DoorGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """Lag of the left door behind the arc plan over the arc window.
+
+    Returns:
+        Times (n,) [s] and lags (n,) [rad]: the plan's opening sweep * tau minus the door's.
+    """
+    t0, t1 = result.arc_window
+    mask = result.window(t0, t1)
+    tau = np.clip((result.t[mask] - t0) / (t1 - t0), 0.0, 1.0)
+    return result.t[mask], geometry.sweep * tau - door_opening(result)[mask]
 
 
 def _rms(x: np.ndarray) -> float:
@@ -156,15 +187,17 @@ def compute_metrics(
     Args:
         result: The episode's logs.
         scenario: The scenario that produced them (controller, doors, knots).
-        geometry: The door geometry the plans used.
+        geometry: The TRUE door geometry (:func:`doorlab.geometry.true_door_geometry`): the
+            arc the handle really follows; equal to the plans' with no cupboard yaw error.
         kinematics: Reusable forward kinematics (built if not given).
     """
     kinematics = kinematics or Kinematics()
     measured = compute_tracking(result, geometry, source="measured", kinematics=kinematics)
     commanded = compute_tracking(result, geometry, source="commanded", kinematics=kinematics)
-    t0 = result.arc_window[0]
-    i0 = int(np.argmin(np.abs(result.t - t0)))
+    t0, t1 = result.arc_window
     left = result.door_angles[:, 0]
+    opening = door_opening(result)
+    i1 = int(np.argmin(np.abs(result.t - t1)))
 
     # The handle is within the gripper's reach only if the left door starts (nearly) closed.
     closed = scenario.initial_door_angles()[0] > -CLOSED_DOOR_ANGLE
@@ -196,7 +229,9 @@ def compute_metrics(
         max_radial_error_cmd_m=float(np.max(np.abs(commanded.radial_error))),
         max_orientation_error_cmd_rad=float(np.max(commanded.orientation_error)),
         final_door_angle_rad=float(left[-1]),
-        door_opening_rad=float(left[i0] - left[-1]),
+        door_opening_arc_end_rad=float(opening[i1]),
+        door_opening_rad=float(opening[-1]),
+        door_lag_max_rad=float(np.max(door_lag(result, geometry)[1])) if closed else None,
         handle_held=held,
         handle_distance_m=float(distance[-1]),
         slip_time_s=slip_time,
@@ -211,3 +246,21 @@ def compute_metrics(
         wall_time_s=wall,
         realtime_factor=result.sim_time_s / wall if wall > 0 else float("inf"),
     )
+
+
+def joint_damping_ratios(scenario: Scenario, q: np.ndarray) -> np.ndarray | None:
+    """Damping ratio of each joint's stiffness loop at configuration q, shape (7,) [-].
+
+    zeta_i = Dq_i dq_scale / (2 sqrt(Kq_i M_ii(q))), with M(q) of the controllers' arm model
+    (links, lumped gripper and the motors' reflected inertia). None for the
+    ``inverse_dynamics`` inner loop, which has no joint stiffness.
+    """
+    loop = scenario.station.inner_loop
+    if loop.kind != "stiffness":
+        return None
+    plant = make_controller_plant()
+    context = plant.CreateDefaultContext()
+    plant.SetPositions(context, np.asarray(q, dtype=float))
+    inertia = np.diag(plant.CalcMassMatrix(context))
+    kq, dq = np.asarray(loop.kq), np.asarray(loop.dq) * loop.dq_scale
+    return dq / (2.0 * np.sqrt(kq * inertia))

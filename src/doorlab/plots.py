@@ -424,7 +424,7 @@ def save_run_plots(
 
     Args:
         result: The episode's logs.
-        geometry: The door geometry the plans used.
+        geometry: The true door geometry (where the handle really moves).
         out_dir: An existing folder.
         kinematics: Reusable forward kinematics (built if not given).
 

@@ -43,7 +43,7 @@ import numpy as np
 
 from doorlab.config import Scenario, validate
 from doorlab.errors import ConfigError
-from doorlab.geometry import DoorGeometry, default_door_geometry
+from doorlab.geometry import DoorGeometry, true_door_geometry
 from doorlab.metrics import Kinematics, Tracking, compute_tracking
 from doorlab.simulation import EpisodeResult
 
@@ -365,7 +365,7 @@ def _load_run(record: RunRecord, kinematics: Kinematics) -> _Run:
         yaml_path = folder / "scenario.yaml"
         text = yaml_path.read_text() if yaml_path.is_file() else result.scenario_yaml
         scenario = yaml_load_typed(schema=Scenario, data=text) if text else Scenario()
-        geometry = default_door_geometry(scenario.arc.angle_end_deg)
+        geometry = true_door_geometry(scenario)
         run.result, run.scenario, run.geometry = result, scenario, geometry
         run.tracking = compute_tracking(result, geometry, kinematics=kinematics)
         run.tracking_cmd = compute_tracking(
@@ -717,22 +717,9 @@ def _side(tracking: Tracking) -> str:
 
 
 def _door_lag_deg(run: _Run) -> float | None:
-    """Largest lag of the left door behind the plan's hinge angle over the arc window [deg].
-
-    The arc plan implies a hinge angle of -sweep * tau (the door following the handle arc
-    from closed); positive lag: the door is less open than planned.
-    """
-    if run.result is None or run.geometry is None:
-        return None
-    result = run.result
-    t0, t1 = result.arc_window
-    mask = result.window(t0, t1)
-    if not np.any(mask):
-        return None
-    tau = np.clip((result.t[mask] - t0) / (t1 - t0), 0.0, 1.0)
-    planned = -run.geometry.sweep * tau
-    lag = result.door_angles[mask, 0] - planned
-    return float(np.degrees(np.max(lag)))
+    """Largest lag of the left door behind the arc plan over the arc [deg] (metrics.py)."""
+    lag = run.metrics.get("door_lag_max_rad")
+    return None if lag is None else math.degrees(lag)
 
 
 def _closed_sentence(page: _Page, closed: str, opened: str, *, explain: bool = True) -> str:
@@ -740,11 +727,12 @@ def _closed_sentence(page: _Page, closed: str, opened: str, *, explain: bool = T
     c = page.runs[closed]
     geometry = c.geometry
     planned = math.degrees(geometry.sweep) if geometry else float("nan")
-    opening = page.value(closed, "door_opening_rad")
+    opening = page.value(closed, "door_opening_arc_end_rad")
     parts = [
-        f"With the doors closed ({html.escape(c.label)}) the door opened by "
-        f"{page.num(closed, 'door_opening_rad')} of the {_span(format_number(planned))} deg "
-        f"the arc asks for (final hinge angle {page.num(closed, 'final_door_angle_rad')})"
+        f"With the doors closed ({html.escape(c.label)}) the door had opened by "
+        f"{page.num(closed, 'door_opening_arc_end_rad')} at the arc's end, of the "
+        f"{_span(format_number(planned))} deg the arc asks for "
+        f"({page.num(closed, 'door_opening_rad')} at the episode's end, after the hold)"
     ]
     if opening is not None and math.isfinite(planned):
         share = 100.0 * math.degrees(opening) / planned
@@ -1144,14 +1132,41 @@ def _answer_t3q2(page: _Page) -> tuple[str, str]:
                 "<p>Doors closed, all controllers: "
                 + ", ".join(
                     f"{html.escape(r.label)} {page.num(r.name, 'max_radial_error_m')} max radial "
-                    f"error, door opened {page.num(r.name, 'door_opening_rad')}"
+                    f"error, door at the arc's end {page.num(r.name, 'door_opening_arc_end_rad')}"
                     for r in closed_all
                 )
                 + ".</p>"
             )
         text += _contact_paragraph(page)
+        text += _damping_paragraph(page.runs["impedance_closed"])
         text += page.status_note("impedance_closed", "impedance_open")
     return figs, text
+
+
+def _damping_paragraph(run: _Run) -> str:
+    """The inner loop's damping behind the impedance plan's lag (issue 12's trade-off)."""
+    from doorlab.metrics import joint_damping_ratios
+
+    if run.result is None or run.scenario is None:
+        return ""
+    i0 = int(np.argmin(np.abs(run.result.t - run.result.arc_window[0])))
+    zeta = joint_damping_ratios(run.scenario, run.result.q_measured[i0])
+    if zeta is None:
+        return (
+            "<p>This run used the original station's inverse-dynamics PID: with q_ref = q its "
+            "derivative term damps almost nothing, so the impedance plan's J<sup>T</sup> F "
+            "meets only the arm's inertia.</p>"
+        )
+    return (
+        "<p>Why the door trails: with q_ref = q the stiffness loop's damping D<sub>q</sub> "
+        "q&#775; is all that resists the plan's J<sup>T</sup> F. This run's joint damping "
+        f"ratios at the grasp are {_span(format_number(float(zeta.min())))}-"
+        f"{_span(format_number(float(zeta.max())))} (motors' reflected inertia included); "
+        "more damping leaves the door further behind at the arc's end, less lets the "
+        "position plans ring. The measured trade-off over D<sub>q</sub> is in the README "
+        "(<code>benchmarks/inner_loop_sweep.py</code>, <code>station.inner_loop.dq_scale</code>)."
+        "</p>"
+    )
 
 
 def _contact_paragraph(page: _Page) -> str:

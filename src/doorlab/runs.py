@@ -18,7 +18,7 @@ from pydrake.geometry import Meshcat
 
 from doorlab.config import Scenario, validate
 from doorlab.errors import IkError, OutputError, SimulationError
-from doorlab.geometry import scenario_door_geometry
+from doorlab.geometry import true_door_geometry
 from doorlab.metrics import DoorMetrics, Kinematics, compute_metrics
 
 EXIT_CODES = {"ok": 0, "usage": 2, "slipped": 3, "speed_limit": 4, "diverged": 5, "ik_failed": 6}
@@ -142,7 +142,7 @@ def run_to_folder(
             write_json(staging / "metrics.json", {**base, "status": status, "error": str(e)})
             commit_output(staging, out_dir)
             return RunOutcome(status, None, str(e), out_dir)
-        geometry = scenario_door_geometry(scenario)
+        geometry = true_door_geometry(scenario)
         kinematics = Kinematics()
         metrics = compute_metrics(result, scenario, geometry, kinematics=kinematics)
         result.save(staging / "log.npz")

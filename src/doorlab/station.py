@@ -43,7 +43,7 @@ from pydrake.geometry import (
     SceneGraph,
 )
 from pydrake.manipulation import MakeMultibodyStateToWsgStateSystem, SchunkWsgPositionController
-from pydrake.math import RigidTransform
+from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import (
     AddMultibodyPlant,
@@ -73,6 +73,7 @@ from doorlab.frames import (
     CUPBOARD_MODEL,
     GRIPPER_BODY,
     L7_FRAME,
+    LEFT_HANDLE_FRAME,
     LEFT_HINGE,
     RIGHT_HINGE,
 )
@@ -117,14 +118,18 @@ def add_cell(
     *,
     arm_collision: bool = False,
     p_WC: Sequence[float] | None = None,
+    yaw_error: float = 0.0,
 ) -> tuple[ModelInstanceIndex, ...]:
     """Adds the arm, gripper, cupboard and table to ``plant`` and welds them (before Finalize).
 
     Args:
         plant: A plant that is not finalized yet.
         arm_collision: Give the arm collision capsules (the original arm had none).
-        p_WC: Where the cupboard frame C sits in W (3,) [m]; its orientation is always
+        p_WC: Where the (believed) cupboard frame C sits in W (3,) [m]; its orientation is
             RotZ(pi) and the table follows it. Default: the original station's placement.
+        yaw_error: The cupboard actually stands turned by this angle [rad] about the left
+            handle's vertical axis (see :func:`cupboard_turned_about_handle`); the table
+            does not turn.
 
     Returns:
         The model instances (iiwa, wsg, cupboard).
@@ -147,11 +152,41 @@ def add_cell(
         X_W_table = RigidTransform(
             models.X_W_TABLE.translation() + p_WC - models.X_WC.translation()
         )
+    if yaw_error:
+        X_WC = cupboard_turned_about_handle(X_WC, yaw_error)
     plant.WeldFrames(world, plant.GetFrameByName("cupboard_body", cupboard), X_WC)
     plant.WeldFrames(world, plant.GetFrameByName("table_top", table), X_W_table)
     if arm_collision:
         models.add_arm_collision(plant, iiwa)
     return iiwa, wsg, cupboard
+
+
+@cache
+def _p_C_left_handle() -> tuple[float, float, float]:
+    """The left handle's centre in C with the door closed [m], read from the model."""
+    plant = MultibodyPlant(0.0)
+    parser = Parser(plant)
+    models.add_package(parser)
+    (cupboard,) = parser.AddModels(url=models.model_url("cupboard"))
+    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("cupboard_body", cupboard))
+    plant.Finalize()
+    context = plant.CreateDefaultContext()
+    plant.GetJointByName(LEFT_HINGE, cupboard).set_angle(context, 0.0)
+    p = plant.GetFrameByName(LEFT_HANDLE_FRAME, cupboard).CalcPoseInWorld(context).translation()
+    return (float(p[0]), float(p[1]), float(p[2]))
+
+
+def cupboard_turned_about_handle(X_WC: RigidTransform, yaw: float) -> RigidTransform:
+    """The cupboard pose X_WC turned by ``yaw`` [rad] about the closed left handle's vertical axis.
+
+    The left handle's centre stays where it is (a camera would find it there); the hinge,
+    0.267 m away, moves by 2 r sin(yaw / 2) (4.7 cm at 10 deg). Positive yaw is
+    counter-clockwise seen from above (about +z of W).
+    """
+    p_W_handle = X_WC @ np.array(_p_C_left_handle())
+    X_W_pivot = RigidTransform(p_W_handle)
+    X_pivot_turned = RigidTransform(RotationMatrix.MakeZRotation(yaw))
+    return X_W_pivot @ X_pivot_turned @ X_W_pivot.inverse() @ X_WC
 
 
 def _filter_scene_collisions(plant: MultibodyPlant, scene_graph: SceneGraph) -> None:
@@ -235,7 +270,10 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
     plant, scene_graph = AddMultibodyPlant(_plant_config(config), builder)
     plant.set_name("plant")
     iiwa, wsg, cupboard = add_cell(
-        plant, arm_collision=config.arm_collision, p_WC=config.cupboard_position
+        plant,
+        arm_collision=config.arm_collision,
+        p_WC=config.cupboard_position,
+        yaw_error=config.cupboard_yaw_error,
     )
     for hinge in (LEFT_HINGE, RIGHT_HINGE):
         plant.GetJointByName(hinge, cupboard).set_default_damping(config.hinge_damping)
@@ -247,7 +285,8 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
         for actuator, kq, dq in zip(
             arm_actuators, config.inner_loop.kq, config.inner_loop.dq, strict=True
         ):
-            actuator.set_controller_gains(PdControllerGains(p=float(kq), d=float(dq)))
+            d = float(dq) * config.inner_loop.dq_scale
+            actuator.set_controller_gains(PdControllerGains(p=float(kq), d=d))
     plant.Finalize()
     _set_friction(plant, scene_graph, config.friction)
     _filter_scene_collisions(plant, scene_graph)
