@@ -86,8 +86,8 @@ def _context(solutions: bool) -> dict:
         "degree of the reference, one that does not follow the whole arc misses by tens.",
         "Velocity: staying below pointwise IK's error is the point of task 2 (the loop "
         "closes on Q at 200 Hz); the orientation margin "
-        f"{values['o_margin']} rad is a few times the reference's own error, while a wrong "
-        "rotational term is off by tenths of a radian.",
+        f"{values['o_margin']} rad is far above the difference between two correct plans, "
+        "while a wrong rotational term is off by tenths of a radian.",
         f"Impedance: {values['door']:.0f} deg of door opening at the arc's end; a correct "
         "J^T F lands within a degree of the reference, a wrong gain, sign or frame leaves "
         "the door far behind or loses the handle.",

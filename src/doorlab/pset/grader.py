@@ -33,8 +33,8 @@ ARC_END_MARGIN = math.radians(2.0)
 within a fraction of a degree of it; a plan that does not follow the whole arc misses by tens."""
 VELOCITY_ORIENTATION_MARGIN = 0.01
 """How much larger L7's orientation error may be than the reference velocity plan's [rad]
-(0.6 deg: a few times the reference's own error; a wrong rotational term is off by tenths of
-a radian)."""
+(0.6 deg: a correct plan matches the reference to a small fraction of that; a wrong rotational
+term is off by tenths of a radian)."""
 DOOR_OPENING_MARGIN = math.radians(5.0)
 """Door opening by the arc's end vs the reference impedance plan's [rad]: a correct J^T F
 lands within a degree; a wrong gain, sign or frame leaves the door far behind or loses the
