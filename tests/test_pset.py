@@ -251,10 +251,19 @@ def test_solutions_score_full_marks_with_fresh_references(solutions_run):
 # Stubs, wrong implementations, exceptions, NaN, endless loops ------------------------------
 
 
-def test_stubs_score_zero_without_crashing(tmp_path, reference):
+def test_stubs_score_zero_without_crashing(tmp_path, reference, monkeypatch, capsys):
+    """`doorlab pset grade` on the untouched stubs (reusing the reference episodes)."""
+    import functools
+
+    from doorlab.pset import grader
+
+    monkeypatch.setattr(grader, "grade", functools.partial(grade, reference=reference))
     folder = tmp_path / "stubs"
-    init_folder(folder)
-    results = grade(folder, reference=reference)
+    assert main(["pset", "init", str(folder)]) == 0
+    assert main(["pset", "grade", str(folder)]) == 0
+    out = capsys.readouterr().out
+    assert f"Total score: 0 / {sum(t.max_score for t in TESTS):g}" in out
+    results = json.loads((folder / "test_results.json").read_text())
     assert results["score"] == 0
     assert len(results["tests"]) == len(TESTS)
     for t in results["tests"]:
