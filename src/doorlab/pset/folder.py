@@ -170,7 +170,7 @@ def init_folder(out: str | Path, *, solutions: bool = False, force: bool = False
 
 
 def check_problem_set(folder: str | Path) -> Path:
-    """``folder`` as a resolved path, if it holds a problem set (the student's files).
+    """``folder`` as a resolved path, if it holds a problem set (its Python files).
 
     Raises:
         OutputError: Not a folder, or files of the problem set are missing.
@@ -178,7 +178,8 @@ def check_problem_set(folder: str | Path) -> Path:
     folder = Path(folder)
     if not folder.is_dir():
         raise OutputError(f"{folder} is not a folder; create one with: doorlab pset init DIR")
-    missing = [dest for _, dest in TEMPLATES if not (folder / dest).is_file()]
+    needed = [dest for _, dest in TEMPLATES if dest.endswith(".py")]
+    missing = [dest for dest in needed if not (folder / dest).is_file()]
     if missing:
         raise OutputError(
             f"{folder} is not a problem-set folder (missing {', '.join(missing)}); "
