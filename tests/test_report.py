@@ -233,3 +233,29 @@ def test_run_report_rejects_bad_arguments(tmp_path: Path):
     with pytest.raises(ConfigError, match="unique"):
         run_report(tmp_path / "b", jobs=1, experiments=twice, progress=False)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_run_report_on_a_dask_cluster(tmp_path: Path):
+    """run_report through a real Dask LocalCluster (one worker process on loopback): the worker
+    ships the run folder back, so the report holds the same files as a local run writes."""
+    distributed = pytest.importorskip("distributed")
+    experiments = [short_experiment("ik_2_open")]
+    out = tmp_path / "report"
+    with distributed.LocalCluster(
+        n_workers=1,
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        dashboard_address=None,
+        silence_logs=40,
+    ) as cluster:
+        address = cluster.scheduler_address
+        code = run_report(out, jobs=1, experiments=experiments, progress=False, scheduler=address)
+    folder = out / "runs" / "ik_2_open"
+    metrics = json.loads((folder / "metrics.json").read_text())
+    assert code == (0 if metrics["status"] == "ok" else 1)
+    assert metrics["controller"] == "ik" and metrics["knots"] == 2
+    names = {p.name for p in folder.iterdir()}
+    assert {"metrics.json", "log.npz", "scenario.yaml", "replay.html"} <= names
+    assert any(name.endswith(".png") for name in names)
+    assert 'href="runs/ik_2_open/replay.html"' in (out / "index.html").read_text()

@@ -2,7 +2,9 @@
 
 Public API (see the README): :class:`Scenario` and :func:`load_scenario` (configuration),
 :func:`run_controller` (one episode of a registered controller), :func:`run_episode`
-(your own plans), :class:`EpisodeResult` (named logs), :func:`compute_metrics`.
+(your own plans), :class:`EpisodeResult` (named logs), :func:`compute_metrics`; sweeps in
+:mod:`doorlab.sweep` (``run_sweep(spec) -> pandas.DataFrame``), the report in
+:mod:`doorlab.report`.
 """
 
 from doorlab.config import Scenario, load_scenario, validate

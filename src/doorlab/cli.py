@@ -1,4 +1,5 @@
-"""The ``doorlab`` command: ``doorlab run`` (one controller) and ``doorlab report`` (all).
+"""The ``doorlab`` command: ``doorlab run`` (one controller), ``doorlab report`` (all) and
+``doorlab sweep`` (scenario fields over a grid or random samples).
 
 Bad input prints one line naming the valid choices and exits with code 2; a run's status
 sets the exit code otherwise (see :data:`doorlab.runs.EXIT_CODES`).
@@ -69,7 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(
-        dest="command", metavar="{run,report,pset}", parser_class=OneLineParser
+        dest="command", metavar="{run,report,sweep,pset}", parser_class=OneLineParser
     )
 
     run = sub.add_parser("run", help="run one controller and write its metrics, logs and plots")
@@ -129,9 +130,58 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="also print the page to report.pdf (needs headless Chromium)",
     )
+    _scheduler(report)
     _common(report)
+
+    sweep = sub.add_parser(
+        "sweep",
+        help="run scenario fields over a grid or random samples; write a table and a page",
+    )
+    sweep.add_argument(
+        "spec",
+        type=Path,
+        nargs="?",
+        default=None,
+        metavar="SPEC.yaml",
+        help="the sweep (see examples/sweep_impedance.yaml); optional with --grid",
+    )
+    sweep.add_argument(
+        "--grid",
+        action="append",
+        default=[],
+        metavar="KEY=V1,V2,...",
+        help="sweep a scenario field over these values (repeatable; adds to SPEC's axes)",
+    )
+    sweep.add_argument(
+        "--out",
+        type=Path,
+        default=Path("doorlab_sweep"),
+        help="output folder (default: doorlab_sweep)",
+    )
+    sweep.add_argument(
+        "--jobs",
+        type=bounded_int(1),
+        default=None,
+        help="local worker processes (default: the number of cores)",
+    )
+    _scheduler(sweep)
+    sweep.add_argument(
+        "--resume", action="store_true", help="keep the runs already in --out's table"
+    )
+    sweep.add_argument(
+        "--force", action="store_true", help="start over in an existing output folder"
+    )
     add_pset_parser(sub)
     return parser
+
+
+def _scheduler(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="tcp://HOST:PORT",
+        help="run on this Dask cluster instead of local processes (workers need doorlab)",
+    )
 
 
 def add_pset_parser(sub) -> None:
@@ -334,13 +384,54 @@ def _report(args: argparse.Namespace) -> int:
         from doorlab.pdf import find_chromium
 
         chromium = find_chromium()  # before any run: a missing browser is a one-line error
-    code = run_report(args.out, jobs=jobs, force=args.force, base=base)
+    code = run_report(args.out, jobs=jobs, force=args.force, base=base, scheduler=args.scheduler)
     if args.pdf:
         from doorlab.pdf import print_pdf
 
         pdf = print_pdf(args.out / "index.html", args.out / "report.pdf", chromium=chromium)
         print(f"doorlab report: wrote {pdf}")
     return code
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    from doorlab.sweep import load_spec, run_sweep
+    from doorlab.sweep.results import RESULTS_PARQUET
+
+    if args.spec is None and not args.grid:
+        raise ConfigError("give a SPEC file or at least one --grid KEY=V1,V2,...")
+    if args.resume and args.force:
+        raise ConfigError("--resume and --force exclude each other")
+    spec = load_spec(args.spec, grid=args.grid)
+    jobs = args.jobs or os.cpu_count() or 1
+    try:
+        frame = run_sweep(
+            spec,
+            args.out,
+            jobs=jobs,
+            scheduler=args.scheduler,
+            resume=args.resume,
+            force=args.force,
+            progress=True,
+        )
+    except KeyboardInterrupt:
+        from doorlab.sweep import read_table
+
+        table = read_table(args.out)
+        done = 0 if table is None else len(table)
+        print(
+            f"doorlab sweep: interrupted; {done} finished runs are in "
+            f"{args.out / RESULTS_PARQUET} (--resume continues)",
+            file=sys.stderr,
+        )
+        return 130
+    counts = frame["status"].value_counts()
+    statuses = ", ".join(f"{n} {status}" for status, n in counts.items())
+    print(f"doorlab sweep: {len(frame)} runs ({statuses}) in {args.out}")
+    print(
+        f"  table: {args.out / RESULTS_PARQUET} (and results.csv); page: {args.out / 'index.html'}"
+    )
+    # Failed runs are results of a sweep (the table has them); an exception in a run is not.
+    return 1 if (frame["status"] == "error").any() else 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -353,7 +444,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as e:  # argparse: --help, --version, or a usage error already printed
         return e.code if isinstance(e.code, int) else USAGE_ERROR
     try:
-        commands = {"run": _run, "report": _report, "pset": _pset}
+        commands = {"run": _run, "report": _report, "sweep": _sweep, "pset": _pset}
         return commands[args.command](args)
     except DoorlabError as e:
         print(f"doorlab {args.command}: error: {e}", file=sys.stderr)

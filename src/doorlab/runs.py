@@ -156,12 +156,16 @@ def run_to_folder(
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
-    message = ""
+    return RunOutcome(metrics.status, metrics, status_message(metrics), out_dir)
+
+
+def status_message(metrics: DoorMetrics) -> str:
+    """Why a finished run is not ok ("" when it is)."""
     if metrics.status == "slipped":
-        message = (
+        return (
             f"the handle slipped out of the gripper at t = {metrics.slip_time_s:.2f} s "
             f"(Q ends {1e3 * metrics.handle_distance_m:.0f} mm from it)"
         )
-    elif metrics.status == "speed_limit":
-        message = "a joint exceeded its data-sheet speed limit"
-    return RunOutcome(metrics.status, metrics, message, out_dir)
+    if metrics.status == "speed_limit":
+        return "a joint exceeded its data-sheet speed limit"
+    return ""

@@ -1,0 +1,42 @@
+"""The seed's experiment set, run in parallel, and one self-contained HTML page answering it.
+
+- :mod:`doorlab.report.experiments`: :data:`EXPERIMENTS` and :func:`run_report` (the runs
+  through :mod:`doorlab.executor`, locally or on a Dask cluster);
+- :mod:`doorlab.report.folders`: reading run folders (metrics, logs, trackings);
+- :mod:`doorlab.report.context`, :mod:`doorlab.report.answers` and
+  :mod:`doorlab.report.closed_door`: the seed's six questions
+  and answers GENERATED from the measured metrics;
+- :mod:`doorlab.report.page`: ``index.html`` from the Jinja2 templates in
+  ``doorlab/templates`` (shared with the sweep page), ``summary.json`` and ``figures/``.
+
+:func:`build_page` only READS run folders (``metrics.json``, ``log.npz``, ``scenario.yaml``),
+so a page can be rebuilt without simulating.
+"""
+
+from doorlab.pages import SIGNIFICANT_DIGITS, format_number, metric_unit
+from doorlab.report.answers import QUESTIONS, TASK_TITLES
+from doorlab.report.experiments import (
+    EXPERIMENTS,
+    IK_KNOTS,
+    RunRecord,
+    make_experiments,
+    run_report,
+)
+from doorlab.report.folders import CONTROLLER_COLORS, discover_runs
+from doorlab.report.page import build_page
+
+__all__ = [
+    "CONTROLLER_COLORS",
+    "EXPERIMENTS",
+    "IK_KNOTS",
+    "QUESTIONS",
+    "SIGNIFICANT_DIGITS",
+    "TASK_TITLES",
+    "RunRecord",
+    "build_page",
+    "discover_runs",
+    "format_number",
+    "make_experiments",
+    "metric_unit",
+    "run_report",
+]

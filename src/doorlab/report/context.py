@@ -1,0 +1,226 @@
+"""What the generated answers work with: the loaded runs, their metrics printed as tagged
+numbers, and the page's figures.
+
+Every number tied to a metric is a ``<span class="num">`` carrying the run and the metrics.json
+key, so tests can check the printed value against the folder.
+"""
+
+from __future__ import annotations
+
+import html
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from doorlab.metrics import Tracking
+from doorlab.pages import Figures, format_number, metric_unit
+from doorlab.report.folders import LoadedRun, line_style
+
+
+def span(text: str, *, run: str = "", key: str = "", unit: str = "") -> str:
+    attrs = ' class="num"'
+    if run:
+        attrs += f' data-run="{html.escape(run)}"'
+    if key:
+        attrs += f' data-key="{html.escape(key)}"'
+    if unit:
+        attrs += f' data-unit="{html.escape(unit)}"'
+    shown = f"{text} {unit}" if unit else text
+    return f"<span{attrs}>{html.escape(shown)}</span>"
+
+
+class AnswerPage:
+    """The loaded runs and the helpers the answers use."""
+
+    def __init__(self, runs: list[LoadedRun], figures: Figures) -> None:
+        self.runs = {run.name: run for run in runs}
+        self.order = [run.name for run in runs]
+        self.figures = figures
+        self.styles = {run.label: line_style(run, i) for i, run in enumerate(runs)}
+
+    # -- access ----------------------------------------------------------------------------
+    def logged(self, *names: str) -> list[LoadedRun]:
+        """The named runs that have logs, in the order given."""
+        return [self.runs[n] for n in names if n in self.runs and self.runs[n].has_logs]
+
+    def value(self, name: str, key: str) -> float | None:
+        value = self.runs[name].metrics.get(key)
+        return float(value) if isinstance(value, (int, float)) else None
+
+    def num(self, name: str, key: str) -> str:
+        """A metric of run ``name`` in display units, tagged for tests."""
+        unit, scale = metric_unit(key)
+        value = self.value(name, key)
+        text = format_number(None if value is None else value * scale)
+        return span(text, run=name, key=key, unit=unit)
+
+    def missing(self, *names: str) -> str:
+        """A sentence naming the runs among ``names`` that have no logs ("" if none)."""
+        parts = []
+        for name in names:
+            run = self.runs.get(name)
+            if run is None:
+                parts.append(f"<code>{name}</code> was not run")
+            elif not run.has_logs:
+                reason = f": {html.escape(run.error)}" if run.error else ""
+                parts.append(
+                    f"<code>{name}</code> produced no logs (status "
+                    f"<b>{html.escape(run.status)}</b>{reason})"
+                )
+        if not parts:
+            return ""
+        return "<p>Not answered from data: " + "; ".join(parts) + ".</p>"
+
+    def status_note(self, *names: str) -> str:
+        """A sentence flagging runs that finished with a status other than ok."""
+        parts = [
+            f"<code>{n}</code> finished with status <b>{html.escape(self.runs[n].status)}</b>"
+            + (f" ({html.escape(self.runs[n].error)})" if self.runs[n].error else "")
+            for n in names
+            if n in self.runs and self.runs[n].has_logs and self.runs[n].status != "ok"
+        ]
+        return "<p>Note: " + "; ".join(parts) + ".</p>" if parts else ""
+
+    # -- figures ---------------------------------------------------------------------------
+    def tracking_figures(self, key: str, runs: list[LoadedRun], what: str) -> str:
+        from doorlab.plots import plot_orientation_error, plot_radial_error
+
+        if not runs:
+            return ""
+        curves = {run.label: run.tracking for run in runs}
+        return self.figures.embed(
+            f"{key}_radial_error",
+            plot_radial_error(
+                curves, title=f"Radial tracking error of Q: {what}", styles=self.styles
+            ),
+            f"Radial error of Q (measured q, FK) over the arc window [mm]: {what}. "
+            "Bottom panel: |error| on a log scale.",
+        ) + self.figures.embed(
+            f"{key}_orientation_error",
+            plot_orientation_error(
+                curves, title=f"Orientation error of L7: {what}", styles=self.styles
+            ),
+            f"Orientation error angle of L7 (measured q) over the arc window [deg]: {what}.",
+        )
+
+    def path_figure(self, key: str, runs: list[LoadedRun], what: str) -> str:
+        from doorlab.plots import plot_q_path
+
+        if not runs:
+            return ""
+        curves = {run.label: run.tracking for run in runs}
+        return self.figures.embed(
+            f"{key}_q_path",
+            plot_q_path(
+                curves, runs[0].geometry, title=f"Q in the xy plane: {what}", styles=self.styles
+            ),
+            f"Q's path (measured q) against the handle arc and the hinge: {what}. Right: the "
+            "zoom, Q's radial deviation from the arc [mm] along the arc.",
+        )
+
+    def door_figure(self, key: str, runs: list[LoadedRun], what: str) -> str:
+        from doorlab.plots import plot_door_angle
+
+        if not runs:
+            return ""
+        return self.figures.embed(
+            f"{key}_door_angle",
+            plot_door_angle(
+                {run.label: run.result for run in runs},
+                geometry=runs[0].geometry,
+                title=f"Left hinge angle: {what}",
+                styles=self.styles,
+            ),
+            f"Left door hinge angle [deg] (negative = open): {what}; dotted: the door angle "
+            "the arc plan implies.",
+        )
+
+    def torque_figure(self, key: str, runs: list[LoadedRun], what: str) -> str:
+        from doorlab.plots import plot_external_torque_norm
+
+        if not runs:
+            return ""
+        return self.figures.embed(
+            f"{key}_external_torque_norm",
+            plot_external_torque_norm(
+                {run.label: run.result for run in runs},
+                title=f"|tau_ext|: {what}",
+                styles=self.styles,
+            ),
+            f"Norm of the external (contact) joint torques [N m]: {what}.",
+        )
+
+
+# Helpers of the answers: describing measured sequences and logs in words.
+
+
+def order_phrase(values: Sequence[float], *, falling: str = "falls", rising: str = "grows") -> str:
+    """Describes a sequence by its actual order: monotone falling/rising or not monotone."""
+    diffs = np.diff(np.asarray(values, float))
+    if len(diffs) and np.all(diffs < 0):
+        return falling
+    if len(diffs) and np.all(diffs > 0):
+        return rising
+    return "changes, not monotonically,"
+
+
+def ratio_phrase(a: float | None, b: float | None) -> str:
+    """'3.2 times smaller than' / 'larger than' / 'equal to' for a vs b (both > 0)."""
+    if a is None or b is None or not (math.isfinite(a) and math.isfinite(b)):
+        return "not comparable with"
+    if a == b:
+        return "equal to"
+    if a < b:
+        ratio = b / a if a > 0 else math.inf
+        return (
+            f"{span(format_number(ratio))} times smaller than"
+            if math.isfinite(ratio)
+            else ("smaller than")
+        )
+    ratio = a / b if b > 0 else math.inf
+    return (
+        f"{span(format_number(ratio))} times larger than"
+        if math.isfinite(ratio)
+        else ("larger than")
+    )
+
+
+def signed_range_mm(tracking: Tracking, *, skip: float = 0.05) -> tuple[float, float]:
+    """(min, max) of the signed radial error [mm] for tau >= skip (after the start transient)."""
+    mask = tracking.tau >= skip
+    e = 1000.0 * tracking.radial_error[mask if np.any(mask) else slice(None)]
+    return float(np.min(e)), float(np.max(e))
+
+
+def knot_profile(run: LoadedRun) -> tuple[float, list[float]] | None:
+    """(max |e| at the knots [mm], peak |e| per knot segment [mm]) of an IK run."""
+    knots = run.scenario.ik.knots if run.scenario else None
+    if not knots or knots < 2:
+        return None
+    tau = run.tracking.tau
+    e = np.abs(1000.0 * run.tracking.radial_error)
+    knot_taus = np.linspace(0.0, 1.0, knots)
+    at_knots = [float(e[int(np.argmin(np.abs(tau - k)))]) for k in knot_taus]
+    peaks = []
+    for a, b in zip(knot_taus[:-1], knot_taus[1:], strict=True):
+        mask = (tau >= a) & (tau <= b)
+        peaks.append(float(np.max(e[mask])) if np.any(mask) else float("nan"))
+    return max(at_knots), peaks
+
+
+def tau_of_max(tracking: Tracking) -> float:
+    """Arc parameter tau in [0, 1] where |radial error| is largest."""
+    return float(tracking.tau[int(np.argmax(np.abs(tracking.radial_error)))])
+
+
+def side(tracking: Tracking) -> str:
+    """ "outside" or "inside": where Q is at its largest radial error."""
+    e = tracking.radial_error
+    return "inside" if len(e) and e[int(np.argmax(np.abs(e)))] < 0 else "outside"
+
+
+def door_lag_deg(run: LoadedRun) -> float | None:
+    """Largest lag of the left door behind the arc plan over the arc [deg] (metrics.py)."""
+    lag = run.metrics.get("door_lag_max_rad")
+    return None if lag is None else math.degrees(lag)

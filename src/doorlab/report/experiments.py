@@ -1,0 +1,250 @@
+"""The seed's experiment set and :func:`run_report`: the runs in parallel, then the page.
+
+:func:`run_report` runs :data:`EXPERIMENTS` (the three controllers with the doors open and
+closed, IK with 2, 5 and 10 knots) through one executor (:mod:`doorlab.executor`: local worker
+processes, or a Dask cluster), each worker writing a run folder with
+:func:`doorlab.runs.run_to_folder` and shipping its files back, then
+:func:`doorlab.report.page.build_page` writes the page. The whole report folder is written
+atomically (staging folder, renamed at the end).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import copy
+import dataclasses
+import shutil
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from doorlab.config import Scenario, validate
+from doorlab.errors import ConfigError
+
+IK_KNOTS = (2, 5, 10)
+"""Knot counts of the seed's task 1 question 1."""
+
+
+def make_experiments(base: Scenario | None = None) -> tuple[tuple[str, Scenario], ...]:
+    """The seed's experiment set, each a copy of ``base`` with its controller and doors.
+
+    ``door_angles`` is reset to None in every experiment so that ``doors`` decides the initial
+    hinge angles; every other setting of ``base`` (physics, timeline, gains) is kept.
+
+    Args:
+        base: The scenario the experiments vary (default: ``Scenario()``).
+
+    Returns:
+        (name, scenario) pairs: ik_2_open, ik_5_open, ik_10_open, ik_10_closed, velocity_open,
+        velocity_closed, impedance_open, impedance_closed.
+    """
+    base = base if base is not None else Scenario()
+
+    def variant(controller: str, doors: str, knots: int | None = None) -> Scenario:
+        scenario = copy.deepcopy(base)
+        scenario.controller = controller
+        scenario.doors = doors
+        scenario.door_angles = None
+        if knots is not None:
+            scenario.ik.knots = knots
+        return scenario
+
+    return (
+        *((f"ik_{k}_open", variant("ik", "open", k)) for k in IK_KNOTS),
+        ("ik_10_closed", variant("ik", "closed", 10)),
+        ("velocity_open", variant("velocity", "open")),
+        ("velocity_closed", variant("velocity", "closed")),
+        ("impedance_open", variant("impedance", "open")),
+        ("impedance_closed", variant("impedance", "closed")),
+    )
+
+
+EXPERIMENTS: tuple[tuple[str, Scenario], ...] = make_experiments()
+"""The seed's eight runs on the default scenario (see :func:`make_experiments`)."""
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """One experiment's run folder and how the run went.
+
+    Attributes:
+        name: Experiment name (the folder's name), e.g. ``ik_10_open``.
+        run_dir: The run folder (``metrics.json``, ``log.npz``, plots, ``replay.html``).
+        status: Run status (:data:`doorlab.metrics.STATUSES`, or ``error`` when the worker
+            raised); the page re-reads it from ``metrics.json``.
+        message: Why the run failed ("" when it did not).
+        elapsed_s: Wall-clock time of the whole run, plots and replay included [s].
+    """
+
+    name: str
+    run_dir: Path
+    status: str = "unknown"
+    message: str = ""
+    elapsed_s: float = float("nan")
+
+
+def _write_json(path: Path, data: dict) -> None:
+    from doorlab.runs import write_json
+
+    write_json(path, data)
+
+
+def _record_failure(
+    name: str, run_dir: Path, scenario: Scenario | None, error: BaseException, elapsed: float
+) -> RunRecord:
+    """Writes a run folder holding only metrics.json with status ``error``."""
+    message = f"{type(error).__name__}: {error}"
+    run_dir.mkdir(parents=True, exist_ok=True)
+    base = {}
+    if scenario is not None:
+        base = {"controller": scenario.controller, "doors": scenario.doors}
+    _write_json(run_dir / "metrics.json", {**base, "status": "error", "error": message})
+    return RunRecord(name, run_dir, "error", message, elapsed)
+
+
+def _run_experiment(name: str, scenario: Scenario) -> tuple[RunRecord, dict[str, bytes]]:
+    """Worker: runs one experiment; returns its record and its run folder's files.
+
+    The folder is written in the worker's temporary directory and shipped back as bytes, so a
+    worker on another machine (a Dask cluster) needs no shared file system. Never raises for a
+    failed run.
+    """
+    import tempfile
+
+    from doorlab.runs import run_to_folder
+
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="doorlab_run_") as tmp:
+        folder = Path(tmp) / name
+        try:
+            outcome = run_to_folder(scenario, folder, replay=True)
+            record = RunRecord(
+                name, folder, outcome.status, outcome.message, time.perf_counter() - start
+            )
+        except Exception as e:  # one failed run must not lose the others
+            record = _record_failure(name, folder, scenario, e, time.perf_counter() - start)
+        files = {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()}
+    return record, files
+
+
+def _write_run(record: RunRecord, files: dict[str, bytes], run_dir: Path) -> RunRecord:
+    """Writes a worker's run folder files into ``run_dir``; the record now points there."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    for file_name, data in files.items():
+        (run_dir / file_name).write_bytes(data)
+    return dataclasses.replace(record, run_dir=run_dir)
+
+
+class _Progress:
+    """The report's progress bar (tqdm on stderr): runs done, how many not ok, ETA."""
+
+    def __init__(self, total: int, *, enabled: bool) -> None:
+        from tqdm import tqdm
+
+        self.failed = 0
+        self.bar = tqdm(
+            total=total,
+            unit="run",
+            desc="report",
+            file=sys.stderr,
+            disable=not enabled,
+            dynamic_ncols=True,
+        )
+
+    def update(self, record: RunRecord) -> None:
+        self.failed += record.status != "ok"
+        self.bar.set_postfix_str(
+            f"{self.failed} not ok; last {record.name}: {record.status}", refresh=False
+        )
+        self.bar.update(1)
+
+    def close(self, text: str) -> None:
+        self.bar.set_postfix_str(text)
+        self.bar.close()
+
+
+def run_report(
+    out_dir: Path,
+    *,
+    jobs: int,
+    force: bool = False,
+    base: Scenario | None = None,
+    progress: bool = True,
+    experiments: Sequence[tuple[str, Scenario]] | None = None,
+    scheduler: str | None = None,
+) -> int:
+    """Runs the experiments in parallel and writes the report folder atomically.
+
+    Args:
+        out_dir: The report folder to create (``index.html``, ``summary.json``, ``figures/``,
+            ``runs/<name>/``).
+        jobs: Worker processes (>= 1).
+        force: Replace ``out_dir`` if it exists.
+        base: The scenario the experiments vary (see :func:`make_experiments`); validated.
+        progress: Show a progress bar on stderr.
+        experiments: (name, scenario) pairs to run instead of ``make_experiments(base)``.
+        scheduler: Run on this Dask cluster (``tcp://HOST:PORT``) instead of ``jobs`` local
+            processes (:mod:`doorlab.executor`).
+
+    Returns:
+        0 if every run's status is ``ok``, 1 otherwise (failed runs are on the page).
+
+    Raises:
+        ConfigError: ``jobs`` < 1, duplicate or unsafe experiment names, invalid ``base``.
+        OutputError: ``out_dir`` exists (without ``force``) or cannot be written.
+    """
+    from doorlab.executor import check_scheduler, open_executor
+    from doorlab.runs import commit_output, prepare_output
+
+    if scheduler is not None:
+        check_scheduler(scheduler)
+    if not isinstance(jobs, int) or jobs < 1:
+        raise ConfigError(f"jobs must be an integer >= 1, got {jobs!r}")
+    if base is not None:
+        validate(base)
+    experiments = tuple(experiments) if experiments is not None else make_experiments(base)
+    names = [name for name, _ in experiments]
+    if len(set(names)) != len(names):
+        raise ConfigError(f"experiment names must be unique, got {names}")
+    for name in names:
+        if not name or name.startswith(".") or "/" in name or "\\" in name:
+            raise ConfigError(f"experiment name {name!r} is not a plain folder name")
+
+    staging = prepare_output(Path(out_dir), force=force)
+    try:
+        runs_dir = staging / "runs"
+        runs_dir.mkdir()
+        start = time.perf_counter()
+        records: dict[str, RunRecord] = {}
+        bar = _Progress(len(experiments), enabled=progress)
+        if experiments:
+            with open_executor(jobs=min(jobs, len(experiments)), scheduler=scheduler) as pool:
+                futures = {
+                    pool.submit(_run_experiment, name, scenario): (name, scenario)
+                    for name, scenario in experiments
+                }
+                for future in concurrent.futures.as_completed(futures):
+                    name, scenario = futures[future]
+                    try:
+                        record = _write_run(*future.result(), runs_dir / name)
+                    except Exception as e:  # e.g. a worker process died
+                        record = _record_failure(
+                            name, runs_dir / name, scenario, e, time.perf_counter() - start
+                        )
+                    records[name] = record
+                    bar.update(record)
+        total = time.perf_counter() - start
+        ordered = [records[name] for name in names]
+        bar.close(f"runs done; {bar.failed} not ok; writing the page")
+        from doorlab.report.page import build_page
+
+        build_page(ordered, staging, total_wall_time_s=total, jobs=jobs)
+        commit_output(staging, Path(out_dir))
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    if progress:
+        sys.stderr.write(f"report written to {out_dir} in {time.perf_counter() - start:.0f} s\n")
+    return 0 if all(r.status == "ok" for r in ordered) else 1

@@ -1,0 +1,273 @@
+"""Running a sweep: every planned run through one executor, a row per run, written as it lands.
+
+A failing run (slipped, ik_failed, diverged, an exception in the worker, a worker that died) is
+a row with its status and error, never the end of the sweep. The table is rewritten atomically
+after every finished run, so Ctrl-C (or a killed process) leaves a consistent table of the runs
+that finished; ``resume`` skips the runs already in it (by their scenario's key) and re-runs
+those that ended with ``error`` (an exception may be transient: a lost worker).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import shutil
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pandas as pd
+
+from doorlab.config import Scenario
+from doorlab.errors import ConfigError, IkError, OutputError, SimulationError
+from doorlab.sweep.results import (
+    RESULTS_CSV,
+    RESULTS_PARQUET,
+    make_table,
+    read_table,
+    write_table,
+)
+from doorlab.sweep.spec import PlannedRun, SweepSpec, load_spec, plan_runs
+
+PAGE_FILES = ("index.html", "figures", "sweep.json")
+TABLE_WRITE_SHARE = 0.1
+"""Most of the sweep's time spent rewriting the table: after a write that took d seconds, the
+next waits until 10 d have passed (the last one is always written). Small tables are written
+after every run; a table of many thousand rows finished at a high rate is not rewritten for
+every row."""
+
+
+_local = threading.local()
+
+
+def _kinematics():
+    """This thread's forward kinematics (a Dask worker may run runs in several threads; a
+    Kinematics holds one Context, so threads must not share it)."""
+    from doorlab.metrics import Kinematics
+
+    if not hasattr(_local, "kinematics"):
+        _local.kinematics = Kinematics()
+    return _local.kinematics
+
+
+def run_one(scenario: Scenario) -> dict:
+    """Worker: runs one scenario and returns its row (status, error, metrics); never raises.
+
+    Returns:
+        ``status``, ``error``, ``run_wall_time_s`` [s] and every key of ``metrics.json`` the
+        run produced (none for ik_failed, diverged and error).
+    """
+    from doorlab.controllers import run_controller
+    from doorlab.geometry import true_door_geometry
+    from doorlab.metrics import compute_metrics
+    from doorlab.runs import status_message
+
+    start = time.perf_counter()
+    base = {"controller": scenario.controller, "doors": scenario.doors}
+    try:
+        result, _ = run_controller(scenario)
+        metrics = compute_metrics(
+            result, scenario, true_door_geometry(scenario), kinematics=_kinematics()
+        )
+        row = {**metrics.to_dict(), "error": status_message(metrics)}
+    except (IkError, SimulationError) as e:
+        row = {
+            **base,
+            "status": "ik_failed" if isinstance(e, IkError) else "diverged",
+            "error": str(e),
+        }
+    except Exception as e:  # a run's bug must not end the sweep
+        row = {**base, "status": "error", "error": f"{type(e).__name__}: {e}"}
+    row["run_wall_time_s"] = time.perf_counter() - start
+    return row
+
+
+def _check_dir(out_dir: Path, *, resume: bool, force: bool) -> pd.DataFrame | None:
+    """Checks ``out_dir`` may be written (writing nothing); returns the table to resume from."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise OutputError(f"--out {str(out_dir)!r} is a file, not a folder")
+    existing = out_dir.is_dir() and any(out_dir.iterdir())
+    if existing and resume:
+        try:
+            return read_table(out_dir)
+        except (OSError, ValueError) as e:
+            raise OutputError(f"cannot resume from {out_dir / RESULTS_PARQUET}: {e}") from None
+    if existing and not force:
+        raise OutputError(
+            f"--out {str(out_dir)!r} already exists; pass --resume to continue its sweep or "
+            "--force to start over"
+        )
+    for ancestor in out_dir.resolve().parents:
+        if ancestor.exists() and not ancestor.is_dir():
+            raise OutputError(f"--out {str(out_dir)!r}: {str(ancestor)!r} is a file")
+    return None
+
+
+def _make_dir(out_dir: Path, *, resume: bool) -> None:
+    """Creates ``out_dir``; without ``resume``, removes an earlier sweep's files from it."""
+    try:
+        if not resume and out_dir.is_dir():
+            for name in (RESULTS_PARQUET, RESULTS_CSV, *PAGE_FILES):
+                path = out_dir / name
+                shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise OutputError(f"cannot write --out {str(out_dir)!r}: {e.strerror}") from None
+
+
+def _row(run: PlannedRun, outcome: dict) -> dict:
+    return {
+        **outcome,
+        "run": run.index,
+        "key": run.key,
+        "controller": run.scenario.controller,
+        "doors": run.scenario.doors,
+        **run.values,
+    }
+
+
+def run_sweep(
+    spec: SweepSpec | str | Path,
+    out_dir: str | Path | None = None,
+    *,
+    jobs: int = 1,
+    scheduler: str | None = None,
+    resume: bool = False,
+    force: bool = False,
+    progress: bool = False,
+    page: bool = True,
+) -> pd.DataFrame:
+    """Runs every run of ``spec`` and returns the results table (one row per run).
+
+    Args:
+        spec: The sweep, or the path of its SPEC file (see :func:`doorlab.sweep.load_spec`).
+        out_dir: Folder for ``results.parquet``, ``results.csv`` and ``index.html`` (None:
+            write nothing, return the table).
+        jobs: Local worker processes (ignored with ``scheduler``).
+        scheduler: Dask scheduler address ``tcp://HOST:PORT`` (None: local processes).
+        resume: Keep the rows of ``out_dir``'s table and run only the missing runs.
+        force: Start over in an existing ``out_dir``.
+        progress: Show a progress bar (counts, failures, ETA) on stderr.
+        page: Write ``index.html`` at the end.
+
+    Returns:
+        The table, in sweep order (see :mod:`doorlab.sweep.results`).
+
+    Raises:
+        ConfigError: Bad ``jobs``/``scheduler``. OutputError: ``out_dir`` exists (without
+            ``resume`` or ``force``) or cannot be written.
+        KeyboardInterrupt: After writing the table of the runs finished so far.
+    """
+    from doorlab.executor import check_scheduler, open_executor
+
+    if not isinstance(spec, SweepSpec):
+        spec = load_spec(spec)
+    runs = plan_runs(spec)
+    axes = [axis.field for axis in spec.axes]
+    if scheduler is not None:
+        check_scheduler(scheduler)
+    elif not isinstance(jobs, int) or isinstance(jobs, bool) or jobs < 1:
+        raise ConfigError(f"jobs must be an integer >= 1, got {jobs!r}")
+    out = Path(out_dir) if out_dir is not None else None
+    previous = _check_dir(out, resume=resume, force=force) if out is not None else None
+
+    rows: dict[int, dict] = {}
+    if previous is not None:
+        by_key = {run.key: run for run in runs}
+        for record in previous.to_dict("records"):
+            run = by_key.get(record.get("key"))
+            if run is not None and record.get("status") != "error":
+                record = {k: (None if _missing(v) else v) for k, v in record.items()}
+                rows[run.index] = {**record, "run": run.index}
+    todo = [run for run in runs if run.index not in rows]
+
+    last_write, write_duration = -float("inf"), 0.0
+
+    def table() -> pd.DataFrame:
+        return make_table(list(rows.values()), axes)
+
+    def save(*, now: bool) -> None:
+        nonlocal last_write, write_duration
+        due = time.monotonic() - last_write >= write_duration / TABLE_WRITE_SHARE
+        if out is not None and (now or due):
+            begin = time.monotonic()
+            write_table(table(), out)
+            last_write = time.monotonic()
+            write_duration = last_write - begin
+
+    bar = None
+    failures = sum(r.get("status") != "ok" for r in rows.values())
+    start = time.perf_counter()
+    description = "none (every run was in the table)"
+    started = False  # the folder is ours to write from here on
+    try:
+        if not todo and out is not None:
+            _make_dir(out, resume=resume)
+            started = True
+            save(now=True)
+        if todo:
+            # The executor first: a scheduler that cannot be reached leaves nothing written.
+            with open_executor(jobs=min(jobs, len(todo)), scheduler=scheduler) as executor:
+                if out is not None:
+                    _make_dir(out, resume=resume)
+                    started = True
+                    save(now=True)
+                description = executor.description
+                bar = _progress_bar(len(runs), initial=len(rows), enabled=progress)
+                if bar is not None:
+                    bar.write(f"doorlab sweep: {len(todo)} runs on {description}")
+                futures = {executor.submit(run_one, run.scenario): run for run in todo}
+                for future in concurrent.futures.as_completed(futures):
+                    run = futures[future]
+                    error = future.exception()
+                    if isinstance(error, KeyboardInterrupt):
+                        raise KeyboardInterrupt
+                    if error is not None:  # the worker died or could not run the task
+                        outcome = {
+                            "status": "error",
+                            "error": f"{type(error).__name__}: {error}",
+                            "run_wall_time_s": float("nan"),
+                        }
+                    else:
+                        outcome = future.result()
+                    rows[run.index] = _row(run, outcome)
+                    failures += outcome["status"] != "ok"
+                    save(now=len(rows) == len(runs))
+                    if bar is not None:
+                        bar.set_postfix_str(f"{failures} not ok", refresh=False)
+                        bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+        if out is not None and started:
+            write_table(table(), out)  # the finished runs, whatever ended the loop
+    frame = table()
+    if out is not None and page:
+        from doorlab.sweep.page import build_sweep_page
+
+        build_sweep_page(
+            frame,
+            spec,
+            out,
+            wall_time_s=time.perf_counter() - start,
+            executor=description,
+            total_runs=len(runs),
+        )
+    return frame
+
+
+def _missing(value: object) -> bool:
+    try:
+        return bool(pd.isna(value))
+    except (TypeError, ValueError):
+        return False
+
+
+def _progress_bar(total: int, *, initial: int, enabled: bool):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(
+        total=total, initial=initial, unit="run", file=sys.stderr, dynamic_ncols=True, desc="sweep"
+    )

@@ -1,0 +1,423 @@
+"""The sweep SPEC: a base scenario, controllers, door states and axes over scenario fields.
+
+Example (every key but ``axes`` optional; unknown keys are errors)::
+
+    base: scenario.yaml              # a scenario file, relative to the SPEC (default: defaults)
+    scenario:                        # fields changed on top of the base (a scenario mapping)
+      timeline: {extra_time: 1.0}
+    controllers: [impedance]         # default: every registered controller
+    doors: [closed]                  # default: the base scenario's
+    axes:                            # dotted scenario field -> values
+      impedance.kv: [50, 100, 200]                      # a list of values
+      station.hinge_damping: {low: 0.2, high: 5, num: 4, log: true}   # a range
+      station.cupboard_yaw_error: {low: -15, high: 15, num: 7, unit: deg}   # stored in rad
+    samples: 0                       # 0: the full grid; N: N random draws (ranges uniform or
+    seed: 0                          #    log-uniform, lists a uniform choice) from ``seed``
+
+Every run is the base scenario with one controller, one door state and one value per axis; a
+run is keyed by a hash of its full scenario (:func:`scenario_key`). A SPEC is checked entirely,
+every run's scenario included, before anything runs or is written.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import hashlib
+import itertools
+import json
+import math
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+from pydrake.common.yaml import yaml_load_typed
+
+from doorlab.config import (
+    DOOR_STATES,
+    Scenario,
+    _check_shape,
+    load_scenario,
+    update_scenario,
+    validate,
+)
+from doorlab.errors import ConfigError
+from doorlab.sweep.document import SpecDocument
+
+SPEC_KEYS = ("base", "scenario", "controllers", "doors", "axes", "samples", "seed")
+RANGE_KEYS = ("low", "high", "num", "log", "unit")
+AXIS_UNITS = {"deg": math.pi / 180.0}
+"""Units a SPEC may write an axis in, with the factor to the field's own unit (rad)."""
+RESERVED_FIELDS = ("controller", "doors", "door_angles")
+"""Fields set by ``controllers:`` and ``doors:``, not axes."""
+MAX_RUNS = 100_000
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One swept scenario field.
+
+    Attributes:
+        field: Dotted scenario field, e.g. ``impedance.kv``.
+        values: The grid values in the field's unit (a list axis, or a range with ``num``).
+        low, high: A range's bounds in the field's unit (None for a list axis).
+        log: Draw/space a range log-uniformly.
+        unit: The unit the SPEC wrote the axis in ("" = the field's own); plots use it.
+        kind: The field's Python type (float, int, str, bool or list).
+    """
+
+    field: str
+    values: tuple | None
+    low: float | None = None
+    high: float | None = None
+    log: bool = False
+    unit: str = ""
+    kind: object = float
+
+    @property
+    def display_scale(self) -> float:
+        """Factor from the field's unit to the SPEC's unit (1 / AXIS_UNITS[unit])."""
+        return 1.0 / AXIS_UNITS[self.unit] if self.unit else 1.0
+
+    @property
+    def label(self) -> str:
+        """Axis label for plots, e.g. ``station.cupboard_yaw_error [deg]``."""
+        return f"{self.field} [{self.unit}]" if self.unit else self.field
+
+
+@dataclass
+class SweepSpec:
+    """A parsed, validated SPEC (see the module docstring).
+
+    Attributes:
+        base: The scenario every run starts from.
+        controllers: Controller names. doors: Door states.
+        axes: The swept fields, in SPEC order.
+        samples: 0 for the full grid, else the number of random draws.
+        seed: Seed of the random draws.
+    """
+
+    base: Scenario = field(default_factory=Scenario)
+    controllers: list[str] = field(default_factory=list)
+    doors: list[str] = field(default_factory=list)
+    axes: list[Axis] = field(default_factory=list)
+    samples: int = 0
+    seed: int = 0
+
+    @property
+    def is_grid(self) -> bool:
+        return self.samples == 0
+
+
+@dataclass(frozen=True)
+class PlannedRun:
+    """One run of a sweep: its scenario, swept values and key.
+
+    Attributes:
+        index: Position in the sweep (table order).
+        key: :func:`scenario_key` of ``scenario``.
+        values: Field -> value for each axis (field units).
+        scenario: The full scenario.
+    """
+
+    index: int
+    key: str
+    values: dict
+    scenario: Scenario
+
+
+def scenario_key(scenario: Scenario) -> str:
+    """A hash of every field of ``scenario`` (16 hex digits): equal scenarios, equal keys."""
+    text = json.dumps(dataclasses.asdict(scenario), sort_keys=True, default=repr)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def field_type(dotted: str) -> object:
+    """The type of a scenario field named by its dotted path.
+
+    Raises:
+        ConfigError: No such field (the message lists the valid ones at that level).
+    """
+    schema: object = Scenario
+    parts = dotted.split(".")
+    for depth, part in enumerate(parts):
+        if not dataclasses.is_dataclass(schema):
+            raise ConfigError(
+                f"unknown scenario field {dotted!r}: {'.'.join(parts[:depth])} has no fields"
+            )
+        hints = typing.get_type_hints(schema)
+        if part not in hints:
+            where = ".".join(parts[:depth]) or "the scenario"
+            raise ConfigError(
+                f"unknown scenario field {dotted!r}; valid fields of {where}: {', '.join(hints)}"
+            )
+        schema = hints[part]
+    if dataclasses.is_dataclass(schema):
+        raise ConfigError(
+            f"{dotted!r} is a group of fields; sweep one of: "
+            f"{', '.join(f'{dotted}.{k}' for k in typing.get_type_hints(schema))}"
+        )
+    return schema
+
+
+def set_field(scenario: Scenario, dotted: str, value: object) -> None:
+    """Sets the dotted field of ``scenario`` (in place)."""
+    *parents, leaf = dotted.split(".")
+    target = scenario
+    for part in parents:
+        target = getattr(target, part)
+    setattr(target, leaf, copy.deepcopy(value))
+
+
+def get_field(scenario: Scenario, dotted: str) -> object:
+    """The value of a dotted field of ``scenario``."""
+    target = scenario
+    for part in dotted.split("."):
+        target = getattr(target, part)
+    return target
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _parse_axis(name: object, raw: object, *, grid: bool) -> Axis:
+    where = f"axes.{name}"
+    if not isinstance(name, str) or not name:
+        raise ConfigError(f"axes: field names must be dotted scenario fields, got {name!r}")
+    if name in RESERVED_FIELDS:
+        raise ConfigError(f"{where}: set {name} with the SPEC's controllers:/doors: lists")
+    kind = field_type(name)
+    if isinstance(raw, list):
+        if not raw:
+            raise ConfigError(f"{where} is empty; give at least one value")
+        for i, value in enumerate(raw):
+            _check_shape(value, kind, f"{where}[{i}]")
+        return Axis(name, tuple(raw), kind=kind)
+    if not isinstance(raw, dict):
+        raise ConfigError(
+            f"{where} must be a list of values or a range {{low, high, num, log, unit}}, "
+            f"got {raw!r}"
+        )
+    for key in raw:
+        if key not in RANGE_KEYS:
+            raise ConfigError(
+                f"unknown key {where}.{key}; valid keys of a range: {', '.join(RANGE_KEYS)}"
+            )
+    if kind not in (float, int):
+        raise ConfigError(f"{where}: a range needs a numeric field; give a list of values")
+    for key in ("low", "high"):
+        if key not in raw:
+            raise ConfigError(f"{where}.{key} is missing (a range needs low and high)")
+        if not _is_number(raw[key]) or not math.isfinite(raw[key]):
+            raise ConfigError(f"{where}.{key} must be a number, got {raw[key]!r}")
+    log = raw.get("log", False)
+    if not isinstance(log, bool):
+        raise ConfigError(f"{where}.log must be true or false, got {log!r}")
+    unit = raw.get("unit", "")
+    if unit not in ("", *AXIS_UNITS):
+        raise ConfigError(f"{where}.unit must be one of {', '.join(AXIS_UNITS)}, got {unit!r}")
+    scale = AXIS_UNITS.get(unit, 1.0)
+    low, high = float(raw["low"]) * scale, float(raw["high"]) * scale
+    if not low < high:
+        raise ConfigError(f"{where}: low must be < high, got {raw['low']} and {raw['high']}")
+    if log and low <= 0:
+        raise ConfigError(f"{where}: a log range needs low > 0, got {raw['low']}")
+    num = raw.get("num")
+    if num is not None and (not isinstance(num, int) or isinstance(num, bool) or num < 1):
+        raise ConfigError(f"{where}.num must be an integer >= 1, got {num!r}")
+    values = None
+    if num is not None:
+        space = np.geomspace if log else np.linspace
+        grid_values = space(low, high, num) if num > 1 else np.array([low])
+        values = tuple(int(round(v)) if kind is int else float(v) for v in grid_values)
+        if kind is int:
+            values = tuple(dict.fromkeys(values))
+    elif grid:
+        raise ConfigError(f"{where}.num is missing: a grid needs the number of values")
+    return Axis(name, values, low, high, log, unit, kind)
+
+
+def parse_spec(data: object, *, base_dir: Path | None = None) -> SweepSpec:
+    """A :class:`SweepSpec` from a SPEC mapping (already YAML-loaded).
+
+    Args:
+        data: The SPEC mapping.
+        base_dir: Folder ``base:`` is relative to (default: the working directory).
+
+    Raises:
+        ConfigError: Unknown keys, wrong types, unknown fields, empty axes, or a run whose
+            scenario is invalid (the message names the dotted field).
+    """
+    if not isinstance(data, dict):
+        raise ConfigError(f"a SPEC must be a mapping with keys {', '.join(SPEC_KEYS)}")
+    for key in data:
+        if key not in SPEC_KEYS:
+            raise ConfigError(f"unknown key {key!r}; valid keys: {', '.join(SPEC_KEYS)}")
+    from doorlab.controllers import REGISTRY
+
+    # The typed keys: the scenario's shape check (naming the key), then yaml_load_typed.
+    typed = {k: v for k, v in data.items() if k not in ("scenario", "axes")}
+    _check_shape(typed, SpecDocument, "")
+    document = yaml_load_typed(
+        schema=SpecDocument, data=yaml.safe_dump(typed), defaults=SpecDocument()
+    )
+    if document.base:
+        path = Path(document.base)
+        if not path.is_absolute() and base_dir is not None:
+            path = base_dir / path
+        base = load_scenario(path)
+    else:
+        base = Scenario()
+    overrides = data.get("scenario")
+    if overrides is not None:
+        try:
+            base = update_scenario(base, yaml.safe_dump(overrides))
+        except ConfigError as e:
+            raise ConfigError(f"scenario: {e}") from None
+
+    controllers = document.controllers if document.controllers is not None else list(REGISTRY)
+    for name in controllers:
+        if name not in REGISTRY:
+            raise ConfigError(
+                f"controllers: unknown controller {name!r}; choose from {', '.join(REGISTRY)}"
+            )
+    doors = document.doors if document.doors is not None else [base.doors]
+    for state in doors:
+        if state not in DOOR_STATES:
+            raise ConfigError(
+                f"doors: unknown state {state!r}; choose from {', '.join(DOOR_STATES)}"
+            )
+    for name, values in (("controllers", controllers), ("doors", doors)):
+        if not values:
+            raise ConfigError(f"{name} is empty; give at least one")
+        if len(set(values)) != len(values):
+            raise ConfigError(f"{name} lists a value twice: {values}")
+    samples, seed = document.samples, document.seed
+    if samples < 0:
+        raise ConfigError(f"samples must be an integer >= 0 (0: the full grid), got {samples!r}")
+    if seed < 0:
+        raise ConfigError(f"seed must be an integer >= 0, got {seed!r}")
+
+    raw_axes = data.get("axes")
+    if raw_axes is None or raw_axes == {}:
+        raise ConfigError("axes is empty; name at least one scenario field to sweep")
+    if not isinstance(raw_axes, dict):
+        raise ConfigError(f"axes must map dotted scenario fields to values, got {raw_axes!r}")
+    axes = [_parse_axis(name, raw, grid=samples == 0) for name, raw in raw_axes.items()]
+    spec = SweepSpec(validate(base), list(controllers), list(doors), axes, samples, seed)
+    plan_runs(spec)  # every run's scenario is valid, or this raises now
+    return spec
+
+
+def load_spec(path: str | Path | None, *, grid: list[str] = ()) -> SweepSpec:
+    """Loads a SPEC file and applies ``--grid KEY=V1,V2,...`` shorthands.
+
+    Args:
+        path: The SPEC YAML (None: no file; the axes come from ``grid``).
+        grid: ``KEY=V1,V2,...`` items; each adds or replaces the list axis KEY (values YAML).
+
+    Raises:
+        ConfigError: Missing or invalid file, bad shorthand, invalid SPEC (one line naming
+            the file and the dotted field).
+    """
+    data: dict = {}
+    base_dir = None
+    prefix = ""
+    if path is not None:
+        path = Path(path)
+        prefix = f"SPEC {str(path)!r}: "
+        if not path.is_file():
+            raise ConfigError(f"SPEC file {str(path)!r} does not exist")
+        try:
+            data = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as e:
+            mark = getattr(e, "problem_mark", None)
+            where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
+            raise ConfigError(f"{prefix}invalid YAML{where}") from None
+        except (OSError, UnicodeDecodeError) as e:
+            raise ConfigError(f"SPEC file {str(path)!r} cannot be read: {e}") from None
+        data = {} if data is None else data
+        base_dir = path.parent
+    if grid:
+        if not isinstance(data, dict):
+            raise ConfigError(f"{prefix}a SPEC must be a mapping")
+        axes = dict(data.get("axes") or {}) if isinstance(data.get("axes"), dict) else {}
+        for item in grid:
+            key, sep, text = item.partition("=")
+            if not sep or not key or not text:
+                raise ConfigError(f"--grid expects KEY=V1,V2,... got {item!r}")
+            try:
+                axes[key] = [yaml.safe_load(v) for v in text.split(",")]
+            except yaml.YAMLError:
+                raise ConfigError(f"--grid {item}: values must be YAML scalars") from None
+        data = {**data, "axes": axes}
+    try:
+        return parse_spec(data, base_dir=base_dir)
+    except ConfigError as e:
+        raise ConfigError(f"{prefix}{e}") from None
+
+
+def _draws(spec: SweepSpec) -> list[tuple]:
+    """The axis values of every point: the grid, or ``samples`` random draws."""
+    if spec.is_grid:
+        return list(itertools.product(*(axis.values for axis in spec.axes)))
+    rng = np.random.default_rng(spec.seed)
+    columns = []
+    for axis in spec.axes:
+        if axis.low is not None:
+            if axis.log:
+                u = rng.uniform(math.log(axis.low), math.log(axis.high), spec.samples)
+                draws = np.exp(u)
+            else:
+                draws = rng.uniform(axis.low, axis.high, spec.samples)
+            column = [int(round(v)) if axis.kind is int else float(v) for v in draws]
+        else:
+            picks = rng.integers(0, len(axis.values), spec.samples)
+            column = [axis.values[i] for i in picks]
+        columns.append(column)
+    return list(zip(*columns, strict=True))
+
+
+def plan_runs(spec: SweepSpec) -> list[PlannedRun]:
+    """Every run of the sweep: controllers x doors x points, each scenario validated.
+
+    Raises:
+        ConfigError: A run's scenario is invalid (names the axis values and the field) or two
+            runs are identical.
+    """
+    points = _draws(spec)
+    total = len(points) * len(spec.controllers) * len(spec.doors)
+    if total > MAX_RUNS:
+        raise ConfigError(f"the sweep has {total} runs; more than {MAX_RUNS} is surely a mistake")
+    runs: list[PlannedRun] = []
+    keys: dict[str, int] = {}
+    for controller in spec.controllers:
+        for doors in spec.doors:
+            for point in points:
+                scenario = copy.deepcopy(spec.base)
+                scenario.controller = controller
+                scenario.doors = doors
+                scenario.door_angles = None
+                values = {}
+                for axis, value in zip(spec.axes, point, strict=True):
+                    set_field(scenario, axis.field, value)
+                    values[axis.field] = value
+                try:
+                    validate(scenario)
+                except ConfigError as e:
+                    shown = ", ".join(f"{k} = {v!r}" for k, v in values.items())
+                    raise ConfigError(f"axes: the run with {shown}: {e}") from None
+                key = scenario_key(scenario)
+                if key in keys and not spec.is_grid:
+                    continue  # a random draw repeated a point: run it once
+                if key in keys:
+                    raise ConfigError(
+                        f"axes: two runs have the same scenario ({', '.join(map(str, point))}); "
+                        "an axis lists a value twice"
+                    )
+                keys[key] = len(runs)
+                runs.append(PlannedRun(len(runs), key, values, scenario))
+    return runs
