@@ -184,13 +184,16 @@ def test_time_step_above_control_period_names_both_fields():
     assert "timeline.control_period" in str(info.value)
 
 
-def test_tamsi_with_the_stiffness_loop_is_rejected():
-    """contact_approximation tamsi cannot run the implicit stiffness loop (names the field)."""
-    with pytest.raises(ConfigError, match="station.contact_approximation"):
-        validate(_with("station.contact_approximation", "tamsi"))
+def test_tamsi_with_pd_actuators_is_rejected():
+    """contact_approximation tamsi cannot run the implicit_pd loop (names the field); the
+    stiffness and inverse_dynamics loops need no PD actuators and run with it."""
     scenario = _with("station.contact_approximation", "tamsi")
-    scenario.station.inner_loop.kind = "inverse_dynamics"
-    assert validate(scenario) is scenario
+    scenario.station.inner_loop.kind = "implicit_pd"
+    with pytest.raises(ConfigError, match="station.contact_approximation"):
+        validate(scenario)
+    for kind in ("stiffness", "inverse_dynamics"):
+        scenario.station.inner_loop.kind = kind
+        assert validate(scenario) is scenario
 
 
 def test_door_angles_of_the_wrong_type_is_a_config_error():

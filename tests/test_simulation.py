@@ -49,7 +49,7 @@ def test_plan_runner_picks_the_active_plan_in_any_order():
     """At each boundary the next plan takes over; after the schedule the last plan holds;
     asking for an earlier time (e.g. a re-initialized simulator) steps back."""
     schedule = seed_schedule(Scenario())
-    runner = PlanRunner(schedule, control_period=0.005, q_initial=Q_HOME, gripper_width=0.025)
+    runner = PlanRunner(schedule, control_period=0.005)
     names = [runner.active(t).plan.name for t in (0.0, 1.999, 2.0, 9.0, 10.99, 11.0, 30.0)]
     assert names == ["hold", "hold", "move_to_start", "grasp", "grasp", "arc", "arc"]
     assert runner.active(0.5).plan.name == "hold"
@@ -59,7 +59,10 @@ def test_schedule_needs_one_gripper_setpoint_per_plan():
     """Mismatched plan and setpoint lists are a configuration error, not an IndexError."""
     with pytest.raises(ConfigError, match="one gripper setpoint per plan"):
         make_schedule(
-            [JointSpacePlan.hold(Q_START, 1.0)], [], q_initial=Q_HOME, q_start=Q_START,
+            [JointSpacePlan.hold(Q_START, 1.0)],
+            [],
+            q_initial=Q_HOME,
+            q_start=Q_START,
             scenario=Scenario(),
         )
 
@@ -70,9 +73,17 @@ def test_episode_result_round_trips_through_npz(tmp_path):
     n = 17
     result = EpisodeResult(
         t=np.arange(n) * 0.01,
-        **{name: rng.normal(size=(n, 7)) for name in (
-            "q_commanded", "q_measured", "v_measured", "tau_external", "tau_feedforward",
-            "tau_commanded")},  # fmt: skip
+        **{
+            name: rng.normal(size=(n, 7))
+            for name in (
+                "q_commanded",
+                "q_measured",
+                "v_measured",
+                "tau_external",
+                "tau_feedforward",
+                "tau_commanded",
+            )
+        },  # fmt: skip
         door_angles=rng.normal(size=(n, 2)),
         wsg_width=rng.normal(size=n),
         plant_positions=rng.normal(size=(n, 11)),
@@ -110,3 +121,27 @@ def test_a_plan_sending_nan_stops_the_run_with_a_simulation_error():
     t.hold_duration, t.approach_duration, t.extra_time = 0.1, 0.2, 0.1
     with pytest.raises(SimulationError, match=r"failed at t = 2\.30\d s: .*NaN"):
         run_episode(scenario, [NanPlan()], [0.02], q_start=Q_HOME)
+
+
+def test_joint_space_plans_in_cpp_send_what_the_runner_sent():
+    """Without feedback plans (an IK episode) the C++ sources replace the Python runner: the
+    logged q_ref equals, sample for sample, the plans evaluated at the runner's ticks, each
+    sample in force from the first plant step after its tick (the log at a tick shows the
+    previous tick's command, as the runner's discrete state did)."""
+    from doorlab.simulation import run_episode
+
+    scenario = Scenario()
+    scenario.timeline.hold_duration = 0.2
+    scenario.timeline.approach_duration = 0.3
+    scenario.timeline.extra_time = 0.0
+    move = JointSpacePlan.cubic([0.0, 0.3], np.vstack([Q_START, Q_START + 0.05]), name="arc")
+    result = run_episode(scenario, [move], [0.005], q_start=Q_START)
+    schedule = make_schedule([move], [0.005], q_initial=Q_HOME, q_start=Q_START, scenario=scenario)
+    runner = PlanRunner(schedule, control_period=scenario.timeline.control_period)
+    period = scenario.timeline.control_period
+    state = None
+    for t, q_logged in zip(result.t[1:], result.q_commanded[1:], strict=True):
+        tick = (np.ceil(t / period - 1e-6) - 1) * period  # the last tick strictly before t
+        scheduled = runner.active(tick)
+        expected = scheduled.plan.command(tick - scheduled.t_start, state).q_ref
+        np.testing.assert_allclose(q_logged, expected, atol=1e-12, rtol=0)

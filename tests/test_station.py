@@ -20,11 +20,12 @@ from doorlab.geometry import default_door_geometry
 from doorlab.ik import solve_ik
 from doorlab.plans import JointSpacePlan
 from doorlab.simulation import EpisodeResult, run_episode
-from doorlab.station import Station, build_station, make_controller_plant
+from doorlab.station import Station, build_station, joint_damping, make_controller_plant
 
 DEFAULT = StationConfig()
 KQ = np.array(DEFAULT.inner_loop.kq)  # [N m/rad]
-DQ = np.array(DEFAULT.inner_loop.dq)  # [N m s/rad]
+DQ = np.array(DEFAULT.inner_loop.dq)  # [N m s/rad] configured
+DAMPING = joint_damping(DEFAULT)  # [N m s/rad] acting: Dq + h Kq
 CONTROL_PERIOD = Scenario().timeline.control_period  # [s] the plan runner's 200 Hz
 WSG_WIDTH = DEFAULT.gripper.initial_width  # [m] finger setpoint = initial separation: no motion
 DOORS_CLOSED = (-0.001, 0.001)  # [rad] station facts section 3
@@ -144,7 +145,11 @@ def test_inverse_dynamics_loop_holds_q_home():
 
 
 def test_commanded_torque_is_clamped_at_data_sheet_limits(station):
-    """A 1 rad step on joint 2 saturates the joint torque at, never above, the data-sheet limit."""
+    """A 1 rad step on joint 2 saturates the actuator torque at, never above, the data-sheet limit.
+
+    The actuators' part is tau_commanded + Dq qdot: the damping is the joints' own (implicit
+    in the plant) and is not clamped.
+    """
     q_ref = Q_HOME.copy()
     q_ref[1] += 1.0  # Kq_2 * 1 rad = 2770 N m demanded, 176 N m available
     simulator, context, _ = _simulator(station, q_ref=q_ref)
@@ -152,10 +157,53 @@ def test_commanded_torque_is_clamped_at_data_sheet_limits(station):
     peak = np.zeros(NUM_JOINTS)
     for t in np.arange(1, 101) * DEFAULT.time_step:  # every plant step up to 0.2 s
         simulator.AdvanceTo(t)
-        peak = np.maximum(peak, np.abs(_output(station, context, "iiwa_torque_commanded")))
+        actuation = _output(station, context, "iiwa_torque_commanded") + DAMPING * _output(
+            station, context, "iiwa_velocity_estimated"
+        )
+        peak = np.maximum(peak, np.abs(actuation))
     assert np.all(peak <= JOINT_TORQUE_LIMITS * (1 + TORQUE_LIMIT_REL_TOL)), peak
     # The clamp was active (otherwise the test could not fail).
     assert peak[1] >= JOINT_TORQUE_LIMITS[1] * (1 - TORQUE_LIMIT_REL_TOL), peak
+
+
+def test_commanded_torque_includes_the_joint_damping(station):
+    """iiwa_torque_commanded of the stiffness loop (explicit spring + the joints' own damping)
+    matches the implicit_pd loop's (the plant's PD actuators) while the arm moves.
+
+    In free motion the two loops move the arm identically (to round-off): SAP's PD applies
+    Kq (q_ref - q_{n+1}) - Dq v_{n+1} = Kq (q_ref - q_n) - (Dq + h Kq) v_{n+1}, the explicit
+    spring plus the joints' damping. Read after a step, the explicit loop's output evaluates
+    its spring at the new q_{n+1} (the next step's torque), so the two outputs differ by
+    h Kq |qdot| per joint; 10 % and 0.1 N m on top cover the rest (measured: 1.5 % of it, the
+    arm's configuration-dependent terms). Leaving the damping torque out of the output would
+    differ by (Dq + h Kq) |qdot|, six times more; the test checks it would fail then.
+    """
+    config = StationConfig()
+    config.inner_loop.kind = "implicit_pd"
+    pd_station = build_station(config)
+    q_ref = Q_HOME.copy()
+    q_ref[[1, 3]] += 0.05  # [rad] a step: joints 2 and 4 swing towards it
+    runs = []
+    for s in (station, pd_station):
+        simulator, context, _ = _simulator(s, q_ref=q_ref)
+        samples = []
+        for t in np.arange(1, 51) * 2 * DEFAULT.time_step:  # every other step to 0.2 s
+            simulator.AdvanceTo(t)
+            samples.append(
+                (
+                    _output(s, context, "iiwa_torque_commanded"),
+                    _output(s, context, "iiwa_velocity_estimated"),
+                )
+            )
+        runs.append(samples)
+    h = DEFAULT.time_step
+    worst_missing = 0.0
+    for (tau, v), (tau_pd, v_pd) in zip(*runs, strict=True):
+        speed = np.maximum(np.abs(v), np.abs(v_pd))
+        bound = 1.1 * h * KQ * speed + 0.1
+        assert np.all(np.abs(tau - tau_pd) <= bound), (tau, tau_pd, bound)
+        worst_missing = max(worst_missing, float(np.max(DAMPING * speed - bound)))
+    assert worst_missing > 0.0  # without the damping torque the test would fail
 
 
 def test_l7_at_q_zero_is_1_22_m_above_the_base(station):
@@ -208,7 +256,7 @@ def _tracking_bound(plan: JointSpacePlan) -> np.ndarray:
         inertial += plant.CalcBiasTerm(context)
         max_speed = np.maximum(max_speed, np.abs(qdot))
         max_inertial = np.maximum(max_inertial, np.abs(inertial))
-    return (DQ * max_speed + INERTIAL_SAFETY * max_inertial) / KQ + CONTROL_PERIOD * max_speed
+    return (DAMPING * max_speed + INERTIAL_SAFETY * max_inertial) / KQ + CONTROL_PERIOD * max_speed
 
 
 @pytest.fixture(scope="module")
@@ -365,12 +413,48 @@ def test_left_door_terminal_speed_is_torque_over_damping(station):
 
 
 def test_dq_scale_multiplies_the_joint_damping():
-    """station.inner_loop.dq_scale scales every Dq of the plant's PD actuators, not Kq."""
+    """station.inner_loop.dq_scale scales every Dq, not Kq: the stiffness loop's joints damp
+    with 2.5 Dq + h Kq, the implicit_pd loop's PD actuators get d = 2.5 Dq (SAP adds h Kq)."""
     config = StationConfig()
     config.inner_loop.dq_scale = 2.5
+    station = build_station(config)
+    h = config.time_step
+    for i, (kq, dq) in enumerate(zip(KQ, DQ, strict=True), start=1):
+        joint = station.plant.GetJointByName(f"iiwa_joint_{i}", station.iiwa)
+        assert joint.default_damping() == pytest.approx(2.5 * dq + h * kq, rel=1e-15)
+        actuator = station.plant.GetJointActuatorByName(f"iiwa_joint_{i}", station.iiwa)
+        assert not actuator.has_controller()
+    config.inner_loop.kind = "implicit_pd"
     station = build_station(config)
     for i, (kq, dq) in enumerate(zip(KQ, DQ, strict=True), start=1):
         actuator = station.plant.GetJointActuatorByName(f"iiwa_joint_{i}", station.iiwa)
         gains = actuator.get_controller_gains()
         assert gains.p == kq
         assert gains.d == pytest.approx(2.5 * dq, rel=1e-15)
+
+
+def _colliding_bodies(station: Station) -> set[str]:
+    """Names of the cupboard's and table's bodies with a geometry of proximity role."""
+    plant = station.plant
+    inspector = station.scene_graph.model_inspector()
+    names = set()
+    for model in ("cupboard", "table"):
+        for index in plant.GetBodyIndices(plant.GetModelInstanceByName(model)):
+            body = plant.get_body(index)
+            geometries = plant.GetCollisionGeometriesForBody(body)
+            if any(inspector.GetProximityProperties(g) is not None for g in geometries):
+                names.add(body.name())
+    return names
+
+
+def test_only_the_left_door_collides_unless_asked(station):
+    """Without arm collision only the gripper can touch the scene, and it touches only the
+    left door: the carcass, the right door and the table lose their proximity roles, unless
+    station.scene_collision or station.arm_collision asks for them."""
+    assert _colliding_bodies(station) == {"left_door"}
+    for flag in ("scene_collision", "arm_collision"):
+        config = StationConfig()
+        setattr(config, flag, True)
+        assert {"left_door", "right_door", "cupboard_body", "table_top"} <= _colliding_bodies(
+            build_station(config)
+        )

@@ -366,6 +366,7 @@ def _run(args: argparse.Namespace) -> int:
         replay=not args.no_replay,
         meshcat=meshcat,
         realtime_rate=args.realtime if args.realtime is not None else (1.0 if meshcat else 0.0),
+        parallel=True,
     )
     print(_summary(outcome))
     if meshcat is not None and sys.stdin.isatty():

@@ -75,7 +75,8 @@ def pseudo_inverse_solve(J: np.ndarray, V: np.ndarray) -> np.ndarray:
         return np.linalg.pinv(J) @ V
     # |y| ~ |V| / |J J^T| unless J J^T is (numerically) singular along V: then fall back to
     # the SVD pseudo-inverse, which drops the singular directions (one check, no SVD per tick).
-    if not np.abs(y).max() * np.abs(JJt).max() <= 1e10 * (np.abs(V).max() + 1e-300):
+    # (J J^T is a Gram matrix: its largest entry in magnitude is on its diagonal.)
+    if not np.abs(y).max() * JJt.diagonal().max() <= 1e10 * (np.abs(V).max() + 1e-300):
         return np.linalg.pinv(J) @ V
     return J.T @ y
 

@@ -8,6 +8,7 @@ plus ``PLAN_SETTLE_TIME``; ``extra_time`` follows the last plan.
 from __future__ import annotations
 
 import io
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
@@ -17,8 +18,15 @@ import numpy as np
 from pydrake.common.yaml import yaml_dump_typed
 from pydrake.geometry import Meshcat
 from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
-from pydrake.systems.framework import BasicVector, DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import (
+    Adder,
+    ConstantVectorSource,
+    LogVectorOutput,
+    Multiplexer,
+    TrajectorySource,
+)
+from pydrake.trajectories import PiecewisePolynomial
 
 from doorlab.config import Scenario
 from doorlab.constants import NUM_JOINTS, Q_HOME
@@ -26,6 +34,22 @@ from doorlab.errors import ConfigError, SimulationError
 from doorlab.frames import FINGER_JOINTS, LEFT_HINGE, RIGHT_HINGE
 from doorlab.plans import ArmState, JointSpacePlan, Plan
 from doorlab.station import Station, build_station
+
+HINGES = (LEFT_HINGE, RIGHT_HINGE)
+
+_SEPARATE_LOGGERS = False
+"""Also log the station's channels one logger each, as the 353b732 design did (its cost,
+for :mod:`doorlab.legacy`; the logs come from the one multiplexed logger either way)."""
+_SEPARATE_LOG_PORTS = (
+    "iiwa_position_commanded",
+    "iiwa_position_measured",
+    "iiwa_velocity_estimated",
+    "iiwa_torque_external",
+    "iiwa_torque_commanded",
+    "door_angles",
+    "wsg_state_measured",
+    "plant_state",
+)
 
 PLAN_SETTLE_TIME = 1.0
 """Every plan stays active this long after its duration [s] (the original's timeline)."""
@@ -84,12 +108,71 @@ def make_schedule(
     return schedule
 
 
-class PlanRunner(LeafSystem):
-    """Executes a schedule of plans at a fixed control period (the outer loop).
+def joint_space_prefix(schedule: Sequence[ScheduledPlan]) -> int:
+    """How many scheduled plans, from the start, are pure joint trajectories (no feedback)."""
+    k = 0
+    while k < len(schedule) and isinstance(schedule[k].plan, JointSpacePlan):
+        k += 1
+    return k
 
-    Input ports: ``iiwa_position_measured``, ``iiwa_velocity_estimated``,
-    ``iiwa_torque_external`` (7 each). Output ports (state outputs, no Python per simulation
-    step): ``iiwa_position`` (q_ref), ``iiwa_feedforward_torque`` (tau_ff), ``wsg_position``.
+
+def _first_tick(t: float, period: float) -> float:
+    """The first tick k * period at or after t [s] (float noise tolerated)."""
+    return math.ceil(t / period - 1e-9) * period
+
+
+def _tick_lag(time_step: float, period: float) -> float:
+    """How long after a tick its command may switch on without missing a plant step [s].
+
+    Ticks and plant steps share the grid of g = gcd(time_step, period); a discrete update at
+    tick t_k reaches the plant at its first step after t_k, which is at least g later: a
+    switch at t_k + g / 2 does the same, clear of float noise on either side.
+    """
+    ns = math.gcd(round(time_step * 1e9), round(period * 1e9))
+    return 0.5 * ns * 1e-9
+
+
+def prefix_trajectory(
+    schedule: Sequence[ScheduledPlan], k: int, t_final: float
+) -> PiecewisePolynomial:
+    """The q_ref of the first ``k`` (joint-space) scheduled plans as one trajectory in episode
+    time: each plan's trajectory from its start, its end value held until the next plan (the
+    last one's until ``t_final``) [rad].
+
+    Args:
+        schedule: The episode's schedule. k: :func:`joint_space_prefix` of it (>= 1).
+        t_final: Where the trajectory ends [s].
+    """
+    pieces: list[PiecewisePolynomial] = []
+    for i, scheduled in enumerate(schedule[:k]):
+        trajectory = scheduled.plan.trajectory
+        piece = trajectory.Clone()
+        piece.shiftRight(scheduled.t_start - trajectory.start_time())
+        t_next = schedule[i + 1].t_start if i + 1 < k else t_final
+        q_end = trajectory.value(trajectory.end_time())
+        if t_next > piece.end_time():
+            hold = PiecewisePolynomial.ZeroOrderHold(
+                [piece.end_time(), t_next], np.hstack([q_end, q_end])
+            )
+            piece.ConcatenateInTime(hold)
+        pieces.append(piece)
+    total = pieces[0]
+    for piece in pieces[1:]:
+        total.ConcatenateInTime(piece)
+    return total
+
+
+class PlanRunner(LeafSystem):
+    """Executes a schedule of plans at a fixed control period (the outer loop), in Python.
+
+    The episode hands it only the part of the schedule that needs feedback, from ``t_first``
+    (the first tick) on; before that its outputs are zero. It sends q_ref - ``q_offset``: the
+    episode adds ``q_offset`` back in C++ (the joint-space trajectory's end value, which the
+    trajectory source keeps sending), so q_ref is continuous at the handoff.
+
+    Input ports: ``iiwa_state`` (14: q [rad], v [rad/s]), ``iiwa_torque_external`` (7).
+    Output ports (state outputs, no Python per simulation step): ``iiwa_position`` (q_ref),
+    ``iiwa_feedforward_torque`` (tau_ff).
     """
 
     def __init__(
@@ -97,24 +180,24 @@ class PlanRunner(LeafSystem):
         schedule: Sequence[ScheduledPlan],
         *,
         control_period: float,
-        q_initial: np.ndarray,
-        gripper_width: float,
+        t_first: float = 0.0,
+        q_offset: np.ndarray | None = None,
     ):
         super().__init__()
         self.set_name("plan_runner")
         self._schedule = list(schedule)
         self._starts = [s.t_start for s in self._schedule]
         self._cursor = 0
-        self._q = self.DeclareVectorInputPort("iiwa_position_measured", NUM_JOINTS)
-        self._v = self.DeclareVectorInputPort("iiwa_velocity_estimated", NUM_JOINTS)
+        self._x = self.DeclareVectorInputPort("iiwa_state", 2 * NUM_JOINTS)
         self._tau_ext = self.DeclareVectorInputPort("iiwa_torque_external", NUM_JOINTS)
-        self._q_ref = self.DeclareDiscreteState(BasicVector(np.asarray(q_initial, float)))
+        self._q_offset = (
+            np.zeros(NUM_JOINTS) if q_offset is None else np.asarray(q_offset, float).copy()
+        )
+        self._q_ref = self.DeclareDiscreteState(NUM_JOINTS)
         self._tau_ff = self.DeclareDiscreteState(NUM_JOINTS)
-        self._wsg = self.DeclareDiscreteState(BasicVector([gripper_width]))
         self.DeclareStateOutputPort("iiwa_position", self._q_ref)
         self.DeclareStateOutputPort("iiwa_feedforward_torque", self._tau_ff)
-        self.DeclareStateOutputPort("wsg_position", self._wsg)
-        self.DeclarePeriodicDiscreteUpdateEvent(control_period, 0.0, self._tick)
+        self.DeclarePeriodicDiscreteUpdateEvent(control_period, t_first, self._tick)
 
     def active(self, t: float) -> ScheduledPlan:
         """The scheduled plan active at time t [s] (the last one after the schedule ends)."""
@@ -128,11 +211,11 @@ class PlanRunner(LeafSystem):
     def _tick(self, context, discrete_state) -> None:
         t = context.get_time()
         scheduled = self.active(t)
-        state = ArmState(self._q.Eval(context), self._v.Eval(context), self._tau_ext.Eval(context))
+        x = self._x.Eval(context)
+        state = ArmState(x[:NUM_JOINTS], x[NUM_JOINTS:], self._tau_ext.Eval(context))
         command = scheduled.plan.command(t - scheduled.t_start, state)
-        discrete_state.get_mutable_vector(self._q_ref).SetFromVector(command.q_ref)
-        discrete_state.get_mutable_vector(self._tau_ff).SetFromVector(command.tau_ff)
-        discrete_state.get_mutable_vector(self._wsg).SetAtIndex(0, scheduled.gripper_width)
+        discrete_state.set_value(self._q_ref, command.q_ref - self._q_offset)
+        discrete_state.set_value(self._tau_ff, command.tau_ff)
 
 
 @dataclass(frozen=True)
@@ -144,7 +227,8 @@ class EpisodeResult:
         q_commanded, q_measured: (n, 7) [rad]. v_measured: (n, 7) [rad/s].
         tau_external: Contact torques on the arm joints (n, 7) [N m].
         tau_feedforward: tau_ff sent by the plans (n, 7) [N m].
-        tau_commanded: Torque applied by the joints after saturation (n, 7) [N m].
+        tau_commanded: Torque the joints receive (n, 7) [N m]: the actuators' after
+            saturation plus, for the stiffness loop, the joints' damping -(Dq + h Kq) qdot.
         door_angles: Hinge angles (n, 2) [rad], columns (left, right).
         wsg_width: Finger separation (n,) [m].
         plant_positions: Positions of the whole plant (n, nq), for replays.
@@ -257,38 +341,91 @@ def run_episode(
         plans, gripper_widths, q_initial=q_initial, q_start=q_start, scenario=scenario
     )
     timeline = scenario.timeline
+    t_final = schedule[-1].t_end + timeline.extra_time
     builder = DiagramBuilder()
     station = build_station(scenario.station, meshcat=meshcat)
     station_system = builder.AddSystem(station.diagram)
-    runner = builder.AddSystem(
-        PlanRunner(
-            schedule,
-            control_period=timeline.control_period,
-            q_initial=q_initial,
-            gripper_width=schedule[0].gripper_width,
+
+    def add(system, name: str):
+        system.set_name(name)
+        return builder.AddSystem(system)
+
+    # q_ref: the joint-space plans at the start (hold, move, grasp; all of an IK episode) come
+    # from C++ trajectory sources; the Python plan runner takes over at the first plan that
+    # needs feedback (its first tick), with no Python before it. The sources then keep sending
+    # their last value q_handoff, and the runner sends q_ref - q_handoff: the sum is q_ref.
+    # They send exactly what the runner would have: the plans sampled at its ticks t_k, each
+    # sample reaching the plant (and the logs) from the first step after t_k, as a discrete
+    # update at t_k does.
+    period = timeline.control_period
+    lag = _tick_lag(scenario.station.time_step, period)
+    k = joint_space_prefix(schedule)
+    t_first = _first_tick(schedule[k].t_start, period) if k < len(schedule) else t_final
+    q_ref_sum = add(Adder(2, NUM_JOINTS), "q_ref")
+    if k > 0:
+        prefix = prefix_trajectory(schedule, k, t_final + 1.0)
+        ticks = np.arange(int(np.floor(t_first / period - 1e-9)) + 1) * period
+        ticks = ticks[ticks < t_first - 1e-9] if k < len(schedule) else ticks
+        samples = np.column_stack([prefix.value(t).ravel() for t in ticks])
+        q_handoff = samples[:, -1]
+        held = np.column_stack([samples, q_handoff])
+        end = t_final + 1.0
+        applied = PiecewisePolynomial.ZeroOrderHold([0.0, *(ticks[1:] + lag), end], held)
+        joint_source = add(TrajectorySource(applied), "joint_space_plans")
+    else:
+        q_handoff = np.asarray(q_initial, float)
+        joint_source = add(ConstantVectorSource(q_handoff), "joint_space_plans")
+    builder.Connect(joint_source.get_output_port(), q_ref_sum.get_input_port(0))
+    if k < len(schedule):
+        runner = add(
+            PlanRunner(schedule[k:], control_period=period, t_first=t_first, q_offset=q_handoff),
+            "plan_runner",
         )
+        for name in ("iiwa_state", "iiwa_torque_external"):
+            builder.Connect(station_system.GetOutputPort(name), runner.GetInputPort(name))
+        q_ref_runner = runner.GetOutputPort("iiwa_position")
+        tau_ff_port = runner.GetOutputPort("iiwa_feedforward_torque")
+    else:
+        zero = np.zeros(NUM_JOINTS)
+        q_ref_runner = add(ConstantVectorSource(zero), "no_runner").get_output_port()
+        tau_ff_port = add(ConstantVectorSource(zero), "no_feedforward").get_output_port()
+    builder.Connect(q_ref_runner, q_ref_sum.get_input_port(1))
+    builder.Connect(q_ref_sum.get_output_port(), station_system.GetInputPort("iiwa_position"))
+    builder.Connect(tau_ff_port, station_system.GetInputPort("iiwa_feedforward_torque"))
+    # The gripper's setpoint: a C++ zero-order hold switching at the first step after the
+    # tick that starts each plan (as the runner's state did).
+    widths = [s.gripper_width for s in schedule]
+    switches = [_first_tick(s.t_start, period) + lag for s in schedule[1:]]
+    wsg = add(
+        TrajectorySource(
+            PiecewisePolynomial.ZeroOrderHold(
+                [0.0, *switches, t_final + 1.0], np.array([[*widths, widths[-1]]])
+            )
+        ),
+        "wsg_position",
     )
-    for name in ("iiwa_position_measured", "iiwa_velocity_estimated", "iiwa_torque_external"):
-        builder.Connect(station_system.GetOutputPort(name), runner.GetInputPort(name))
-    for name in ("iiwa_position", "iiwa_feedforward_torque", "wsg_position"):
-        builder.Connect(runner.GetOutputPort(name), station_system.GetInputPort(name))
+    builder.Connect(wsg.get_output_port(), station_system.GetInputPort("wsg_position"))
     force_limit = builder.AddSystem(ConstantVectorSource([scenario.station.gripper.force_limit]))
     force_limit.set_name("wsg_force_limit")
     builder.Connect(force_limit.get_output_port(), station_system.GetInputPort("wsg_force_limit"))
 
-    period = timeline.log_period
+    # One logger of one C++ Multiplexer (one publish per sample, not one per channel); the
+    # arm's measured state, the hinges and the fingers are read from the plant state after.
     channels = {
         "q_commanded": station_system.GetOutputPort("iiwa_position_commanded"),
-        "q_measured": station_system.GetOutputPort("iiwa_position_measured"),
-        "v_measured": station_system.GetOutputPort("iiwa_velocity_estimated"),
-        "tau_external": station_system.GetOutputPort("iiwa_torque_external"),
-        "tau_feedforward": runner.GetOutputPort("iiwa_feedforward_torque"),
+        "tau_feedforward": tau_ff_port,
         "tau_commanded": station_system.GetOutputPort("iiwa_torque_commanded"),
-        "door_angles": station_system.GetOutputPort("door_angles"),
-        "wsg_state": station_system.GetOutputPort("wsg_state_measured"),
+        "tau_external": station_system.GetOutputPort("iiwa_torque_external"),
         "plant_state": station_system.GetOutputPort("plant_state"),
     }
-    loggers = {name: LogVectorOutput(port, builder, period) for name, port in channels.items()}
+    mux = add(Multiplexer([port.size() for port in channels.values()]), "log_channels")
+    for i, port in enumerate(channels.values()):
+        builder.Connect(port, mux.get_input_port(i))
+    logger = LogVectorOutput(mux.get_output_port(), builder, timeline.log_period)
+    if _SEPARATE_LOGGERS:  # the 353b732 design's nine loggers, for doorlab.legacy (unused)
+        for name in _SEPARATE_LOG_PORTS:
+            LogVectorOutput(station_system.GetOutputPort(name), builder, timeline.log_period)
+        LogVectorOutput(tau_ff_port, builder, timeline.log_period)
     diagram = builder.Build()
     diagram.set_name("doorlab_episode")
 
@@ -300,7 +437,6 @@ def run_episode(
     context = simulator.get_mutable_context()
     _initialize(station, context, np.asarray(q_initial, float), scenario)
     simulator.set_target_realtime_rate(realtime_rate)
-    t_final = schedule[-1].t_end + timeline.extra_time
     if meshcat is not None:
         meshcat.StartRecording()
     wall_start = time.perf_counter()
@@ -317,10 +453,27 @@ def run_episode(
         meshcat.StopRecording()
         meshcat.PublishRecording()
 
-    logs = {name: logger.FindLog(context) for name, logger in loggers.items()}
-    t = logs["q_measured"].sample_times()
-    data = {name: log.data().T for name, log in logs.items()}
-    nq = station.plant.num_positions()
+    log = logger.FindLog(context)
+    t = log.sample_times()
+    columns = np.cumsum([0, *(port.size() for port in channels.values())])
+    samples = log.data().T
+    data = {
+        name: samples[:, start:end]
+        for name, start, end in zip(channels, columns[:-1], columns[1:], strict=True)
+    }
+    plant = station.plant
+    x = data["plant_state"]
+    nq = plant.num_positions()
+    q_all, v_all = x[:, :nq], x[:, nq:]
+    # Column indices of a model instance's positions/velocities in the plant's.
+    arm_q = plant.GetPositionsFromArray(station.iiwa, np.arange(nq)).astype(int)
+    arm_v = plant.GetVelocitiesFromArray(station.iiwa, np.arange(v_all.shape[1])).astype(int)
+    fingers = plant.GetPositionsFromArray(station.wsg, np.arange(nq)).astype(int)
+    hinges = [plant.GetJointByName(h, station.cupboard).position_start() for h in HINGES]
+    data["q_measured"] = q_all[:, arm_q]
+    data["v_measured"] = v_all[:, arm_v]
+    data["door_angles"] = q_all[:, hinges]
+    data["wsg_width"] = q_all[:, fingers[1]] - q_all[:, fingers[0]]  # right - left finger
     arc_index = (len(plans) - 1 if arc_plan_index is None else arc_plan_index) + 2
     arc = schedule[arc_index]
     result = EpisodeResult(
@@ -332,8 +485,8 @@ def run_episode(
         tau_feedforward=data["tau_feedforward"],
         tau_commanded=data["tau_commanded"],
         door_angles=data["door_angles"],
-        wsg_width=data["wsg_state"][:, 0],
-        plant_positions=data["plant_state"][:, :nq],
+        wsg_width=data["wsg_width"],
+        plant_positions=q_all,
         plan_names=tuple(s.plan.name for s in schedule),
         plan_starts=np.array([s.t_start for s in schedule]),
         arc_window=np.array([arc.t_start, arc.t_start + arc.plan.duration]),

@@ -7,17 +7,24 @@ inputs
     ``wsg_position`` (1) finger separation setpoint [m], ``wsg_force_limit`` (1) [N].
 outputs
     ``iiwa_position_commanded`` (7), ``iiwa_position_measured`` (7) [rad],
-    ``iiwa_velocity_estimated`` (7) [rad/s], ``iiwa_torque_commanded`` (7) [N m] (the torque the
-    joints receive, after saturation), ``iiwa_torque_external`` (7) [N m] (generalized contact
-    forces on the arm joints), ``wsg_state_measured`` (2) separation [m] and its rate [m/s],
+    ``iiwa_velocity_estimated`` (7) [rad/s], ``iiwa_state`` (14) both as [q; v],
+    ``iiwa_torque_commanded`` (7) [N m] (the torque the joints receive: the actuators'
+    after saturation plus, for ``stiffness``, the joints' damping -(Dq + h Kq) qdot),
+    ``iiwa_torque_external`` (7) [N m] (generalized contact forces on the arm joints),
+    ``wsg_state_measured`` (2) separation [m] and its rate [m/s],
     ``plant_state`` (the whole plant's [q; v]), ``door_angles`` (2) left/right hinge [rad].
 
 The inner loop is built from Drake's C++ systems only (no Python per simulation step):
 
-- ``stiffness`` (the seed's law) tau = Kq (q_ref - q) - Dq qdot + g(q) + tau_ff: the plant's
-  own PD actuators (integrated implicitly by the SAP solver, so stiff gains stay stable at the
-  2 ms step) with desired state (q_ref, 0), plus g(q) from an ``InverseDynamics`` system in
-  gravity-compensation mode and tau_ff; the plant clamps the total at the effort limits.
+- ``stiffness`` (the seed's law) tau = Kq (q_ref - q) - Dq qdot + g(q) + tau_ff: the spring
+  and g(q) from a ``JointStiffnessController`` (kd = 0) on the controller plant, plus tau_ff,
+  clamped at the effort limits (``Saturation``), one explicit torque per step; the damping
+  -(Dq + h Kq) qdot is the arm joints' own viscous damping, which SAP integrates implicitly
+  (stable at any step, and SAP has no PD constraint to solve). The h Kq term is the one SAP's
+  implicit PD added (see ``InnerLoopConfig``), so both loops give the same physics.
+- ``implicit_pd`` (the design before issue 9, for comparison): the plant's own PD actuators
+  (Kq, Dq) with desired state (q_ref, 0), SAP evaluating the spring at the step's end (so
+  they damp with Dq + h Kq), plus g(q) from ``InverseDynamics`` and tau_ff.
 - ``inverse_dynamics`` (the original station): ``InverseDynamicsController`` PID through M(q),
   the desired velocity from a discrete derivative of q_ref, plus tau_ff, then ``Saturation``.
 
@@ -52,7 +59,11 @@ from pydrake.multibody.plant import (
     MultibodyPlantConfig,
 )
 from pydrake.multibody.tree import ModelInstanceIndex, PdControllerGains, SpatialInertia
-from pydrake.systems.controllers import InverseDynamics, InverseDynamicsController
+from pydrake.systems.controllers import (
+    InverseDynamics,
+    InverseDynamicsController,
+    JointStiffnessController,
+)
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import (
     Adder,
@@ -92,7 +103,7 @@ class Station:
         scene_graph: The SceneGraph of the simulation plant.
         iiwa, wsg, cupboard: Model instances of the simulation plant.
         interpolator: The q_ref differentiator of the ``inverse_dynamics`` loop (None for
-            ``stiffness``); its state must be set to the initial q.
+            the other loops); its state must be set to the initial q.
     """
 
     diagram: Diagram
@@ -136,10 +147,10 @@ def add_cell(
     """
     parser = Parser(plant)
     models.add_package(parser)
-    (iiwa,) = parser.AddModels(url=models.model_url("iiwa7"))
-    (wsg,) = parser.AddModels(url=models.model_url("wsg_50"))
-    (cupboard,) = parser.AddModels(url=models.model_url("cupboard"))
-    (table,) = parser.AddModels(url=models.model_url("table"))
+    iiwa = models.add_model(parser, "iiwa7")
+    wsg = models.add_model(parser, "wsg_50")
+    cupboard = models.add_model(parser, "cupboard")
+    table = models.add_model(parser, "table")
     world = plant.world_frame()
     plant.WeldFrames(world, plant.GetFrameByName("iiwa_link_0", iiwa), RigidTransform())
     plant.WeldFrames(
@@ -167,7 +178,7 @@ def _p_C_left_handle() -> tuple[float, float, float]:
     plant = MultibodyPlant(0.0)
     parser = Parser(plant)
     models.add_package(parser)
-    (cupboard,) = parser.AddModels(url=models.model_url("cupboard"))
+    cupboard = models.add_model(parser, "cupboard")
     plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("cupboard_body", cupboard))
     plant.Finalize()
     context = plant.CreateDefaultContext()
@@ -204,6 +215,34 @@ def _filter_scene_collisions(plant: MultibodyPlant, scene_graph: SceneGraph) -> 
     )
 
 
+WORKING_GEOMETRIES = (
+    ("left_door", f"{CUPBOARD_MODEL}::slab_collision"),
+    ("left_door", f"{CUPBOARD_MODEL}::handle_collision"),
+)
+"""(body, geometry name) of the cupboard collision geometries the experiments touch: the left
+door that the gripper opens. Without arm collision only these keep their proximity role."""
+
+
+def _drop_untouched_collisions(plant: MultibodyPlant, scene_graph: SceneGraph) -> None:
+    """Removes the proximity role of the cupboard and table geometries nothing touches.
+
+    With a collision-free arm only the gripper can touch the scene, and it only ever touches
+    the left door (its pads on the handle): the carcass, the right door and the table cost
+    contact queries on every step (3-10 %) and change no result.
+    """
+    inspector = scene_graph.model_inspector()
+    source_id = plant.get_source_id()
+    keep = set()
+    for body_name, geometry_name in WORKING_GEOMETRIES:
+        frame_id = plant.GetBodyFrameIdOrThrow(plant.GetBodyByName(body_name).index())
+        keep.add(inspector.GetGeometryIdByName(frame_id, Role.kProximity, geometry_name))
+    for name in (CUPBOARD_MODEL, "table"):
+        for body in plant.GetBodyIndices(plant.GetModelInstanceByName(name)):
+            for geometry_id in plant.GetCollisionGeometriesForBody(plant.get_body(body)):
+                if geometry_id not in keep:
+                    scene_graph.RemoveRole(source_id, geometry_id, Role.kProximity)
+
+
 def gripper_spatial_inertia(finger_separation: float = 0.01) -> SpatialInertia:
     """Spatial inertia of the whole WSG-50 (body and fingers) about G's origin, in G.
 
@@ -213,7 +252,7 @@ def gripper_spatial_inertia(finger_separation: float = 0.01) -> SpatialInertia:
     plant = MultibodyPlant(0.0)
     parser = Parser(plant)
     models.add_package(parser)
-    (wsg,) = parser.AddModels(url=models.model_url("wsg_50"))
+    wsg = models.add_model(parser, "wsg_50")
     plant.WeldFrames(plant.world_frame(), plant.GetFrameByName(GRIPPER_BODY, wsg))
     plant.Finalize()
     context = plant.CreateDefaultContext()
@@ -235,7 +274,7 @@ def make_controller_plant() -> MultibodyPlant:
     plant = MultibodyPlant(0.0)
     parser = Parser(plant)
     models.add_package(parser)
-    (iiwa,) = parser.AddModels(url=models.model_url("iiwa7"))
+    iiwa = models.add_model(parser, "iiwa7")
     plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("iiwa_link_0", iiwa))
     lumped = plant.AddRigidBody(GRIPPER_LUMPED_BODY, iiwa, gripper_spatial_inertia())
     plant.WeldFrames(plant.GetFrameByName(L7_FRAME, iiwa), lumped.body_frame(), models.X_L7G)
@@ -256,6 +295,17 @@ def _set_friction(plant: MultibodyPlant, scene_graph: SceneGraph, friction: floa
         scene_graph.AssignRole(source_id, geometry_id, new_props, RoleAssign.kReplace)
 
 
+def joint_damping(config: StationConfig) -> np.ndarray:
+    """The damping that acts on each arm joint with the stiffness loop, (7,) [N m s/rad].
+
+    Dq dq_scale + h Kq (see :class:`doorlab.config.InnerLoopConfig`): the h Kq term is what
+    SAP's implicit PD actuators added by evaluating the spring at the step's end.
+    """
+    loop = config.inner_loop
+    dq = np.asarray(loop.dq, float) * loop.dq_scale
+    return dq + config.time_step * np.asarray(loop.kq, float)
+
+
 def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> Station:
     """Builds the station Diagram.
 
@@ -265,6 +315,7 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
 
     Returns:
         The built station.
+
     """
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(_plant_config(config), builder)
@@ -277,19 +328,26 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
     )
     for hinge in (LEFT_HINGE, RIGHT_HINGE):
         plant.GetJointByName(hinge, cupboard).set_default_damping(config.hinge_damping)
-    stiffness = config.inner_loop.kind == "stiffness"
+    kind = config.inner_loop.kind
+    kq = np.asarray(config.inner_loop.kq, float)
+    dq = np.asarray(config.inner_loop.dq, float) * config.inner_loop.dq_scale
+    damping = joint_damping(config)
     arm_actuators = [plant.GetJointActuatorByName(name, iiwa) for name in ARM_JOINTS]
     for actuator, limit in zip(arm_actuators, JOINT_TORQUE_LIMITS, strict=True):
         actuator.set_effort_limit(float(limit))
-    if stiffness:
-        for actuator, kq, dq in zip(
-            arm_actuators, config.inner_loop.kq, config.inner_loop.dq, strict=True
-        ):
-            d = float(dq) * config.inner_loop.dq_scale
-            actuator.set_controller_gains(PdControllerGains(p=float(kq), d=d))
+    if kind == "stiffness":
+        # The damping half of the law is the joints' own viscous damping: SAP integrates it
+        # implicitly (stable at any step), and no PD constraint is left for the solver.
+        for name, d in zip(ARM_JOINTS, damping, strict=True):
+            plant.GetJointByName(name, iiwa).set_default_damping(float(d))
+    elif kind == "implicit_pd":
+        for actuator, p, d in zip(arm_actuators, kq, dq, strict=True):
+            actuator.set_controller_gains(PdControllerGains(p=float(p), d=float(d)))
     plant.Finalize()
     _set_friction(plant, scene_graph, config.friction)
     _filter_scene_collisions(plant, scene_graph)
+    if not (config.arm_collision or config.scene_collision):
+        _drop_untouched_collisions(plant, scene_graph)
 
     controller_plant = make_controller_plant()
 
@@ -310,8 +368,35 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
     builder.ExportOutput(q_ref.get_output_port(), "iiwa_position_commanded")
 
     interpolator = None
-    if stiffness:
-        # tau = Kq (q_ref - q) + Dq (0 - qdot) [plant PD] + g(q) + tau_ff [actuation input].
+    if kind == "stiffness":
+        # tau = sat(Kq (q_ref - q) + g(q) + tau_ff) [actuation input, explicit: evaluated at
+        # the step's start] - Dq qdot [joint damping, implicit in SAP].
+        desired = add(Multiplexer([NUM_JOINTS, NUM_JOINTS]), "desired_state")
+        zero_velocity = add(ConstantVectorSource(np.zeros(NUM_JOINTS)), "zero_velocity")
+        builder.Connect(q_ref.get_output_port(), desired.get_input_port(0))
+        builder.Connect(zero_velocity.get_output_port(), desired.get_input_port(1))
+        spring = add(
+            JointStiffnessController(controller_plant, kq, np.zeros(NUM_JOINTS)),
+            "stiffness_plus_gravity",
+        )
+        builder.Connect(arm_state, spring.get_input_port_estimated_state())
+        builder.Connect(desired.get_output_port(), spring.get_input_port_desired_state())
+        adder = add(Adder(2, NUM_JOINTS), "stiffness_plus_feedforward")
+        builder.Connect(spring.get_output_port_actuation(), adder.get_input_port(0))
+        builder.Connect(tau_ff.get_output_port(), adder.get_input_port(1))
+        saturation = add(Saturation(-JOINT_TORQUE_LIMITS, JOINT_TORQUE_LIMITS), "torque_saturation")
+        builder.Connect(adder.get_output_port(), saturation.get_input_port())
+        builder.Connect(saturation.get_output_port(), plant.get_actuation_input_port(iiwa))
+        # The torque the joints receive includes the damping the joints apply themselves.
+        damping_torque = add(MatrixGain(-np.diag(damping)), "joint_damping_torque")
+        builder.Connect(demux.get_output_port(1), damping_torque.get_input_port())
+        commanded = add(Adder(2, NUM_JOINTS), "torque_commanded")
+        builder.Connect(saturation.get_output_port(), commanded.get_input_port(0))
+        builder.Connect(damping_torque.get_output_port(), commanded.get_input_port(1))
+        builder.ExportOutput(commanded.get_output_port(), "iiwa_torque_commanded")
+    elif kind == "implicit_pd":
+        # The 353b732 design: the plant's PD actuators with desired state (q_ref, 0) + g(q) +
+        # tau_ff; SAP adds one PD constraint per joint.
         gravity = add(
             InverseDynamics(
                 controller_plant, InverseDynamics.InverseDynamicsMode.kGravityCompensation
@@ -358,6 +443,7 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
         builder.Connect(saturation.get_output_port(), plant.get_actuation_input_port(iiwa))
         builder.ExportOutput(saturation.get_output_port(), "iiwa_torque_commanded")
 
+    builder.ExportOutput(arm_state, "iiwa_state")
     builder.ExportOutput(demux.get_output_port(0), "iiwa_position_measured")
     builder.ExportOutput(demux.get_output_port(1), "iiwa_velocity_estimated")
     builder.ExportOutput(

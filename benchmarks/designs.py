@@ -1,0 +1,202 @@
+"""Benchmark group ``design/<controller>_<doors>``: the episode against Drake's floor and the
+old (353b732) design, side by side in one process, round-robin over the repeats.
+
+Per repeat, three simulations of the same 24 s episode, each timed around
+``Simulator.AdvanceTo`` only (no IK, no diagram building):
+
+``floor``
+    The same cell (the current station) with the episode's commands (q_ref, tau_ff every
+    control period, the gripper setpoint) replayed from C++ ``TrajectorySource``s: no Python,
+    no loggers. What Drake itself costs for this episode.
+``new``
+    The episode as ``doorlab.run_controller`` runs it (``EpisodeResult.wall_time_s``).
+``old``
+    The 353b732 design (:mod:`doorlab.legacy`): PD actuators, the whole scene colliding,
+    Python ticks from t = 0.
+
+Each is timed twice: wall-clock (``*_s``) and the CPU time of this process (``*_cpu_s``,
+``time.process_time``), which other processes on a shared machine disturb far less (they
+still share caches and memory bandwidth). Ratios are formed per repeat from the CPU times
+(the three ran back to back) and their median is reported: ``new_over_floor`` (target
+<= 1.15) and ``old_over_new`` (>= 1.3); ``*_wall`` are the same ratios from wall times.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import gc
+import statistics
+import time
+from collections.abc import Iterator, Sequence
+
+from common import Context, CpuWatch, Metric, Settings
+
+NEW_OVER_FLOOR_TARGET = 1.15
+OLD_OVER_NEW_TARGET = 1.3
+
+
+def recorded_commands(controller: str, doors: str):
+    """Runs the episode once with the logs at the control period; returns (scenario, result)."""
+    from doorlab import Scenario, run_controller
+
+    scenario = Scenario(controller=controller, doors=doors)
+    scenario.timeline.log_period = scenario.timeline.control_period
+    result, _ = run_controller(scenario)
+    scenario.timeline.log_period = Scenario().timeline.log_period
+    return scenario, result
+
+
+def build_floor(scenario, result):
+    """A Simulator of the station driven by the recorded commands; returns (simulator, t_final).
+
+    Every source is a C++ trajectory (zero-order holds at the recorded samples), so a step of
+    this simulator costs what the plant and the inner loop cost, nothing else.
+    """
+    import numpy as np
+    from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import ConstantVectorSource, TrajectorySource
+    from pydrake.trajectories import PiecewisePolynomial
+
+    from doorlab.constants import Q_HOME
+    from doorlab.simulation import _initialize
+    from doorlab.station import build_station
+
+    builder = DiagramBuilder()
+    station = build_station(scenario.station)
+    system = builder.AddSystem(station.diagram)
+    t = result.t
+    breaks = np.append(t, t[-1] + 1.0)
+
+    def zoh(samples: np.ndarray) -> TrajectorySource:
+        samples = np.vstack([samples, samples[-1:]]).T
+        return builder.AddSystem(
+            TrajectorySource(PiecewisePolynomial.ZeroOrderHold(breaks, samples))
+        )
+
+    for port, samples in (
+        ("iiwa_position", result.q_commanded),
+        ("iiwa_feedforward_torque", result.tau_feedforward),
+    ):
+        builder.Connect(zoh(samples).get_output_port(), system.GetInputPort(port))
+    # The setpoint the schedule sent (result.wsg_width is the measured separation).
+    gripper = scenario.station.gripper
+    grasp_start = result.plan_starts[2]  # hold, move, then the grasp closes the fingers
+    width = np.where(t < grasp_start, gripper.approach_width, gripper.grasp_width)
+    builder.Connect(zoh(width[:, None]).get_output_port(), system.GetInputPort("wsg_position"))
+    force = builder.AddSystem(ConstantVectorSource([gripper.force_limit]))
+    builder.Connect(force.get_output_port(), system.GetInputPort("wsg_force_limit"))
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    ResetIntegratorFromFlags(simulator, "explicit_euler", scenario.station.time_step)
+    _initialize(station, simulator.get_mutable_context(), Q_HOME, scenario)
+    return simulator, float(t[-1])
+
+
+@contextlib.contextmanager
+def advance_clock() -> Iterator[list[float]]:
+    """Within the block, sums the wall and CPU time [s] of every ``Simulator.AdvanceTo``."""
+    from pydrake.systems.analysis import Simulator
+
+    spent = [0.0, 0.0]
+    original = Simulator.AdvanceTo
+
+    def timed(self, t):
+        wall, cpu = time.perf_counter(), time.process_time()
+        try:
+            return original(self, t)
+        finally:
+            spent[0] += time.perf_counter() - wall
+            spent[1] += time.process_time() - cpu
+
+    Simulator.AdvanceTo = timed
+    try:
+        yield spent
+    finally:
+        Simulator.AdvanceTo = original
+
+
+def time_floor(scenario, result) -> tuple[float, float]:
+    """Wall and CPU time [s] of one floor episode (Initialize and AdvanceTo)."""
+    simulator, t_final = build_floor(scenario, result)
+    wall, cpu = time.perf_counter(), time.process_time()
+    simulator.Initialize()
+    simulator.AdvanceTo(t_final)
+    return time.perf_counter() - wall, time.process_time() - cpu
+
+
+def time_episode(run, scenario) -> tuple[float, float, float]:
+    """(wall, CPU, simulated) time [s] of ``run(scenario)``'s simulation."""
+    with advance_clock() as spent:
+        result, _ = run(scenario)
+    return spent[0], spent[1], result.sim_time_s
+
+
+def bench_designs(names: Sequence[str], settings: Settings, ctx: Context) -> list[Metric]:
+    """floor / new / old for each selected ``design/<controller>_<doors>``, round-robin."""
+    from doorlab import Scenario, run_controller
+    from doorlab.legacy import run_legacy_controller
+
+    ctx.warm()
+    recorded = {}
+    for name in names:
+        controller, doors = name.split("/", 1)[1].split("_")
+        recorded[name] = recorded_commands(controller, doors)
+    keys = [f"{v}_{u}" for v in ("floor", "new", "old") for u in ("s", "cpu_s")]
+    keys += ["new_over_floor", "old_over_new", "new_over_floor_wall", "old_over_new_wall"]
+    keys += ["new_rtf"]
+    samples = {n: {k: [] for k in keys} for n in names}
+    watches = {n: [] for n in names}
+    for _ in range(settings.repeats):
+        for name in names:
+            controller, doors = name.split("/", 1)[1].split("_")
+            scenario = Scenario(controller=controller, doors=doors)
+            watch = CpuWatch()
+            times = {"floor": time_floor(*recorded[name])}
+            gc.collect()
+            wall, cpu, sim_time = time_episode(run_controller, scenario)
+            times["new"] = (wall, cpu)
+            gc.collect()
+            times["old"] = time_episode(run_legacy_controller, scenario)[:2]
+            gc.collect()
+            watches[name].append(watch.other_cores())
+            s = samples[name]
+            for variant, (wall, cpu) in times.items():
+                s[f"{variant}_s"].append(wall)
+                s[f"{variant}_cpu_s"].append(cpu)
+            s["new_over_floor"].append(times["new"][1] / times["floor"][1])
+            s["old_over_new"].append(times["old"][1] / times["new"][1])
+            s["new_over_floor_wall"].append(times["new"][0] / times["floor"][0])
+            s["old_over_new_wall"].append(times["old"][0] / times["new"][0])
+            s["new_rtf"].append(sim_time / times["new"][0])
+            print(
+                f"  {name}: CPU floor {times['floor'][1]:.2f} s, new {times['new'][1]:.2f} s, "
+                f"old {times['old'][1]:.2f} s (new/floor {s['new_over_floor'][-1]:.2f}, "
+                f"old/new {s['old_over_new'][-1]:.2f})",
+                flush=True,
+            )
+    metrics = []
+    for name in names:
+        s = samples[name]
+        other = [w for w in watches[name] if w is not None]
+        targets = {
+            "new_over_floor": ("<", NEW_OVER_FLOOR_TARGET),
+            "old_over_new": (">=", OLD_OVER_NEW_TARGET),
+        }
+        produced = [
+            Metric(
+                f"{name}/{key}",
+                name,
+                "s" if key.endswith("_s") else "x",
+                values,
+                better="higher"
+                if key in ("old_over_new", "old_over_new_wall", "new_rtf")
+                else "lower",
+                target=targets.get(key),
+            )
+            for key, values in s.items()
+        ]
+        for m in produced:
+            m.other_cpu_cores = statistics.mean(other) if other else None
+        metrics += produced
+    return metrics
