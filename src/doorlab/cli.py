@@ -71,7 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(
-        dest="command", metavar="{run,report,sweep}", parser_class=OneLineParser
+        dest="command", metavar="{run,report,sweep,pset}", parser_class=OneLineParser
     )
 
     run = sub.add_parser("run", help="run one controller and write its metrics, logs and plots")
@@ -126,6 +126,11 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="parallel runs (default: the number of cores)",
     )
+    report.add_argument(
+        "--pdf",
+        action="store_true",
+        help="also print the page to report.pdf (needs headless Chromium)",
+    )
     _scheduler(report)
     _common(report)
 
@@ -167,6 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument(
         "--force", action="store_true", help="start over in an existing output folder"
     )
+    add_pset_parser(sub)
     return parser
 
 
@@ -177,6 +183,52 @@ def _scheduler(parser: argparse.ArgumentParser) -> None:
         metavar="tcp://HOST:PORT",
         help="run on this Dask cluster instead of local processes (workers need doorlab)",
     )
+
+
+def add_pset_parser(sub) -> None:
+    """``doorlab pset {init,grade}``: the problem-set folder and its grader."""
+    pset = sub.add_parser("pset", help="write the problem-set folder for students, or grade one")
+    actions = pset.add_subparsers(
+        dest="pset_command", metavar="{init,grade}", parser_class=OneLineParser, required=True
+    )
+    init = actions.add_parser("init", help="write the problem-set folder DIR")
+    init.add_argument("dir", type=Path, metavar="DIR", help="the folder to write")
+    init.add_argument(
+        "--solutions", action="store_true", help="write the reference solutions, not the stubs"
+    )
+    init.add_argument("--force", action="store_true", help="replace an existing DIR")
+    grade = actions.add_parser("grade", help="grade the problem-set folder DIR")
+    grade.add_argument("dir", type=Path, metavar="DIR", help="a folder written by pset init")
+    grade.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="results JSON (Gradescope format; default DIR/test_results.json)",
+    )
+    grade.add_argument(
+        "--jobs", type=bounded_int(1), default=2, help="tests run at a time (default 2)"
+    )
+
+
+def _pset(args: argparse.Namespace) -> int:
+    from doorlab.pset.folder import check_problem_set, init_folder
+
+    if args.pset_command == "init":
+        out = init_folder(args.dir, solutions=args.solutions, force=args.force)
+        kind = "solutions" if args.solutions else "student stubs"
+        print(f"doorlab pset: wrote {out} ({kind}); grade it with: doorlab pset grade {out}")
+        return 0
+    from doorlab.pset.grader import grade, pretty_format_json_results, write_results
+
+    folder = check_problem_set(args.dir)
+    out = args.out or folder / "test_results.json"
+    if out.parent and not out.parent.is_dir():
+        raise OutputError(f"cannot write {out}: {out.parent} is not a folder")
+    results = grade(folder, jobs=args.jobs)
+    write_results(results, out)
+    print(pretty_format_json_results(out))
+    print(f"doorlab pset: wrote {out} in {results['execution_time']:.0f} s")
+    return 0
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
@@ -332,7 +384,18 @@ def _report(args: argparse.Namespace) -> int:
 
     base = _scenario(args)
     jobs = args.jobs or os.cpu_count() or 1
-    return run_report(args.out, jobs=jobs, force=args.force, base=base, scheduler=args.scheduler)
+    chromium = None
+    if args.pdf:
+        from doorlab.pdf import find_chromium
+
+        chromium = find_chromium()  # before any run: a missing browser is a one-line error
+    code = run_report(args.out, jobs=jobs, force=args.force, base=base, scheduler=args.scheduler)
+    if args.pdf:
+        from doorlab.pdf import print_pdf
+
+        pdf = print_pdf(args.out / "index.html", args.out / "report.pdf", chromium=chromium)
+        print(f"doorlab report: wrote {pdf}")
+    return code
 
 
 def _sweep(args: argparse.Namespace) -> int:
@@ -386,8 +449,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as e:  # argparse: --help, --version, or a usage error already printed
         return e.code if isinstance(e.code, int) else USAGE_ERROR
     try:
-        command = {"run": _run, "report": _report, "sweep": _sweep}[args.command]
-        return command(args)
+        commands = {"run": _run, "report": _report, "sweep": _sweep, "pset": _pset}
+        return commands[args.command](args)
     except DoorlabError as e:
         print(f"doorlab {args.command}: error: {e}", file=sys.stderr)
         return USAGE_ERROR if isinstance(e, (ConfigError, OutputError)) else 1

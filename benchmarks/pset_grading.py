@@ -1,0 +1,93 @@
+"""Wall time of a full grading of a correct problem-set folder (target: under 3 minutes).
+
+    python benchmarks/pset_grading.py [--repeats N] [--jobs J] [--out FILE.json]
+
+Writes a ``--solutions`` folder to a temporary directory and grades it N times from scratch
+(reference episodes included), printing the median wall time against the target, the score,
+and the per-job process times of the last grading. Timings depend on the machine's load: the
+line ``other cpu`` is the average number of cores other processes used meanwhile.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from doorlab.pset.folder import init_folder
+from doorlab.pset.grader import grade
+
+TARGET_S = 180.0
+"""The issue's target for a full grading on 2 cores [s]."""
+
+
+def _cpu_times() -> tuple[float, float]:
+    """(busy, total) jiffies of the whole machine, from /proc/stat."""
+    fields = [float(x) for x in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    idle = fields[3] + fields[4]
+    return sum(fields) - idle, sum(fields)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=1, help="gradings (default 1)")
+    parser.add_argument("--jobs", type=int, default=2, help="processes at a time (default 2)")
+    parser.add_argument("--out", type=Path, default=None, help="write the figures as JSON")
+    args = parser.parse_args(argv)
+    walls, last = [], None
+    with tempfile.TemporaryDirectory(prefix="doorlab_pset_bench_") as tmp:
+        folder = init_folder(Path(tmp) / "solutions", solutions=True)
+        busy0, total0 = _cpu_times()
+        self0 = os.times()
+        for _ in range(args.repeats):
+            start = time.perf_counter()
+            last = grade(folder, jobs=args.jobs)
+            walls.append(time.perf_counter() - start)
+        busy1, total1 = _cpu_times()
+        self1 = os.times()
+    ticks = os.sysconf("SC_CLK_TCK")
+    cores = os.cpu_count() or 1
+    elapsed = (total1 - total0) / ticks / cores
+    ours = (
+        self1.user
+        + self1.system
+        + self1.children_user
+        + self1.children_system
+        - self0.user
+        - self0.system
+        - self0.children_user
+        - self0.children_system
+    )
+    other_cpu = max(0.0, ((busy1 - busy0) / ticks - ours) / max(elapsed, 1e-9))
+    median = statistics.median(walls)
+    max_score = last["extra_data"]["max_score"]
+    print(f"full grading of a --solutions folder, jobs={args.jobs}, {cores} cores")
+    print(
+        f"  wall time       median {median:.1f} s over {len(walls)} (min {min(walls):.1f}, "
+        f"max {max(walls):.1f}); target < {TARGET_S:.0f} s: "
+        f"{'met' if median < TARGET_S else 'NOT met'}"
+    )
+    print(f"  score           {last['score']:g} / {max_score:g}")
+    print(f"  other cpu       {other_cpu:.2f} cores")
+    figures = {
+        "wall_s": walls,
+        "median_wall_s": median,
+        "target_s": TARGET_S,
+        "score": last["score"],
+        "max_score": max_score,
+        "jobs": args.jobs,
+        "cores": cores,
+        "other_cpu": other_cpu,
+    }
+    if args.out:
+        args.out.write_text(json.dumps(figures, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""The simulated manipulation station of the problem set (runs on doorlab)."""

@@ -1,0 +1,427 @@
+"""The problem set (``doorlab pset``): the folder, the seed notebook's own cells, the grader.
+
+Expensive work is shared through module-scoped fixtures: one solutions folder runs the seed's
+code cells (three episodes) and its last cell runs the full grader (with the reference
+episodes); the other gradings reuse those reference figures and run only the tests a case
+needs (``only=``), so this module simulates about a dozen episodes in all.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from doorlab.cli import main
+from doorlab.pset.folder import STUDENT_FUNCTIONS, init_folder
+from doorlab.pset.grader import TESTS, grade, pretty_format_json_results
+
+SEED = Path(__file__).resolve().parents[2] / "shared" / "seed" / "000_f5f6c01857f13f46.txt"
+"""The seed notebook as text (read at test time; its code is not copied into the project)."""
+if not SEED.exists():
+    SEED = Path("/work/shared/seed/000_f5f6c01857f13f46.txt")
+SEED_CELLS_TIMEOUT_S = 900
+"""The seed's cells: three episodes and a full grading (~1-2 min on a busy 2-core machine)."""
+
+UNIT = {t.name.split(": ", 1)[1]: t.name for t in TESTS if "unit test" in t.name}
+EPISODE = {
+    key: next(t.name for t in TESTS if "episode" in t.name and word in t.name)
+    for key, word in (("ik", "IK"), ("velocity", "velocity"), ("impedance", "impedance"))
+}
+
+
+def _code_cells(text: str) -> list[str]:
+    """The seed's code cells: after each ``In [ ]:`` marker, the longest run of lines that
+    parses as Python once IPython magics are removed (the prose that follows does not)."""
+    cells = []
+    for part in re.split(r"^In\s*\[\s*\]:\s*$", text, flags=re.M)[1:]:
+        lines = part.strip("\n").splitlines()
+        for k in range(len(lines), 0, -1):
+            source = "\n".join(lines[:k])
+            try:
+                compile(_strip_magics(source), "<cell>", "exec")
+            except SyntaxError:
+                continue
+            if source.strip():
+                cells.append(source)
+            break
+    return cells
+
+
+def _strip_magics(source: str) -> str:
+    return "\n".join(line for line in source.splitlines() if not line.lstrip().startswith("%"))
+
+
+def _adapt(source: str) -> str:
+    """IPython magics removed; the standalone ``meshcat`` server cells replaced by Drake's
+    Meshcat (documented in the folder's README)."""
+    out = []
+    for line in _strip_magics(source).splitlines():
+        if re.match(r"\s*import meshcat(\.geometry as g)?\s*$", line):
+            continue
+        if re.match(r"\s*vis = meshcat\.Visualizer\(\)\s*$", line):
+            out.append("from manip_station_sim.manipulation_station_simulator import StartMeshcat")
+            out.append("vis = StartMeshcat()")
+            continue
+        out.append(line.replace("vis.delete()", "vis.Delete()"))
+    return "\n".join(out)
+
+
+_DRIVER = """
+import json, sys, traceback
+cells = json.load(open(sys.argv[1]))
+namespace = {"__name__": "__main__"}
+for i, source in enumerate(cells):
+    print(f"--- cell {i}", flush=True)
+    try:
+        exec(compile(source, f"<seed cell {i}>", "exec"), namespace)
+    except BaseException:
+        traceback.print_exc()
+        sys.exit(10 + i)
+print("--- all cells ran", flush=True)
+log = namespace.get("iiwa_position_command_log")
+if log is not None:
+    facts = {"t": log.sample_times().tolist(), "t_plan": list(map(float, namespace["t_plan"]))}
+    print("FACTS " + json.dumps(facts), flush=True)
+"""
+
+
+@pytest.fixture(scope="module")
+def seed_cells() -> list[str]:
+    if not SEED.exists():
+        pytest.skip(f"the seed notebook is not at {SEED}")
+    return _code_cells(SEED.read_text())
+
+
+@pytest.fixture(scope="module")
+def solutions_run(tmp_path_factory, seed_cells):
+    """A fresh ``--solutions`` folder in which the seed's cells ran in order."""
+    folder = tmp_path_factory.mktemp("pset") / "solutions"
+    assert main(["pset", "init", str(folder), "--solutions"]) == 0
+    cells_file = folder.parent / "cells.json"
+    cells_file.write_text(json.dumps([_adapt(c) for c in seed_cells]))
+    env = dict(os.environ, MPLBACKEND="Agg")
+    # The seed's last cell runs `python3 ./test_pset_5a.py`: python3 must be this interpreter.
+    env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
+    env["PYTHONPATH"] = str(folder)
+    proc = subprocess.run(
+        [sys.executable, "-c", _DRIVER, str(cells_file)],
+        cwd=folder,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=SEED_CELLS_TIMEOUT_S,
+    )
+    return folder, proc
+
+
+@pytest.fixture(scope="module")
+def reference(solutions_run) -> dict:
+    """The reference episodes' figures from the solutions' grading (reused below)."""
+    folder, _ = solutions_run
+    return json.loads((folder / "test_results.json").read_text())["extra_data"]["reference"]
+
+
+def _wrong_folder(tmp_path_factory, name: str, edits: list[tuple[str, str, str]]) -> Path:
+    """A solutions folder with the given (file, old, new) text replacements."""
+    folder = tmp_path_factory.mktemp("wrong") / name
+    init_folder(folder, solutions=True)
+    for rel, old, new in edits:
+        path = folder / rel
+        text = path.read_text()
+        assert text.count(old) == 1, f"{old!r} not found once in {rel}"
+        path.write_text(text.replace(old, new))
+    return folder
+
+
+def _scores(results: dict) -> dict[str, float]:
+    return {t["name"]: t["score"] for t in results["tests"]}
+
+
+def _failed(results: dict) -> set[str]:
+    return {t["name"] for t in results["tests"] if t["score"] < t["max_score"]}
+
+
+def _output(results: dict, name: str) -> str:
+    return next(t["output"] for t in results["tests"] if t["name"] == name)
+
+
+# The folder ------------------------------------------------------------------------------
+
+
+def test_init_writes_the_original_layout_with_stubs_or_solutions(tmp_path):
+    stubs, solutions = tmp_path / "stubs", tmp_path / "solutions"
+    assert main(["pset", "init", str(stubs)]) == 0
+    assert main(["pset", "init", str(solutions), "--solutions"]) == 0
+    expected = {
+        "open_left_door.py",
+        "ik_utils.py",
+        "manip_station_sim/__init__.py",
+        "manip_station_sim/manipulation_station_simulator.py",
+        "manip_station_sim/robot_plans.py",
+        "manip_station_sim/plan_utils.py",
+        "pset5_open_cabinet_door.ipynb",
+        "test_pset_5a.py",
+        "README.md",
+    }
+    for folder in (stubs, solutions):
+        files = {str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file()}
+        assert files == expected
+        notebook = json.loads((folder / "pset5_open_cabinet_door.ipynb").read_text())
+        assert notebook["nbformat"] == 4
+        assert sum(c["cell_type"] == "code" for c in notebook["cells"]) >= 8
+        for rel in expected - {"pset5_open_cabinet_door.ipynb", "README.md"}:
+            compile((folder / rel).read_text(), rel, "exec")  # valid Python
+            # Thin files: everything but the student's code delegates to doorlab.
+            assert len((folder / rel).read_text().splitlines()) < 130, rel
+    stub_text = "".join((stubs / f).read_text() for f in expected if f.endswith(".py"))
+    solution_text = "".join((solutions / f).read_text() for f in expected if f.endswith(".py"))
+    assert stub_text.count("raise NotImplementedError") == len(STUDENT_FUNCTIONS)
+    assert stub_text.count("Your code here") == len(STUDENT_FUNCTIONS)
+    assert "NotImplementedError" not in solution_text
+    readme = (stubs / "README.md").read_text()
+    for t in TESTS:
+        assert t.name in readme
+
+
+def test_init_refuses_a_bad_destination(tmp_path, capsys):
+    folder = tmp_path / "pset"
+    assert main(["pset", "init", str(folder)]) == 0
+    marker = folder / "mine.txt"
+    marker.write_text("keep")
+    capsys.readouterr()
+    assert main(["pset", "init", str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "--force" in err
+    assert marker.exists()
+    a_file = tmp_path / "file.txt"
+    a_file.write_text("x")
+    assert main(["pset", "init", str(a_file / "pset")]) == 2
+    assert "is a file" in capsys.readouterr().err
+    assert main(["pset", "init", str(folder), "--force", "--solutions"]) == 0
+    assert not marker.exists()
+    assert main(["pset", "grade", str(tmp_path / "nowhere")]) == 2
+    assert main(["pset", "grade", str(tmp_path)]) == 2
+    assert "not a problem-set folder" in capsys.readouterr().err
+
+
+# The seed's own cells, and the solutions' full marks --------------------------------------
+
+
+def test_seed_cells_run_unchanged_in_a_solutions_folder(seed_cells, solutions_run):
+    folder, proc = solutions_run
+    # setup, 2 meshcat cells, 3 tasks x (simulate + 4 analysis cells), 3 plots, the grader
+    assert len(seed_cells) >= 18, len(seed_cells)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert proc.stdout.count("--- cell") == len(seed_cells)
+    assert "--- all cells ran" in proc.stdout
+    # The last cell printed the grader's summary.
+    assert "Total score:" in proc.stdout
+    # The seed slices its logs by index (t_start = 11 -> sample 1100): samples every 0.01 s
+    # from t = 0, and the arc plan starts at 11 s (hold 2 s, move 7 s, grasp 1 + 1 s).
+    facts = json.loads(proc.stdout.split("FACTS ", 1)[1].splitlines()[0])
+    t = np.array(facts["t"])
+    assert t[0] == 0.0 and np.allclose(np.diff(t), 0.01)
+    assert t[1100] == pytest.approx(11.0) and t[2100] == pytest.approx(21.0)
+    assert facts["t_plan"] == pytest.approx([0.0, 2.0, 9.0, 11.0, 22.0])
+
+
+def test_solutions_score_full_marks_with_fresh_references(solutions_run):
+    folder, proc = solutions_run
+    results = json.loads((folder / "test_results.json").read_text())
+    assert [t["name"] for t in results["tests"]] == [t.name for t in TESTS]
+    assert results["score"] == sum(t.max_score for t in TESTS), pretty_format_json_results(
+        folder / "test_results.json"
+    )
+    assert set(results["extra_data"]["reference"]) == {
+        "reference:ik",
+        "reference:velocity",
+        "reference:impedance",
+    }
+    for t in results["tests"]:
+        assert t["output"].strip(), t["name"]
+
+
+# Stubs, wrong implementations, exceptions, NaN, endless loops ------------------------------
+
+
+def test_stubs_score_zero_without_crashing(tmp_path, reference, monkeypatch, capsys):
+    """`doorlab pset grade` on the untouched stubs (reusing the reference episodes)."""
+    import functools
+
+    from doorlab.pset import grader
+
+    monkeypatch.setattr(grader, "grade", functools.partial(grade, reference=reference))
+    folder = tmp_path / "stubs"
+    assert main(["pset", "init", str(folder)]) == 0
+    assert main(["pset", "grade", str(folder)]) == 0
+    out = capsys.readouterr().out
+    assert f"Total score: 0 / {sum(t.max_score for t in TESTS):g}" in out
+    results = json.loads((folder / "test_results.json").read_text())
+    assert results["score"] == 0
+    assert len(results["tests"]) == len(TESTS)
+    for t in results["tests"]:
+        assert "NotImplementedError" in t["output"], t
+
+
+def test_two_disjoint_mistakes_lose_exactly_their_tests(tmp_path_factory, reference):
+    """IK ignores `duration` (knots at 0..10 s) and the impedance plan uses K_v = 10 N/m: the
+    IK unit test fails but the IK episode (duration 10 s) passes; the impedance unit test and
+    episode fail (the arm barely pulls); everything else passes."""
+    folder = _wrong_folder(
+        tmp_path_factory,
+        "ik_duration_impedance_gain",
+        [
+            ("ik_utils.py", "np.linspace(0.0, duration,", "np.linspace(0.0, 10.0,"),
+            (
+                "manip_station_sim/robot_plans.py",
+                "F = np.concatenate([50.0 * theta_n_W, 100.0 * err_xyz])",
+                "F = np.concatenate([50.0 * theta_n_W, 10.0 * err_xyz])",
+            ),
+        ],
+    )
+    results = grade(folder, reference=reference)
+    assert _failed(results) == {
+        UNIT["InverseKinPointwise"],
+        UNIT["IiwaTaskSpaceImpedancePlan.CalcTorqueCommand"],
+        EPISODE["impedance"],
+    }, pretty(results)
+    assert "must span" in _output(results, UNIT["InverseKinPointwise"])
+    assert "expected" in _output(results, UNIT["IiwaTaskSpaceImpedancePlan.CalcTorqueCommand"])
+    assert "FAILED door opened" in _output(results, EPISODE["impedance"])
+
+
+def test_calc_p_Q_without_the_handle_offset_fails_its_tests(tmp_path_factory, reference):
+    """calc_p_Q returns the arc point itself (absolute, not relative to the start)."""
+    folder = _wrong_folder(
+        tmp_path_factory,
+        "calc_p_Q_absolute",
+        [("open_left_door.py", "return p_WQ - p_WC_handle", "return p_WQ")],
+    )
+    only = [UNIT["calc_p_Q"], UNIT["calc_R_WL7_ref"], EPISODE["velocity"]]
+    results = grade(folder, reference=reference, only=only)
+    assert _failed(results) == {UNIT["calc_p_Q"], EPISODE["velocity"]}, pretty(results)
+    assert "expected" in _output(results, UNIT["calc_p_Q"])
+
+
+def test_velocity_with_the_error_sign_flipped_fails_its_tests(tmp_path_factory, reference):
+    folder = _wrong_folder(
+        tmp_path_factory,
+        "velocity_sign",
+        [
+            (
+                "manip_station_sim/robot_plans.py",
+                "V_des = np.concatenate([50.0 * theta_n_W, 100.0 * err_xyz])",
+                "V_des = np.concatenate([50.0 * theta_n_W, -100.0 * err_xyz])",
+            )
+        ],
+    )
+    vel = UNIT["IiwaTaskSpaceVelocityPlan.CalcPositionCommand"]
+    imp = UNIT["IiwaTaskSpaceImpedancePlan.CalcTorqueCommand"]
+    results = grade(folder, reference=reference, only=[vel, imp, EPISODE["velocity"]])
+    assert _failed(results) == {vel, EPISODE["velocity"]}, pretty(results)
+
+
+def test_orientation_axis_left_in_L7_and_wrong_yaw_fail_their_unit_tests(
+    tmp_path_factory, reference
+):
+    """Two frame mistakes: the velocity plan's axis n not re-expressed in W, and
+    calc_R_WL7_ref turning the wrong way."""
+    folder = _wrong_folder(
+        tmp_path_factory,
+        "frames",
+        [
+            (
+                "manip_station_sim/robot_plans.py",
+                "theta_n_W = self.R_WL7 @ (angle_axis.angle() * angle_axis.axis())\n        V_des",
+                "theta_n_W = angle_axis.angle() * angle_axis.axis()\n        V_des",
+            ),
+            ("open_left_door.py", "yaw = -(angle_end", "yaw = (angle_end"),
+        ],
+    )
+    vel = UNIT["IiwaTaskSpaceVelocityPlan.CalcPositionCommand"]
+    only = [vel, UNIT["calc_R_WL7_ref"], UNIT["calc_p_Q"]]
+    results = grade(folder, reference=reference, only=only)
+    assert _failed(results) == {vel, UNIT["calc_R_WL7_ref"]}, pretty(results)
+    assert "roll-pitch-yaw" in _output(results, UNIT["calc_R_WL7_ref"])
+
+
+def test_exception_and_nan_fail_only_their_tests(tmp_path_factory, reference):
+    """The velocity plan returns NaN, the impedance plan divides by zero: their tests fail
+    with the cause in the output; the grader and the other tests carry on."""
+    folder = _wrong_folder(
+        tmp_path_factory,
+        "nan_and_exception",
+        [
+            (
+                "manip_station_sim/robot_plans.py",
+                "return q_iiwa + q_dot_des * control_period",
+                "return q_iiwa + q_dot_des * control_period * np.nan",
+            ),
+            (
+                "manip_station_sim/robot_plans.py",
+                "return self.Jv_WL7q.T @ F",
+                "return self.Jv_WL7q.T @ F * (1 // 0)",
+            ),
+        ],
+    )
+    vel = UNIT["IiwaTaskSpaceVelocityPlan.CalcPositionCommand"]
+    imp = UNIT["IiwaTaskSpaceImpedancePlan.CalcTorqueCommand"]
+    only = [vel, imp, UNIT["calc_p_Q"], EPISODE["velocity"]]
+    results = grade(folder, reference=reference, only=only)
+    assert _failed(results) == {vel, imp, EPISODE["velocity"]}, pretty(results)
+    assert "nan" in _output(results, vel)
+    assert "ZeroDivisionError" in _output(results, imp)
+    assert "non-finite" in _output(results, EPISODE["velocity"])
+
+
+def test_an_endless_loop_hits_the_time_limit_only(tmp_path_factory):
+    folder = _wrong_folder(
+        tmp_path_factory,
+        "endless",
+        [
+            (
+                "open_left_door.py",
+                "    yaw = -(angle_end",
+                "    while True:\n        pass\n    yaw = -(angle_end",
+            )
+        ],
+    )
+    only = [UNIT["calc_R_WL7_ref"], UNIT["calc_p_Q"]]
+    # Unit limit 60 s x 0.2 = 12 s: enough for a correct unit test (2-5 s) on a busy machine.
+    results = grade(folder, only=only, time_limit_scale=0.2)
+    assert _failed(results) == {UNIT["calc_R_WL7_ref"]}, pretty(results)
+    assert "time limit" in _output(results, UNIT["calc_R_WL7_ref"])
+
+
+def pretty(results: dict) -> str:
+    return "\n".join(
+        f"{t['name']}: {t['score']}/{t['max_score']}\n{t['output']}" for t in results["tests"]
+    )
+
+
+def test_our_notebook_runs_in_the_solutions_folder(solutions_run):
+    """The notebook `init` writes: every code cell but the last (the grader, run above) runs."""
+    folder, _ = solutions_run
+    notebook = json.loads((folder / "pset5_open_cabinet_door.ipynb").read_text())
+    cells = ["".join(c["source"]) for c in notebook["cells"] if c["cell_type"] == "code"]
+    assert "test_pset_5a" in cells[-1]
+    cells_file = folder.parent / "our_cells.json"
+    cells_file.write_text(json.dumps([_strip_magics(c) for c in cells[:-1]]))
+    env = dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=str(folder))
+    proc = subprocess.run(
+        [sys.executable, "-c", _DRIVER, str(cells_file)],
+        cwd=folder,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=SEED_CELLS_TIMEOUT_S,
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "--- all cells ran" in proc.stdout
