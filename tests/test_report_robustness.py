@@ -97,6 +97,7 @@ def test_section_prints_the_folders_metrics_and_embeds_its_figures():
     assert "ik_failed" in findings[0] and f"{ROBUST_YAW_DEG:+.0f}" in findings[2]
     runs_table = re.search(r'<table id="runs-table">(.*?)</table>', page, flags=re.S).group(1)
     assert "robust_" not in runs_table
+    assert "3 (2 runs of their own, 1 shared" in page
     summary = json.loads((folder / "summary.json").read_text())
     assert [r["run"] for r in summary["robustness"]] == [c.run for c, _ in grid]
     assert FAILED_ERROR not in section  # the table shows the status; the run folder the error

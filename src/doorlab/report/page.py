@@ -182,6 +182,16 @@ def build_page(
         ("total wall time", wall),
         ("runs", f"{len(loaded)} ({n_ok} ok, {len(loaded) - n_ok} not ok)"),
     ]
+    if robustness is not None:
+        shared = {run.name for run in loaded}
+        own = sum(case.run not in shared for case, _ in robustness)
+        meta.append(
+            (
+                "robustness cases",
+                f"{len(robustness)} ({own} runs of their own, {len(robustness) - own} shared "
+                "with the runs above; not part of the exit code)",
+            )
+        )
     tasks = _tasks(page)  # the answers first: they add the figures in page order
     robust = None
     if robustness is not None:
