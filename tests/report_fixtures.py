@@ -96,8 +96,9 @@ def short_report() -> Path:
     failed = report_dir / "runs" / FAILED_RUN
     failed.mkdir()
     (failed / "metrics.json").write_text(
-        json.dumps({"controller": "ik", "doors": "open", "status": "ik_failed",
-                    "error": FAILED_ERROR})
+        json.dumps(
+            {"controller": "ik", "doors": "open", "status": "ik_failed", "error": FAILED_ERROR}
+        )
     )
     records = [RunRecord(name, folder) for name, folder in folders.items()]
     records.insert(1, RunRecord(FAILED_RUN, failed))
@@ -127,3 +128,63 @@ def single_run_report() -> Path:
     (folder / "scenario.yaml").write_text(result.scenario_yaml)
     build_page([RunRecord("velocity_closed", folder)], report_dir, total_wall_time_s=1.0, jobs=1)
     return report_dir
+
+
+ROBUST_YAW_DEG = 5.0
+"""Yaw error of the fixture's short adaptive robustness run [deg]."""
+
+
+@functools.cache
+def robustness_report() -> tuple[Path, list]:
+    """A report page with a robustness section built from three small cases, no re-run of
+    the shared short runs: ``velocity_closed`` reused at yaw 0, one short adaptive run at
+    :data:`ROBUST_YAW_DEG` and a hand-written ``ik_failed`` run at -10 deg.
+
+    Returns:
+        (report folder, [(RobustnessCase, RunRecord)] of the section).
+    """
+    import json
+    import math
+
+    from doorlab.report import RobustnessCase, RunRecord, build_page
+    from doorlab.robustness import case_scenario
+    from doorlab.runs import run_to_folder
+
+    folders = short_run_folders()
+    report_dir = _root() / "robust"
+    runs_dir = report_dir / "runs"
+    runs_dir.mkdir(parents=True)
+    yaw = math.radians(ROBUST_YAW_DEG)
+    adaptive = runs_dir / "robust_adaptive_yaw_p5"
+    run_to_folder(
+        case_scenario(short_scenario("adaptive"), "adaptive", yaw), adaptive, replay=False
+    )
+    failed = runs_dir / "robust_ik_yaw_m10"
+    failed.mkdir()
+    (failed / "metrics.json").write_text(
+        json.dumps(
+            {"controller": "ik", "doors": "closed", "status": "ik_failed", "error": FAILED_ERROR}
+        )
+    )
+    grid = [
+        (
+            RobustnessCase("robust_ik_yaw_m10", "ik", math.radians(-10.0)),
+            RunRecord("robust_ik_yaw_m10", failed),
+        ),
+        (
+            RobustnessCase("velocity_closed", "velocity", 0.0),
+            RunRecord("velocity_closed", folders["velocity_closed"]),
+        ),
+        (
+            RobustnessCase("robust_adaptive_yaw_p5", "adaptive", yaw),
+            RunRecord("robust_adaptive_yaw_p5", adaptive),
+        ),
+    ]
+    build_page(
+        [RunRecord("velocity_closed", folders["velocity_closed"])],
+        report_dir,
+        total_wall_time_s=3.0,
+        jobs=1,
+        robustness=grid,
+    )
+    return report_dir, grid

@@ -137,14 +137,16 @@ def test_metrics_table_has_one_row_per_run_with_units(report):
     rows = re.findall(r'<tr data-run="([^"]+)"', table)
     assert sorted(rows) == sorted(metrics) and len(rows) == len(SHORT_RUNS) + 1
     headers = re.findall(r"<th[^>]*>([^<]*)</th>", table)
-    for unit_header in ("max radial error [mm]", "max orientation error [deg]",
-                        "peak external torque [N m]", "max joint speed [rad/s]",
-                        "sim time [s]"):
+    for unit_header in (
+        "max radial error [mm]",
+        "max orientation error [deg]",
+        "peak external torque [N m]",
+        "max joint speed [rad/s]",
+        "sim time [s]",
+    ):
         assert unit_header in headers
     summary = json.loads((folder / "summary.json").read_text())
-    assert [r["name"] for r in summary["runs"]] == [
-        SHORT_RUNS[0], FAILED_RUN, *SHORT_RUNS[1:]
-    ]
+    assert [r["name"] for r in summary["runs"]] == [SHORT_RUNS[0], FAILED_RUN, *SHORT_RUNS[1:]]
 
 
 def test_failed_run_appears_with_status_and_error(report):
@@ -166,7 +168,11 @@ def test_answers_print_the_metrics_of_the_folders(report):
             value_text = text.removesuffix(f" {unit}").strip() if unit else text.strip()
             expected = metrics[run][key] * UNIT_SCALE.get(unit, 1.0)
             assert abs(float(value_text) - expected) <= printed_tolerance(value_text) * 1.001, (
-                qid, run, key, text, expected,
+                qid,
+                run,
+                key,
+                text,
+                expected,
             )
             checked += 1
     assert checked >= 15
@@ -207,7 +213,7 @@ def test_run_report_reports_a_failed_experiment_and_keeps_the_others(tmp_path: P
     broken.controller = "teleport"  # rejected by validate() inside the worker
     experiments = [short_experiment("velocity_open"), ("broken", broken)]
     out = tmp_path / "report"
-    code = run_report(out, jobs=2, experiments=experiments, progress=False)
+    code = run_report(out, jobs=2, experiments=experiments, progress=False, robustness=False)
     assert code == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report"]
     good = json.loads((out / "runs" / "velocity_open" / "metrics.json").read_text())
@@ -222,16 +228,16 @@ def test_run_report_reports_a_failed_experiment_and_keeps_the_others(tmp_path: P
     assert (out / "figures").is_dir()
 
     with pytest.raises(OutputError, match="already exists"):
-        run_report(out, jobs=1, experiments=[], progress=False)
+        run_report(out, jobs=1, experiments=[], progress=False, robustness=False)
 
 
 def test_run_report_rejects_bad_arguments(tmp_path: Path):
     """jobs < 1 and duplicate experiment names raise ConfigError before anything is written."""
     with pytest.raises(ConfigError, match="jobs"):
-        run_report(tmp_path / "a", jobs=0, experiments=[], progress=False)
+        run_report(tmp_path / "a", jobs=0, experiments=[], progress=False, robustness=False)
     twice = [short_experiment("velocity_open"), short_experiment("velocity_open")]
     with pytest.raises(ConfigError, match="unique"):
-        run_report(tmp_path / "b", jobs=1, experiments=twice, progress=False)
+        run_report(tmp_path / "b", jobs=1, experiments=twice, progress=False, robustness=False)
     assert list(tmp_path.iterdir()) == []
 
 
@@ -250,7 +256,14 @@ def test_run_report_on_a_dask_cluster(tmp_path: Path):
         silence_logs=40,
     ) as cluster:
         address = cluster.scheduler_address
-        code = run_report(out, jobs=1, experiments=experiments, progress=False, scheduler=address)
+        code = run_report(
+            out,
+            jobs=1,
+            experiments=experiments,
+            progress=False,
+            scheduler=address,
+            robustness=False,
+        )
     folder = out / "runs" / "ik_2_open"
     metrics = json.loads((folder / "metrics.json").read_text())
     assert code == (0 if metrics["status"] == "ok" else 1)

@@ -131,6 +131,11 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="also print the page to report.pdf (needs headless Chromium)",
     )
+    report.add_argument(
+        "--no-robustness",
+        action="store_true",
+        help="skip the robustness runs and section (yaw error sweep)",
+    )
     _scheduler(report)
     _common(report)
 
@@ -389,7 +394,14 @@ def _report(args: argparse.Namespace) -> int:
         from doorlab.pdf import find_chromium
 
         chromium = find_chromium()  # before any run: a missing browser is a one-line error
-    code = run_report(args.out, jobs=jobs, force=args.force, base=base, scheduler=args.scheduler)
+    code = run_report(
+        args.out,
+        jobs=jobs,
+        force=args.force,
+        base=base,
+        scheduler=args.scheduler,
+        robustness=not args.no_robustness,
+    )
     if args.pdf:
         from doorlab.pdf import print_pdf
 

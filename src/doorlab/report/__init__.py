@@ -5,7 +5,8 @@
 - :mod:`doorlab.report.folders`: reading run folders (metrics, logs, trackings);
 - :mod:`doorlab.report.context`, :mod:`doorlab.report.answers` and
   :mod:`doorlab.report.closed_door`: the seed's six questions
-  and answers GENERATED from the measured metrics;
+  and answers GENERATED from the measured metrics; :mod:`doorlab.report.robustness_page`:
+  the robustness section (every controller against the cupboard's yaw error);
 - :mod:`doorlab.report.page`: ``index.html`` from the Jinja2 templates in
   ``doorlab/templates`` (shared with the sweep page), ``summary.json`` and ``figures/``.
 
@@ -18,8 +19,10 @@ from doorlab.report.answers import QUESTIONS, TASK_TITLES
 from doorlab.report.experiments import (
     EXPERIMENTS,
     IK_KNOTS,
+    RobustnessCase,
     RunRecord,
     make_experiments,
+    make_robustness_cases,
     run_report,
 )
 from doorlab.report.folders import CONTROLLER_COLORS, discover_runs
@@ -32,11 +35,13 @@ __all__ = [
     "QUESTIONS",
     "SIGNIFICANT_DIGITS",
     "TASK_TITLES",
+    "RobustnessCase",
     "RunRecord",
     "build_page",
     "discover_runs",
     "format_number",
     "make_experiments",
+    "make_robustness_cases",
     "metric_unit",
     "run_report",
 ]

@@ -66,6 +66,60 @@ EXPERIMENTS: tuple[tuple[str, Scenario], ...] = make_experiments()
 
 
 @dataclass(frozen=True)
+class RobustnessCase:
+    """One cell of the report's robustness grid: a controller, doors closed, one yaw error.
+
+    Attributes:
+        run: Name of the experiment (run folder) holding it: a seed experiment when its
+            scenario is the very same case, else ``robust_<controller>_yaw_<m|p><deg>``.
+        controller: Registry name.
+        yaw_error_rad: ``station.cupboard_yaw_error`` [rad].
+    """
+
+    run: str
+    controller: str
+    yaw_error_rad: float
+
+
+def make_robustness_cases(
+    base: Scenario | None = None,
+    experiments: Sequence[tuple[str, Scenario]] = (),
+    yaw_errors_deg: Sequence[float] | None = None,
+) -> tuple[tuple[RobustnessCase, ...], tuple[tuple[str, Scenario], ...]]:
+    """The robustness grid: every controller of the registry on every yaw error, doors closed.
+
+    Args:
+        base: The scenario the cases vary (:func:`doorlab.robustness.case_scenario`).
+        experiments: Runs already in the report: a case whose scenario equals one of them
+            reuses that run instead of running it twice.
+        yaw_errors_deg: The yaw errors [deg] (default: the acceptance grid, -10 to +10).
+
+    Returns:
+        (cases in (controller, yaw) order, the (name, scenario) experiments still to run).
+    """
+    import math
+
+    from doorlab.controllers import REGISTRY
+    from doorlab.robustness import ACCEPTANCE_YAW_ERRORS_DEG, case_scenario
+
+    base = base if base is not None else Scenario()
+    yaws = ACCEPTANCE_YAW_ERRORS_DEG if yaw_errors_deg is None else tuple(yaw_errors_deg)
+    cases, new = [], []
+    for controller in REGISTRY:
+        for yaw_deg in yaws:
+            scenario = case_scenario(base, controller, math.radians(yaw_deg))
+            same = [name for name, existing in experiments if existing == scenario]
+            if same:
+                name = same[0]
+            else:
+                sign = "m" if yaw_deg < 0 else "p"
+                name = f"robust_{controller}_yaw_{sign}{abs(yaw_deg):g}".replace(".", "_")
+                new.append((name, scenario))
+            cases.append(RobustnessCase(name, controller, math.radians(yaw_deg)))
+    return tuple(cases), tuple(new)
+
+
+@dataclass(frozen=True)
 class RunRecord:
     """One experiment's run folder and how the run went.
 
@@ -104,7 +158,9 @@ def _record_failure(
     return RunRecord(name, run_dir, "error", message, elapsed)
 
 
-def _run_experiment(name: str, scenario: Scenario) -> tuple[RunRecord, dict[str, bytes]]:
+def _run_experiment(
+    name: str, scenario: Scenario, replay: bool = True
+) -> tuple[RunRecord, dict[str, bytes]]:
     """Worker: runs one experiment; returns its record and its run folder's files.
 
     The folder is written in the worker's temporary directory and shipped back as bytes, so a
@@ -119,7 +175,7 @@ def _run_experiment(name: str, scenario: Scenario) -> tuple[RunRecord, dict[str,
     with tempfile.TemporaryDirectory(prefix="doorlab_run_") as tmp:
         folder = Path(tmp) / name
         try:
-            outcome = run_to_folder(scenario, folder, replay=True)
+            outcome = run_to_folder(scenario, folder, replay=replay)
             record = RunRecord(
                 name, folder, outcome.status, outcome.message, time.perf_counter() - start
             )
@@ -174,6 +230,7 @@ def run_report(
     progress: bool = True,
     experiments: Sequence[tuple[str, Scenario]] | None = None,
     scheduler: str | None = None,
+    robustness: bool = True,
 ) -> int:
     """Runs the experiments in parallel and writes the report folder atomically.
 
@@ -187,9 +244,13 @@ def run_report(
         experiments: (name, scenario) pairs to run instead of ``make_experiments(base)``.
         scheduler: Run on this Dask cluster (``tcp://HOST:PORT``) instead of ``jobs`` local
             processes (:mod:`doorlab.executor`).
+        robustness: Also run the robustness grid (:func:`make_robustness_cases` on ``base``,
+            reusing the experiments' identical runs; no replay) and add its section.
 
     Returns:
-        0 if every run's status is ``ok``, 1 otherwise (failed runs are on the page).
+        0 if every experiment's status is ``ok``, 1 otherwise (failed runs are on the page).
+        The robustness runs do not count: the seed's plans are expected to fail at some yaw
+        errors, and the section reports that.
 
     Raises:
         ConfigError: ``jobs`` < 1, duplicate or unsafe experiment names, invalid ``base``.
@@ -212,18 +273,31 @@ def run_report(
         if not name or name.startswith(".") or "/" in name or "\\" in name:
             raise ConfigError(f"experiment name {name!r} is not a plain folder name")
 
+    cases: tuple[RobustnessCase, ...] = ()
+    extra: tuple[tuple[str, Scenario], ...] = ()
+    if robustness:
+        cases, extra = make_robustness_cases(base, experiments)
+        clash = sorted(set(names) & {name for name, _ in extra})
+        if clash:
+            raise ConfigError(f"experiment names clash with the robustness runs: {clash}")
+    seed_names = set(names)
+
     staging = prepare_output(Path(out_dir), force=force)
     try:
         runs_dir = staging / "runs"
         runs_dir.mkdir()
         start = time.perf_counter()
         records: dict[str, RunRecord] = {}
-        bar = _Progress(len(experiments), enabled=progress)
-        if experiments:
-            with open_executor(jobs=min(jobs, len(experiments)), scheduler=scheduler) as pool:
+        everything = (*experiments, *extra)
+        bar = _Progress(len(everything), enabled=progress)
+        if everything:
+            with open_executor(jobs=min(jobs, len(everything)), scheduler=scheduler) as pool:
                 futures = {
-                    pool.submit(_run_experiment, name, scenario): (name, scenario)
-                    for name, scenario in experiments
+                    pool.submit(_run_experiment, name, scenario, name in seed_names): (
+                        name,
+                        scenario,
+                    )
+                    for name, scenario in everything
                 }
                 for future in concurrent.futures.as_completed(futures):
                     name, scenario = futures[future]
@@ -240,7 +314,8 @@ def run_report(
         bar.close(f"runs done; {bar.failed} not ok; writing the page")
         from doorlab.report.page import build_page
 
-        build_page(ordered, staging, total_wall_time_s=total, jobs=jobs)
+        grid = [(case, records[case.run]) for case in cases] if robustness else None
+        build_page(ordered, staging, total_wall_time_s=total, jobs=jobs, robustness=grid)
         commit_output(staging, Path(out_dir))
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)

@@ -118,10 +118,15 @@ def load_run(record: RunRecord, kinematics: Kinematics) -> LoadedRun:
 def discover_runs(report_dir: Path) -> list[RunRecord]:
     """Run records of an existing report folder (``runs/<name>/``), in experiment order.
 
-    Folders named like :data:`EXPERIMENTS` come first in that order, then any others by name.
+    Folders named like :data:`EXPERIMENTS` come first in that order, then any others by name;
+    the robustness grid's own runs (``robust_*``) are not experiments and are left out.
     """
     runs_dir = Path(report_dir) / "runs"
-    folders = {p.name: p for p in runs_dir.iterdir() if p.is_dir() and not p.name.startswith(".")}
+    folders = {
+        p.name: p
+        for p in runs_dir.iterdir()
+        if p.is_dir() and not p.name.startswith((".", "robust_"))
+    }
     order = [name for name, _ in EXPERIMENTS if name in folders]
     order += sorted(set(folders) - set(order))
     return [RunRecord(name, folders[name]) for name in order]

@@ -1,0 +1,152 @@
+"""Tests of the report's robustness section: the grid of cases, the section built from small
+run folders (``report_fixtures.robustness_report``: one reused short run, one short adaptive
+run, one hand-written failure), the exit code and ``doorlab report --no-robustness``.
+
+The short runs are structure fixtures: their doors need not open (the arc lasts 2 s), so the
+tests check that the page prints what the folders hold, not the physics of the full runs.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+
+import pytest
+from report_fixtures import FAILED_ERROR, ROBUST_YAW_DEG, robustness_report, short_scenario
+
+from doorlab.config import Scenario
+from doorlab.controllers import REGISTRY
+from doorlab.report import make_experiments, make_robustness_cases, run_report
+from doorlab.robustness import ACCEPTANCE_YAW_ERRORS_DEG
+
+
+def _section(page: str) -> str:
+    match = re.search(r'<section id="robustness">(.*?)</section>', page, flags=re.S)
+    assert match, "no robustness section"
+    return match.group(1)
+
+
+def test_robustness_cases_cover_the_registry_and_reuse_identical_runs():
+    """Every registry controller on every acceptance yaw error, doors closed; the seed's
+    closed-door runs are reused at yaw 0 and nothing else is run twice."""
+    experiments = make_experiments()
+    cases, new = make_robustness_cases(None, experiments)
+    assert [(c.controller, round(math.degrees(c.yaw_error_rad), 9)) for c in cases] == [
+        (name, y) for name in REGISTRY for y in ACCEPTANCE_YAW_ERRORS_DEG
+    ]
+    at_zero = {c.controller: c.run for c in cases if c.yaw_error_rad == 0.0}
+    assert at_zero["ik"] == "ik_10_closed"
+    assert at_zero["velocity"] == "velocity_closed"
+    assert at_zero["impedance"] == "impedance_closed"
+    seed = dict(experiments)
+    reused = [c for c in cases if c.run in seed]
+    assert len(new) == len(cases) - len(reused)
+    names = [name for name, _ in new]
+    assert len(set(names)) == len(names) and not set(names) & set(seed)
+    by_name = dict(new)
+    for case in cases:
+        scenario = by_name.get(case.run, seed.get(case.run))
+        assert scenario.controller == case.controller and scenario.doors == "closed"
+        assert scenario.station.cupboard_yaw_error == pytest.approx(case.yaw_error_rad)
+
+
+def test_robustness_cases_keep_the_base_physics():
+    base = Scenario()
+    base.station.time_step = 5e-4
+    _, new = make_robustness_cases(base, ())
+    assert all(s.station.time_step == 5e-4 for _, s in new)
+
+
+def test_section_prints_the_folders_metrics_and_embeds_its_figures():
+    """One table row per case with the run's own numbers, both figures embedded and saved,
+    a finding per controller, the failed run's status; the section's runs stay out of the
+    seed's runs table."""
+    folder, grid = robustness_report()
+    page = (folder / "index.html").read_text(encoding="utf-8")
+    section = _section(page)
+    assert "TRUE" in section and "BELIEVED" in section and "exit code" in section
+    rows = re.findall(r'<tr data-run="([^"]+)"[^>]*>(.*?)</tr>', section, flags=re.S)
+    assert [name for name, _ in rows] == [case.run for case, _ in grid]
+    for (case, record), (_, row) in zip(grid, rows, strict=True):
+        cells = re.findall(r"<td[^>]*>(.*?)</td>", row, flags=re.S)
+        assert case.controller in cells[1]
+        assert float(cells[2]) == pytest.approx(math.degrees(case.yaw_error_rad), abs=0.05)
+        metrics = json.loads((Path(record.run_dir) / "metrics.json").read_text())
+        assert cells[3] == metrics["status"]
+        if "door_opening_arc_end_rad" in metrics:
+            shown = float(cells[4].split("/")[0])
+            assert shown == pytest.approx(
+                math.degrees(metrics["door_opening_arc_end_rad"]), abs=0.05
+            )
+            assert float(cells[6]) == pytest.approx(
+                metrics["peak_external_torque_arc_Nm"], abs=0.005
+            )
+        else:
+            assert cells[4].startswith("-")
+    adaptive = json.loads((Path(grid[2][1].run_dir) / "metrics.json").read_text())
+    if adaptive.get("hinge_estimate_error_m") is not None:
+        assert f"{1e3 * adaptive['hinge_estimate_error_m']:.1f}" in rows[2][1]
+    images = re.findall(r'<img src="data:image/png;base64,', section)
+    assert len(images) == 2
+    assert (folder / "figures" / "robustness.png").is_file()
+    assert (folder / "figures" / "hinge_convergence.png").is_file()
+    findings = re.findall(r"<li>(.*?)</li>", section, flags=re.S)
+    assert [f.split(":")[0] for f in findings] == ["ik", "velocity", "adaptive"]
+    assert "ik_failed" in findings[0] and f"{ROBUST_YAW_DEG:+.0f}" in findings[2]
+    runs_table = re.search(r'<table id="runs-table">(.*?)</table>', page, flags=re.S).group(1)
+    assert "robust_" not in runs_table
+    assert "3 (2 runs of their own, 1 shared" in page
+    summary = json.loads((folder / "summary.json").read_text())
+    assert [r["run"] for r in summary["robustness"]] == [c.run for c, _ in grid]
+    assert FAILED_ERROR not in section  # the table shows the status; the run folder the error
+
+
+def test_failing_robustness_runs_do_not_fail_the_report(tmp_path: Path, monkeypatch):
+    """A robustness run that fails (here: rejected by validate() in the worker) shows in the
+    section and leaves the exit code at 0; robustness=False writes no section."""
+    from doorlab.report import RobustnessCase, experiments
+
+    broken = short_scenario()
+    broken.controller = "teleport"
+    case = RobustnessCase("robust_broken", "velocity", math.radians(5.0))
+    monkeypatch.setattr(
+        experiments,
+        "make_robustness_cases",
+        lambda base, given: ((case,), (("robust_broken", broken),)),
+    )
+    out = tmp_path / "with"
+    assert run_report(out, jobs=1, experiments=[], progress=False) == 0
+    section = _section((out / "index.html").read_text(encoding="utf-8"))
+    assert re.search(r'<tr data-run="robust_broken" class="warn">.*?error', section, re.S)
+    assert (
+        json.loads((out / "runs" / "robust_broken" / "metrics.json").read_text())["status"]
+        == "error"
+    )
+
+    out = tmp_path / "without"
+    assert run_report(out, jobs=1, experiments=[], progress=False, robustness=False) == 0
+    page = (out / "index.html").read_text(encoding="utf-8")
+    assert 'id="robustness"' not in page
+    assert "robustness" not in json.loads((out / "summary.json").read_text())
+
+
+def test_cli_no_robustness_reaches_run_report(tmp_path: Path, monkeypatch, capsys):
+    """``doorlab report --no-robustness`` asks run_report for no robustness runs; the default
+    asks for them; --help names the flag."""
+    import doorlab.report
+    from doorlab.cli import main
+
+    calls = []
+
+    def fake(out, **kwargs):
+        calls.append(kwargs["robustness"])
+        return 0
+
+    monkeypatch.setattr(doorlab.report, "run_report", fake)
+    assert main(["report", "--out", str(tmp_path / "a"), "--no-robustness"]) == 0
+    assert main(["report", "--out", str(tmp_path / "b")]) == 0
+    assert calls == [False, True]
+    assert main(["report", "--help"]) == 0
+    assert "--no-robustness" in capsys.readouterr().out
