@@ -17,6 +17,8 @@ from pathlib import Path
 import pytest
 from report_fixtures import single_run_report
 
+from doorlab.pdf import HEADLESS_FLAGS
+
 CHECK_SCRIPT = """
 <script>
 window.addEventListener("load", () => {
@@ -59,10 +61,12 @@ def test_every_image_and_table_renders_in_chromium(tmp_path: Path):
     copy = tmp_path / "index_check.html"
     copy.write_text(page.replace("</body>", CHECK_SCRIPT + "</body>"), encoding="utf-8")
     command = [
-        binary, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
-        "--no-first-run", "--disable-background-networking", "--disable-component-update",
-        "--disable-sync", f"--user-data-dir={tmp_path / 'profile'}",
-        "--virtual-time-budget=5000", "--dump-dom", copy.as_uri(),
+        binary,
+        *HEADLESS_FLAGS,
+        f"--user-data-dir={tmp_path / 'profile'}",
+        "--virtual-time-budget=5000",
+        "--dump-dom",
+        copy.as_uri(),
     ]
     done = subprocess.run(
         command, capture_output=True, text=True, timeout=BROWSER_TIMEOUT_S, check=False

@@ -25,6 +25,7 @@ import yaml
 from doorlab.cli import main
 from doorlab.config import Scenario
 from doorlab.errors import ConfigError
+from doorlab.pdf import HEADLESS_FLAGS
 from doorlab.sweep import load_spec, parse_spec, plan_runs, read_table, run_one, run_sweep
 from doorlab.sweep.results import RESULTS_CSV, RESULTS_PARQUET, TIMING_COLUMNS
 from doorlab.sweep.spec import scenario_key
@@ -400,13 +401,7 @@ def test_sweep_page_renders_in_chromium(local_sweep, tmp_path: Path):
     copy.write_text(page.replace("</body>", CHECK_SCRIPT + "</body>"), encoding="utf-8")
     command = [
         binary,
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--no-first-run",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
+        *HEADLESS_FLAGS,
         f"--user-data-dir={tmp_path / 'profile'}",
         "--virtual-time-budget=5000",
         "--dump-dom",

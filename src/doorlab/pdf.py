@@ -19,6 +19,18 @@ DEBIAN_PACKAGE = "chromium"
 """The Debian/Ubuntu package that provides headless Chromium."""
 PRINT_TIMEOUT_S = 120.0
 """Time limit of one print [s] (a report page prints in a few seconds)."""
+HEADLESS_FLAGS = (
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--host-resolver-rules=MAP * ~NOTFOUND",
+)
+"""Headless Chromium that reaches no network (no background services, no host resolution);
+the pages load nothing but their own file. Shared by the PDF printer and the browser tests."""
 
 
 def find_chromium() -> str:
@@ -54,14 +66,7 @@ def print_pdf(html: str | Path, pdf: str | Path, *, chromium: str | None = None)
         out = Path(tmp) / "page.pdf"
         command = [
             binary,
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--no-first-run",
-            "--disable-background-networking",
-            "--disable-component-update",
-            "--disable-sync",
-            "--host-resolver-rules=MAP * ~NOTFOUND",
+            *HEADLESS_FLAGS,
             f"--user-data-dir={Path(tmp) / 'profile'}",
             "--no-pdf-header-footer",
             f"--print-to-pdf={out}",
