@@ -8,7 +8,6 @@ handle fails, status ik_failed). The local sweep is run once per module and shar
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import signal
@@ -25,7 +24,6 @@ import yaml
 from doorlab.cli import main
 from doorlab.config import Scenario
 from doorlab.errors import ConfigError
-from doorlab.pdf import HEADLESS_FLAGS
 from doorlab.sweep import load_spec, parse_spec, plan_runs, read_table, run_one, run_sweep
 from doorlab.sweep.results import RESULTS_CSV, RESULTS_PARQUET, TIMING_COLUMNS
 from doorlab.sweep.spec import scenario_key
@@ -384,7 +382,7 @@ def test_run_sweep_api_returns_the_table_without_writing(tmp_path: Path, monkeyp
 def test_sweep_page_renders_in_chromium(local_sweep, tmp_path: Path):
     """The sweep page is self-contained and renders in headless Chromium: every embedded plot
     decodes, every table has rows; one plot per axis, a heatmap for the pair of grid axes."""
-    from test_report_browser import BROWSER_TIMEOUT_S, CHECK_SCRIPT, chromium
+    from test_report_browser import render_check
 
     _, out, table = local_sweep
     page = (out / "index.html").read_text(encoding="utf-8")
@@ -394,25 +392,7 @@ def test_sweep_page_renders_in_chromium(local_sweep, tmp_path: Path):
     assert len(images) == 2 + 1  # two axes, one pair of axes
     rows = re.findall(r'<tr data-run="(\d+)"', page)
     assert [int(r) for r in rows] == list(table["run"])
-    binary = chromium()
-    if binary is None:
-        pytest.skip("chromium not installed: apt-get install chromium")
-    copy = tmp_path / "index_check.html"
-    copy.write_text(page.replace("</body>", CHECK_SCRIPT + "</body>"), encoding="utf-8")
-    command = [
-        binary,
-        *HEADLESS_FLAGS,
-        f"--user-data-dir={tmp_path / 'profile'}",
-        "--virtual-time-budget=5000",
-        "--dump-dom",
-        copy.as_uri(),
-    ]
-    done = subprocess.run(
-        command, capture_output=True, text=True, timeout=BROWSER_TIMEOUT_S, check=False
-    )
-    match = re.search(r'<pre id="render-check">(.*?)</pre>', done.stdout, flags=re.S)
-    assert match, f"no render check in the DOM (exit {done.returncode}): {done.stderr[-2000:]}"
-    result = json.loads(match.group(1).replace("&quot;", '"').replace("&amp;", "&"))
+    result = render_check(page, tmp_path)
     assert result["images"] == len(images)
     assert result["broken_images"] == []
     assert result["tables"] == len(re.findall(r"<table\b", page)) >= 3
