@@ -145,3 +145,41 @@ def test_joint_space_plans_in_cpp_send_what_the_runner_sent():
         scheduled = runner.active(tick)
         expected = scheduled.plan.command(tick - scheduled.t_start, state).q_ref
         np.testing.assert_allclose(q_logged, expected, atol=1e-12, rtol=0)
+
+
+def test_a_tick_sees_the_arm_after_the_steps_up_to_it_and_acts_from_the_next():
+    """At every tick t_k, on a plant step or between two, the plan sees the arm as logged at
+    the first plant step after t_k (a log at t shows the state before the step at t), and that
+    step runs on its command. The ticks that fall on a step are the ones float rounding used
+    to get wrong: with events at t_k itself, about one in five (5 ms ticks, 2 ms steps) saw
+    the arm a step earlier and acted a step sooner."""
+    from doorlab.plans import Command
+    from doorlab.simulation import run_episode
+
+    seen: list[tuple[float, np.ndarray, np.ndarray]] = []
+
+    class Probe:
+        name, duration = "probe", 0.6
+
+        def command(self, t, state):
+            q_ref = state.q + 1e-3 * np.sin(40.0 * t)  # a new command at every tick
+            seen.append((t, state.q.copy(), q_ref))
+            return Command(q_ref, np.zeros(7))
+
+    scenario = Scenario()
+    timeline = scenario.timeline
+    # The probe starts at 4.3 s, where 49 of the 160 ticks on a step have event times an ulp
+    # before the step's (offset + k 5 ms against n 2 ms, as Drake sums them).
+    timeline.hold_duration, timeline.approach_duration, timeline.extra_time = 0.1, 2.2, 0.0
+    timeline.log_period = scenario.station.time_step
+    result = run_episode(scenario, [Probe()], [0.02], q_start=Q_HOME)
+    t_start = result.plan_starts[-1]
+    on_step = 0
+    for t, q_seen, q_ref in seen:
+        tick = t_start + t
+        steps = tick / scenario.station.time_step
+        on_step += abs(steps - round(steps)) < 1e-6
+        i = np.searchsorted(result.t, tick + 1e-9)  # the first step after the tick
+        np.testing.assert_array_equal(result.q_measured[i], q_seen, err_msg=f"tick {tick}")
+        np.testing.assert_allclose(result.q_commanded[i], q_ref, atol=1e-12, rtol=0)
+    assert len(seen) == 320 and on_step == 160  # (0.6 s + 1 s settle) / 5 ms, half on a step

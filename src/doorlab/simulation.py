@@ -173,6 +173,15 @@ class PlanRunner(LeafSystem):
     episode adds ``q_offset`` back in C++ (the joint-space trajectory's end value, which the
     trajectory source keeps sending), so q_ref is continuous at the handoff.
 
+    Timing: the plan ticking at t_k = t_first + k period sees the arm after every plant step at
+    or before t_k, and its command acts from the first plant step after t_k. The runner's
+    update event fires ``lag`` after each tick (:func:`_tick_lag`: half the grid that ticks
+    and plant steps share, so no step lies in between) and hands the plan t_k itself. (An
+    event at t_k exactly would leave that order to float rounding when t_k is a plant step:
+    Drake sums offset + k period and n time_step separately, and at the default 5 ms / 2 ms
+    about one such tick in five fell an ulp before the step, saw the arm one step earlier
+    and acted one step sooner, or an ulp after it.)
+
     Input ports: ``iiwa_state`` (14: q [rad], v [rad/s]), ``iiwa_torque_external`` (7).
     Output ports (state outputs, no Python per simulation step): ``iiwa_position`` (q_ref),
     ``iiwa_feedforward_torque`` (tau_ff).
@@ -184,10 +193,14 @@ class PlanRunner(LeafSystem):
         *,
         control_period: float,
         t_first: float = 0.0,
+        lag: float = 0.0,
         q_offset: np.ndarray | None = None,
     ):
         super().__init__()
         self.set_name("plan_runner")
+        self._period = control_period
+        self._t_first = t_first
+        self._lag = lag
         self._schedule = list(schedule)
         self._starts = [s.t_start for s in self._schedule]
         self._cursor = 0
@@ -200,7 +213,7 @@ class PlanRunner(LeafSystem):
         self._tau_ff = self.DeclareDiscreteState(NUM_JOINTS)
         self.DeclareStateOutputPort("iiwa_position", self._q_ref)
         self.DeclareStateOutputPort("iiwa_feedforward_torque", self._tau_ff)
-        self.DeclarePeriodicDiscreteUpdateEvent(control_period, t_first, self._tick)
+        self.DeclarePeriodicDiscreteUpdateEvent(control_period, t_first + lag, self._tick)
 
     def active(self, t: float) -> ScheduledPlan:
         """The scheduled plan active at time t [s] (the last one after the schedule ends)."""
@@ -212,7 +225,8 @@ class PlanRunner(LeafSystem):
         return self._schedule[self._cursor]
 
     def _tick(self, context, discrete_state) -> None:
-        t = context.get_time()
+        k = round((context.get_time() - self._lag - self._t_first) / self._period)
+        t = self._t_first + k * self._period
         scheduled = self.active(t)
         x = self._x.Eval(context)
         state = ArmState(x[:NUM_JOINTS], x[NUM_JOINTS:], self._tau_ext.Eval(context))
@@ -395,7 +409,13 @@ def run_episode(
     builder.Connect(joint_source.get_output_port(), q_ref_sum.get_input_port(0))
     if k < len(schedule):
         runner = add(
-            PlanRunner(schedule[k:], control_period=period, t_first=t_first, q_offset=q_handoff),
+            PlanRunner(
+                schedule[k:],
+                control_period=period,
+                t_first=t_first,
+                lag=lag,
+                q_offset=q_handoff,
+            ),
             "plan_runner",
         )
         for name in ("iiwa_state", "iiwa_torque_external"):
