@@ -8,6 +8,11 @@ Per repeat, three simulations of the same 24 s episode, each timed around
     The same cell (the current station) with the episode's commands (q_ref, tau_ff every
     control period, the gripper setpoint) replayed from C++ ``TrajectorySource``s: no Python,
     no loggers. What Drake itself costs for this episode.
+``python``
+    The episode's own machinery (the Python plan runner at every control tick, the loggers)
+    with a plan that does no work: it replays the recorded commands. ``python / floor`` is
+    what a Python outer loop at the control rate costs before any control law runs, a
+    floor for ``new`` as long as the laws run in Python.
 ``new``
     The episode as ``doorlab.run_controller`` runs it (``EpisodeResult.wall_time_s``).
 ``old``
@@ -17,8 +22,10 @@ Per repeat, three simulations of the same 24 s episode, each timed around
 Each is timed twice: wall-clock (``*_s``) and the CPU time of this process (``*_cpu_s``,
 ``time.process_time``), which other processes on a shared machine disturb far less (they
 still share caches and memory bandwidth). Ratios are formed per repeat from the CPU times
-(the three ran back to back) and their median is reported: ``new_over_floor`` (target
-<= 1.15) and ``old_over_new`` (>= 1.3); ``*_wall`` are the same ratios from wall times.
+(the four ran back to back) and their median is reported: ``new_over_floor`` (target
+<= 1.15), ``old_over_new`` (>= 1.3), ``python_over_floor`` and ``new_over_python`` (their
+product is ``new_over_floor``: the machinery's share and the law's); ``*_wall`` are the
+first two from wall times.
 """
 
 from __future__ import annotations
@@ -125,6 +132,44 @@ def time_floor(scenario, result) -> tuple[float, float]:
     return time.perf_counter() - wall, time.process_time() - cpu
 
 
+class ReplayPlan:
+    """A plan that sends, at each tick, the command a recorded episode sent there (no law)."""
+
+    def __init__(self, result, t_start: float, period: float):
+        # Logged at the control period: the sample at t_k + period holds the command of the
+        # tick at t_k (the log at t shows what the plant steps with at t).
+        self.name = "replay"
+        self.duration = float(result.arc_window[1] - result.arc_window[0])
+        self._t0 = t_start
+        self._period = period
+        self._t = result.t
+        self._q_ref = result.q_commanded
+        self._tau_ff = result.tau_feedforward
+
+    def command(self, t: float, state):
+        from doorlab.plans import Command
+
+        i = min(round((self._t0 + t) / self._period) + 1, len(self._t) - 1)
+        return Command(self._q_ref[i], self._tau_ff[i])
+
+
+def time_python_floor(scenario, result) -> tuple[float, float]:
+    """Wall and CPU time [s] of the episode's machinery replaying ``result``'s commands."""
+    import numpy as np
+
+    from doorlab.plans import JointSpacePlan
+    from doorlab.simulation import run_episode
+
+    arc_start = result.plan_starts[3]
+    q_start = result.q_commanded[np.searchsorted(result.t, arc_start) - 1]
+    grasp = JointSpacePlan.hold(q_start, scenario.timeline.grasp_duration, name="grasp")
+    replay = ReplayPlan(result, arc_start, scenario.timeline.control_period)
+    width = scenario.station.gripper.grasp_width
+    with advance_clock() as spent:
+        run_episode(scenario, [grasp, replay], [width, width], q_start=q_start)
+    return spent[0], spent[1]
+
+
 def time_episode(run, scenario) -> tuple[float, float, float]:
     """(wall, CPU, simulated) time [s] of ``run(scenario)``'s simulation."""
     with advance_clock() as spent:
@@ -142,8 +187,9 @@ def bench_designs(names: Sequence[str], settings: Settings, ctx: Context) -> lis
     for name in names:
         controller, doors = name.split("/", 1)[1].split("_")
         recorded[name] = recorded_commands(controller, doors)
-    keys = [f"{v}_{u}" for v in ("floor", "new", "old") for u in ("s", "cpu_s")]
+    keys = [f"{v}_{u}" for v in ("floor", "python", "new", "old") for u in ("s", "cpu_s")]
     keys += ["new_over_floor", "old_over_new", "new_over_floor_wall", "old_over_new_wall"]
+    keys += ["python_over_floor", "new_over_python"]
     keys += ["new_rtf"]
     samples = {n: {k: [] for k in keys} for n in names}
     watches = {n: [] for n in names}
@@ -154,6 +200,9 @@ def bench_designs(names: Sequence[str], settings: Settings, ctx: Context) -> lis
             watch = CpuWatch()
             times = {"floor": time_floor(*recorded[name])}
             gc.collect()
+            if controller != "ik":  # an IK episode has no Python tick to replay
+                times["python"] = time_python_floor(*recorded[name])
+                gc.collect()
             wall, cpu, sim_time = time_episode(run_controller, scenario)
             times["new"] = (wall, cpu)
             gc.collect()
@@ -169,8 +218,13 @@ def bench_designs(names: Sequence[str], settings: Settings, ctx: Context) -> lis
             s["new_over_floor_wall"].append(times["new"][0] / times["floor"][0])
             s["old_over_new_wall"].append(times["old"][0] / times["new"][0])
             s["new_rtf"].append(sim_time / times["new"][0])
+            if "python" in times:
+                s["python_over_floor"].append(times["python"][1] / times["floor"][1])
+                s["new_over_python"].append(times["new"][1] / times["python"][1])
             print(
-                f"  {name}: CPU floor {times['floor'][1]:.2f} s, new {times['new'][1]:.2f} s, "
+                f"  {name}: CPU floor {times['floor'][1]:.2f} s, "
+                f"python {times.get('python', (0.0, float('nan')))[1]:.2f} s, "
+                f"new {times['new'][1]:.2f} s, "
                 f"old {times['old'][1]:.2f} s (new/floor {s['new_over_floor'][-1]:.2f}, "
                 f"old/new {s['old_over_new'][-1]:.2f})",
                 flush=True,
@@ -195,6 +249,7 @@ def bench_designs(names: Sequence[str], settings: Settings, ctx: Context) -> lis
                 target=targets.get(key),
             )
             for key, values in s.items()
+            if values  # no python variant for IK
         ]
         for m in produced:
             m.other_cpu_cores = statistics.mean(other) if other else None
