@@ -26,7 +26,9 @@ from common import (
 
 def bench_runs(names: Sequence[str], settings: Settings, ctx: Context) -> list[Metric]:
     """``doorlab run --doors closed`` end to end, one subprocess per repeat and controller;
-    ``run/report``: ``doorlab report --jobs 2`` (8 runs and the page)."""
+    ``run/report``: ``doorlab report --jobs 2 --no-robustness`` (the seed's 8 runs and the
+    page, the issue's target); ``run/report_full``: ``doorlab report --jobs 2`` (the 8 runs,
+    the 17 of the robustness section and the page)."""
     env = subprocess_env()
     samples = {n: [] for n in names}
     info: dict[str, dict] = {n: {"exit_codes": [], "episode_sim_s": [], "cpu_s": []} for n in names}
@@ -36,11 +38,13 @@ def bench_runs(names: Sequence[str], settings: Settings, ctx: Context) -> list[M
             controller = name.split("/", 1)[1]
             with tempfile.TemporaryDirectory(prefix="doorlab-bench-") as tmp:
                 out = Path(tmp) / "run"
-                if controller == "report":
+                if controller in ("report", "report_full"):
                     cmd = [
                         sys.executable, "-m", "doorlab.cli", "report", "--jobs",
                         str(REPORT_JOBS), "--out", str(out), "--force",
                     ]  # fmt: skip
+                    if controller == "report":
+                        cmd.append("--no-robustness")
                 else:
                     cmd = [
                         sys.executable, "-m", "doorlab.cli", "run", "--controller", controller,
@@ -53,7 +57,7 @@ def bench_runs(names: Sequence[str], settings: Settings, ctx: Context) -> list[M
                 elapsed = time.perf_counter() - start
                 info[name]["cpu_s"].append(children_cpu_s() - cpu)
                 watches[name].append(watch.other_cores())
-                if controller == "report" and proc.returncode == 1:
+                if controller.startswith("report") and proc.returncode == 1:
                     pass  # a run not ok: still a report
                 elif proc.returncode not in (0, 3, 4, 5, 6):  # 3-6: a run status, not a crash
                     last = (proc.stderr.strip().splitlines() or ["(no output)"])[-1]

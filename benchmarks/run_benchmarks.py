@@ -19,14 +19,16 @@ Benchmarks (``--only`` takes names, groups such as ``episode``, or globs such as
 ``ik/<n>_knots``
     ``pointwise_ik`` along the arc with n = 2, 5, 10 knots, as task 1 builds it (target for
     10 knots < 0.1 s).
-``run/<controller>``, ``run/report``
+``run/<controller>``, ``run/report``, ``run/report_full``
     ``python -m doorlab.cli run --controller C --doors closed`` end to end in a subprocess
     (interpreter start, imports, episode, metrics, PNG plots, replay.html; target for
-    velocity < 4 s), and ``doorlab report --jobs 2`` (target < 15 s); ``info.cpu_s`` is the
-    CPU time of the whole process tree.
+    velocity < 4 s), ``doorlab report --jobs 2 --no-robustness`` (the seed's 8 runs; target
+    < 15 s) and ``doorlab report --jobs 2`` (with the robustness section's 17 runs);
+    ``info.cpu_s`` is the CPU time of the whole process tree.
 ``design/<controller>_closed``
     The episode against Drake's floor (the same cell, the recorded commands replayed from
-    C++) and against the 353b732 design, side by side (``benchmarks/designs.py``).
+    C++), against the same machinery with no law (the Python runner replaying the commands)
+    and against the 353b732 design, side by side (``benchmarks/designs.py``).
 ``memory/episode``
     Peak resident set size of a fresh process that runs one velocity/closed episode, and of
     one that only imports doorlab: VmHWM read by the child from /proc/self/status (NOT
@@ -89,7 +91,7 @@ from profiling import bench_profile
 EPISODES = tuple(f"episode/{c}_{d}" for c in CONTROLLERS for d in DOORS)
 TICKS = ("tick/velocity", "tick/impedance", "tick/adaptive")
 IKS = tuple(f"ik/{n}_knots" for n in IK_KNOTS)
-RUNS = (*(f"run/{c}" for c in CONTROLLERS), "run/report")
+RUNS = (*(f"run/{c}" for c in CONTROLLERS), "run/report", "run/report_full")
 DESIGNS = tuple(f"design/{c}_closed" for c in CONTROLLERS)
 ALL = (*TICKS, *IKS, *EPISODES, *DESIGNS, *RUNS, "memory/episode", "profile/episode")
 """Every benchmark, in the order they run (cheap ones first)."""
