@@ -41,9 +41,7 @@ def test_fk_of_ik_reaches_a_reachable_pose(plant, seed):
     q_true = np.clip(Q_HOME + rng.uniform(-0.4, 0.4, 7), -limits, limits)
     q_guess = q_true + rng.choice([-0.2, 0.2], 7)
     X = pose(plant, q_true)
-    q = solve_ik(
-        plant, X @ p_L7Q, X.rotation(), q_guess, position_tolerance=1e-4, theta_bound=1e-3
-    )
+    q = solve_ik(plant, X @ p_L7Q, X.rotation(), q_guess, position_tolerance=1e-4, theta_bound=1e-3)
     X_ik = pose(plant, q)
     # Box of +-0.1 mm per axis: at most sqrt(3) x 0.1 mm away.
     assert np.linalg.norm(X_ik @ p_L7Q - X @ p_L7Q) <= np.sqrt(3) * 1e-4 + 1e-9
@@ -111,6 +109,12 @@ def test_pointwise_ik_needs_two_knots(plant, geometry):
     """One knot cannot define a path."""
     with pytest.raises(IkError, match="at least 2 knots"):
         pointwise_ik(
-            plant, geometry.p_WQ_ref, geometry.R_WL7_ref, duration=10.0, num_knots=1,
-            q_guess=Q_HOME, position_tolerance=POSITION_TOLERANCE, theta_bound=THETA_BOUND,
+            plant,
+            geometry.p_WQ_ref,
+            geometry.R_WL7_ref,
+            duration=10.0,
+            num_knots=1,
+            q_guess=Q_HOME,
+            position_tolerance=POSITION_TOLERANCE,
+            theta_bound=THETA_BOUND,
         )

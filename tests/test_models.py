@@ -144,12 +144,8 @@ def build_station(arm_collision: bool = False) -> Station:
         plant.GetFrameByName("body", wsg),
         X_L7G,
     )
-    plant.WeldFrames(
-        plant.world_frame(), plant.GetFrameByName("cupboard_body", cupboard), X_WC
-    )
-    plant.WeldFrames(
-        plant.world_frame(), plant.GetFrameByName("table_top", table), X_W_TABLE
-    )
+    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("cupboard_body", cupboard), X_WC)
+    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("table_top", table), X_W_TABLE)
     if arm_collision:
         add_arm_collision(plant, iiwa)
     plant.Finalize()
@@ -208,9 +204,7 @@ def build_reference_iiwa() -> MultibodyPlant:
         )
         axis_C = X_MB[i].rotation().inverse().multiply(np.array(axis_M, dtype=float))
         plant.AddJoint(
-            RevoluteJoint(
-                f"joint_{i}", frame_on_parent, bodies[i].body_frame(), axis_C, 0.0
-            )
+            RevoluteJoint(f"joint_{i}", frame_on_parent, bodies[i].body_frame(), axis_C, 0.0)
         )
     plant.Finalize()
     return plant
@@ -218,9 +212,7 @@ def build_reference_iiwa() -> MultibodyPlant:
 
 def _rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:
     """Rodrigues' formula: rotation matrix about a unit axis."""
-    k = np.array(
-        [[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]]
-    )
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
     return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
 
 
@@ -248,10 +240,7 @@ def gravity_by_product_of_exponentials(q: np.ndarray, g: float = 9.81) -> np.nda
     weight = [np.array([0.0, 0.0, -g]) * link[3] for link in IIWA_LINKS]
     return np.array(
         [
-            sum(
-                np.cross(axes[i], coms[j] - points[i]) @ weight[j]
-                for j in range(i + 1, 8)
-            )
+            sum(np.cross(axes[i], coms[j] - points[i]) @ weight[j] for j in range(i + 1, 8))
             for i in range(7)
         ]
     )
@@ -455,9 +444,7 @@ def test_cupboard_world_points(station: Station) -> None:
     for side, expected in (("left", P_W_LEFT_HINGE), ("right", P_W_RIGHT_HINGE)):
         hinge = plant.GetJointByName(f"{side}_door_hinge", c)
         for frame in (hinge.frame_on_parent(), hinge.frame_on_child()):
-            assert frame.CalcPoseInWorld(ctx).translation() == pytest.approx(
-                expected, abs=1e-4
-            )
+            assert frame.CalcPoseInWorld(ctx).translation() == pytest.approx(expected, abs=1e-4)
         assert p_W(f"{side}_hinge") == pytest.approx(expected, abs=1e-4)
     assert p_W("left_handle") == pytest.approx(P_W_LEFT_HANDLE, abs=1e-4)
     mirrored = P_W_LEFT_HANDLE * np.array([1.0, -1.0, 1.0])
@@ -530,8 +517,7 @@ def test_closed_doors_do_not_penetrate(station: Station) -> None:
     plant, ctx = station.plant, station.plant_context
     plant.SetPositions(ctx, station.cupboard, [-0.001, 0.001])
     door_bodies = {
-        plant.GetBodyByName(n, station.cupboard).index()
-        for n in ("left_door", "right_door")
+        plant.GetBodyByName(n, station.cupboard).index() for n in ("left_door", "right_door")
     }
     query = station.query()
     for pair in query.ComputePointPairPenetration():
@@ -549,23 +535,15 @@ def test_closed_doors_do_not_penetrate(station: Station) -> None:
 
 def _pad_ids(station: Station) -> tuple:
     plant = station.plant
-    (left,) = plant.GetCollisionGeometriesForBody(
-        plant.GetBodyByName("left_finger", station.wsg)
-    )
-    (right,) = plant.GetCollisionGeometriesForBody(
-        plant.GetBodyByName("right_finger", station.wsg)
-    )
+    (left,) = plant.GetCollisionGeometriesForBody(plant.GetBodyByName("left_finger", station.wsg))
+    (right,) = plant.GetCollisionGeometriesForBody(plant.GetBodyByName("right_finger", station.wsg))
     return left, right
 
 
 def _set_fingers(station: Station, q_left: float, q_right: float) -> None:
     plant, ctx = station.plant, station.plant_context
-    plant.GetJointByName("left_finger_sliding_joint", station.wsg).set_translation(
-        ctx, q_left
-    )
-    plant.GetJointByName("right_finger_sliding_joint", station.wsg).set_translation(
-        ctx, q_right
-    )
+    plant.GetJointByName("left_finger_sliding_joint", station.wsg).set_translation(ctx, q_left)
+    plant.GetJointByName("right_finger_sliding_joint", station.wsg).set_translation(ctx, q_right)
 
 
 def test_gripper_pad_gap(station: Station) -> None:
@@ -588,12 +566,8 @@ def test_gripper_pad_gap(station: Station) -> None:
             station.plant.GetBodyByName("iiwa_link_7", station.iiwa),
         )
         X_GW = X_GL.multiply(X_WL7.inverse())
-        x_left_inner = (
-            X_GW.multiply(query.GetPoseInWorld(left).translation())[0] + 0.008
-        )
-        x_right_inner = (
-            X_GW.multiply(query.GetPoseInWorld(right).translation())[0] - 0.008
-        )
+        x_left_inner = X_GW.multiply(query.GetPoseInWorld(left).translation())[0] + 0.008
+        x_right_inner = X_GW.multiply(query.GetPoseInWorld(right).translation())[0] - 0.008
         assert x_right_inner - x_left_inner == pytest.approx(gap, abs=1e-12)
     _set_fingers(station, 0.0, 0.0)
 
@@ -604,9 +578,7 @@ def test_gripper_fingertips_and_grasp_point(station: Station) -> None:
     plant.SetPositions(ctx, station.iiwa, Q0)
     _set_fingers(station, -0.005, 0.005)
     query = station.query()
-    X_WL7 = plant.EvalBodyPoseInWorld(
-        ctx, plant.GetBodyByName("iiwa_link_7", station.iiwa)
-    )
+    X_WL7 = plant.EvalBodyPoseInWorld(ctx, plant.GetBodyByName("iiwa_link_7", station.iiwa))
     p_WQ = X_WL7.multiply(P_L7Q)
     for pad, inward in zip(_pad_ids(station), (+1.0, -1.0), strict=True):
         box = query.inspector().GetShape(pad)
@@ -663,9 +635,7 @@ def _solid_box_moments(mass: float, size: tuple[float, float, float]) -> np.ndar
         ("body", WSG_BODY_MASS, WSG_BODY_BOX, 1e-2),
     ],
 )
-def test_gripper_inertias_are_physical(
-    station: Station, link, mass, size, bound
-) -> None:
+def test_gripper_inertias_are_physical(station: Station, link, mass, size, bound) -> None:
     """Gripper link inertias are valid solid-box inertias, small (< bound)."""
     body = station.plant.GetBodyByName(link, station.wsg)
     M = body.default_spatial_inertia()
@@ -716,10 +686,7 @@ def test_add_arm_collision(station_arm_collision: Station) -> None:
     inspector = station.query().inspector()
     assert len(ARM_COLLISION_SHAPES) == 7
     assert (
-        plant.GetCollisionGeometriesForBody(
-            plant.GetBodyByName("iiwa_link_0", station.iiwa)
-        )
-        == []
+        plant.GetCollisionGeometriesForBody(plant.GetBodyByName("iiwa_link_0", station.iiwa)) == []
     )
     for i in range(1, 8):
         body = plant.GetBodyByName(f"iiwa_link_{i}", station.iiwa)
@@ -740,9 +707,7 @@ def test_arm_collision_free_at_standard_poses(
     plant.SetPositions(ctx, station.iiwa, q)
     _set_fingers(station, -0.015, 0.015)
     query = station.query()
-    arm_bodies = {
-        plant.GetBodyByName(f"iiwa_link_{i}", station.iiwa).index() for i in range(8)
-    }
+    arm_bodies = {plant.GetBodyByName(f"iiwa_link_{i}", station.iiwa).index() for i in range(8)}
     for pair in query.ComputePointPairPenetration():
         bodies = {
             plant.GetBodyFromFrameId(query.inspector().GetFrameId(g)).index()
@@ -770,8 +735,6 @@ def test_module_transforms() -> None:
     assert R[:, 1] == pytest.approx([0.0, 0.0, 1.0], abs=1e-15)  # G y = L7 z
     assert R[:, 0] == pytest.approx([0.0, 1.0, 0.0], abs=1e-15)  # G x = L7 y
     assert X_WC.translation() == pytest.approx([0.9057, 0.0, 0.4148])
-    assert X_WC.rotation().matrix() == pytest.approx(
-        np.diag([-1.0, -1.0, 1.0]), abs=1e-15
-    )
+    assert X_WC.rotation().matrix() == pytest.approx(np.diag([-1.0, -1.0, 1.0]), abs=1e-15)
     assert X_W_TABLE.translation() == pytest.approx([0.9057, 0.0, 0.0073], abs=1e-12)
     assert X_W_TABLE.rotation().matrix() == pytest.approx(np.eye(3))

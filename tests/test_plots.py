@@ -90,9 +90,7 @@ def test_q_path_shows_path_arc_hinge_and_zoom(episode):
     np.testing.assert_allclose(arc.get_xdata(), expected_arc[:, 0])
     np.testing.assert_allclose(arc.get_ydata(), expected_arc[:, 1])
     hinge = line(path_ax, "door hinge")
-    np.testing.assert_allclose(
-        [hinge.get_xdata()[0], hinge.get_ydata()[0]], geometry.p_W_hinge[:2]
-    )
+    np.testing.assert_allclose([hinge.get_xdata()[0], hinge.get_ydata()[0]], geometry.p_W_hinge[:2])
     assert hinge.get_marker() == "*"
     assert path_ax.get_aspect() == 1.0
     assert "[m]" in path_ax.get_xlabel() and "[m]" in path_ax.get_ylabel()

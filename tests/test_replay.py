@@ -63,8 +63,14 @@ def test_replay_is_written_and_self_contained(replays):
     # controller profiles, the XR spec's documentation), never fetched by a desktop viewer.
     for url in re.findall(r"https?://[^\s\"'<>)]+", html):
         assert any(
-            host in url for host in ("webxr-input-profiles", "w3.org", "developer.mozilla",
-                                     "immersiveweb", "beej.us")
+            host in url
+            for host in (
+                "webxr-input-profiles",
+                "w3.org",
+                "developer.mozilla",
+                "immersiveweb",
+                "beej.us",
+            )
         ), url
     assert first.stat().st_size < 10_000_000
 

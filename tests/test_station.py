@@ -322,8 +322,12 @@ def press_episode() -> tuple[EpisodeResult, float]:
 
     def ik(offset: float, q_guess: np.ndarray) -> np.ndarray:
         return solve_ik(
-            plant, geometry.p_W_handle + offset * approach_W, R_WL7, q_guess,
-            position_tolerance=1e-4, theta_bound=1e-3,
+            plant,
+            geometry.p_W_handle + offset * approach_W,
+            R_WL7,
+            q_guess,
+            position_tolerance=1e-4,
+            theta_bound=1e-3,
         )
 
     q_clear = ik(-0.02, Q_HOME)

@@ -232,7 +232,11 @@ def plot_q_path(
     hinge = geometry.p_W_hinge
     path_ax.plot(hinge[0], hinge[1], "*", color="tab:red", markersize=16, label="door hinge")
     path_ax.plot(
-        geometry.p_W_handle[0], geometry.p_W_handle[1], "o", color="0.2", ms=5,
+        geometry.p_W_handle[0],
+        geometry.p_W_handle[1],
+        "o",
+        color="0.2",
+        ms=5,
         label="handle (door closed)",
     )
     path_ax.set_aspect("equal", adjustable="datalim")
@@ -247,9 +251,7 @@ def plot_q_path(
     return fig
 
 
-def _joint_lines(
-    ax: Axes, t: np.ndarray, values: np.ndarray, *, prefix: str, **kwargs
-) -> None:
+def _joint_lines(ax: Axes, t: np.ndarray, values: np.ndarray, *, prefix: str, **kwargs) -> None:
     for j in range(values.shape[1]):
         ax.plot(t, values[:, j], label=f"{prefix}{j + 1}", lw=1.2, **kwargs)
 
@@ -297,12 +299,18 @@ def plot_joint_positions(
         ax = axes[j]
         _shade_arc(ax, result.arc_window)
         (line,) = ax.plot(result.t, q_meas[:, j], lw=1.3, label=f"measured q{j + 1}")
-        ax.plot(result.t, q_cmd[:, j], "--", lw=1.3, color="k", alpha=0.7,
-                label=f"commanded q_ref{j + 1}")
+        ax.plot(
+            result.t,
+            q_cmd[:, j],
+            "--",
+            lw=1.3,
+            color="k",
+            alpha=0.7,
+            label=f"commanded q_ref{j + 1}",
+        )
         ax.set_title(f"joint {j + 1}", fontsize="medium", y=TITLE_Y)
         ax.yaxis.set_major_locator(MaxNLocator(nbins=4))  # fewer ticks: legible and faster
-        _finish(ax, xlabel="time t [s]" if j >= 5 else "", ylabel=f"q{j + 1} [rad]",
-                legend=False)
+        _finish(ax, xlabel="time t [s]" if j >= 5 else "", ylabel=f"q{j + 1} [rad]", legend=False)
     axes[5].xaxis.set_tick_params(labelbottom=True)  # its lower neighbour is the legend
     key = axes[-1]
     key.axis("off")
@@ -341,14 +349,20 @@ def plot_door_angle(
     _shade_arc(ax, [r.arc_window for r in results.values()])
     for label, result in results.items():
         ax.plot(
-            result.t, np.degrees(result.door_angles[:, 0]), label=label,
+            result.t,
+            np.degrees(result.door_angles[:, 0]),
+            label=label,
             **_style(styles, label, lw=1.4),
         )
     if geometry is not None and results:
         windows = {tuple(np.round(r.arc_window, 6)) for r in results.values()}
         for i, (t0, t1) in enumerate(sorted(windows)):
             ax.plot(
-                [t0, t1], [0.0, -math.degrees(geometry.sweep)], ":", color="k", lw=1.2,
+                [t0, t1],
+                [0.0, -math.degrees(geometry.sweep)],
+                ":",
+                color="k",
+                lw=1.2,
                 label="arc plan (door from closed)" if i == 0 else None,
             )
     _finish(ax, xlabel="time t [s]", ylabel="left hinge angle [deg] (negative = open)")
@@ -375,7 +389,9 @@ def plot_external_torque_norm(
     _shade_arc(ax, [r.arc_window for r in results.values()])
     for label, result in results.items():
         ax.plot(
-            result.t, np.linalg.norm(result.tau_external, axis=1), label=label,
+            result.t,
+            np.linalg.norm(result.tau_external, axis=1),
+            label=label,
             **_style(styles, label, lw=1.3),
         )
     _finish(ax, xlabel="time t [s]", ylabel="|tau_ext| [N m]")
@@ -464,7 +480,8 @@ def save_run_plots(
             result, title=f"Joint positions: commanded (dashed) vs measured{suffix}"
         ),
         "door_angle": lambda: plot_door_angle(
-            {label or "left door": result}, geometry=geometry,
+            {label or "left door": result},
+            geometry=geometry,
             title=f"Left door hinge angle{suffix}",
         ),
     }

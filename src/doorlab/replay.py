@@ -136,7 +136,10 @@ def save_replay(
         meshcat.DeleteRecording()
         meshcat.Delete()
     _log.info(
-        "replay %s: %d frames at %g fps, %.1f MB", path, len(frame_times), fps,
+        "replay %s: %d frames at %g fps, %.1f MB",
+        path,
+        len(frame_times),
+        fps,
         path.stat().st_size / 1e6,
     )
     return path

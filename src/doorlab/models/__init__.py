@@ -55,18 +55,14 @@ PACKAGE_NAME: str = "doorlab_models"
 MODEL_NAMES: tuple[str, ...] = ("iiwa7", "wsg_50", "cupboard", "table")
 """Valid arguments of :func:`model_url` (SDF file stems)."""
 
-X_L7G: RigidTransform = RigidTransform(
-    RollPitchYaw(np.pi / 2, 0.0, np.pi / 2), [0.0, 0.0, 0.114]
-)
+X_L7G: RigidTransform = RigidTransform(RollPitchYaw(np.pi / 2, 0.0, np.pi / 2), [0.0, 0.0, 0.114])
 """Pose of the gripper frame G (= the WSG ``body`` link) in ``iiwa_link_7``.
 
 Translation 0.114 m along L7 z, rpy (pi/2, 0, pi/2): G's y axis is L7's z axis
 (the approach direction) and G's x axis (the finger axis) is L7's y axis.
 """
 
-X_WC: RigidTransform = RigidTransform(
-    RotationMatrix.MakeZRotation(np.pi), [0.9057, 0.0, 0.4148]
-)
+X_WC: RigidTransform = RigidTransform(RotationMatrix.MakeZRotation(np.pi), [0.9057, 0.0, 0.4148])
 """Pose of the cupboard frame C (link ``cupboard_body``) in the world, m."""
 
 X_W_TABLE: RigidTransform = RigidTransform([0.9057, 0.0, 0.4148 - 0.815 / 2])
@@ -111,9 +107,7 @@ def model_url(name: str) -> str:
         ValueError: If ``name`` is not one of the valid names.
     """
     if name not in MODEL_NAMES:
-        raise ValueError(
-            f"unknown model name {name!r}; valid names are {', '.join(MODEL_NAMES)}"
-        )
+        raise ValueError(f"unknown model name {name!r}; valid names are {', '.join(MODEL_NAMES)}")
     return f"package://{PACKAGE_NAME}/{name}.sdf"
 
 
@@ -171,9 +165,7 @@ def add_arm_collision(plant: MultibodyPlant, iiwa: ModelInstanceIndex) -> None:
     friction = CoulombFriction(static_friction=1.0, dynamic_friction=1.0)
     for link_name, X_LS, shape in ARM_COLLISION_SHAPES:
         body = plant.GetBodyByName(link_name, iiwa)
-        plant.RegisterCollisionGeometry(
-            body, X_LS, shape, f"{link_name}_arm_collision", friction
-        )
+        plant.RegisterCollisionGeometry(body, X_LS, shape, f"{link_name}_arm_collision", friction)
 
 
 @cache
