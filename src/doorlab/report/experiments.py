@@ -194,11 +194,14 @@ def _write_run(record: RunRecord, files: dict[str, bytes], run_dir: Path) -> Run
 
 
 class _Progress:
-    """The report's progress bar (tqdm on stderr): runs done, how many not ok, ETA."""
+    """The report's progress bar (tqdm on stderr): runs done, how many of the experiments are
+    not ok (the robustness runs do not count: the seed's plans are expected to fail some), ETA.
+    """
 
-    def __init__(self, total: int, *, enabled: bool) -> None:
+    def __init__(self, total: int, *, experiments: set[str], enabled: bool) -> None:
         from tqdm import tqdm
 
+        self.experiments = experiments
         self.failed = 0
         self.bar = tqdm(
             total=total,
@@ -210,9 +213,11 @@ class _Progress:
         )
 
     def update(self, record: RunRecord) -> None:
-        self.failed += record.status != "ok"
+        self.failed += record.name in self.experiments and record.status != "ok"
         self.bar.set_postfix_str(
-            f"{self.failed} not ok; last {record.name}: {record.status}", refresh=False
+            f"{self.failed} of {len(self.experiments)} experiments not ok; "
+            f"last {record.name}: {record.status}",
+            refresh=False,
         )
         self.bar.update(1)
 
@@ -289,7 +294,7 @@ def run_report(
         start = time.perf_counter()
         records: dict[str, RunRecord] = {}
         everything = (*experiments, *extra)
-        bar = _Progress(len(everything), enabled=progress)
+        bar = _Progress(len(everything), experiments=seed_names, enabled=progress)
         if everything:
             with open_executor(jobs=min(jobs, len(everything)), scheduler=scheduler) as pool:
                 futures = {
@@ -311,7 +316,7 @@ def run_report(
                     bar.update(record)
         total = time.perf_counter() - start
         ordered = [records[name] for name in names]
-        bar.close(f"runs done; {bar.failed} not ok; writing the page")
+        bar.close(f"runs done; {bar.failed} of {len(names)} experiments not ok; writing the page")
         from doorlab.report.page import build_page
 
         grid = [(case, records[case.run]) for case in cases] if robustness else None
