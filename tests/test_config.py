@@ -178,6 +178,10 @@ BAD_VALUES = [
     # IK tolerances
     ("ik.position_tolerance=0", _with("ik.position_tolerance", 0.0), "ik.position_tolerance"),
     ("ik.theta_bound=-1", _with("ik.theta_bound", -1.0), "ik.theta_bound"),
+    *[
+        (f"ik.grasp_offset={v!r}", _with("ik.grasp_offset", v), "ik.grasp_offset")
+        for v in ([0.011, 0.0, 0.0], [0.0, NAN, 0.0], [0.0, 0.0], [0.0, 0.0, 0.0, 0.0], 0.001)
+    ],
 ]
 
 

@@ -118,3 +118,25 @@ def test_pointwise_ik_needs_two_knots(plant, geometry):
             position_tolerance=POSITION_TOLERANCE,
             theta_bound=THETA_BOUND,
         )
+
+
+@pytest.mark.parametrize(
+    "offset", [(0.0, 0.0, 0.0), (0.0005, -0.0005, 0.0005), (-0.002, 0.0, 0.003)]
+)
+def test_the_grasp_aims_q_at_the_handle_plus_ik_grasp_offset(plant, geometry, offset):
+    """The one-shot IK of tasks 2-4 puts Q within the grasp tolerance box around the handle
+    plus ``ik.grasp_offset`` (in W) and L7 within theta_bound of the arc's start orientation:
+    the offset moves the grasp by itself, nothing else does."""
+    from doorlab.config import Scenario
+    from doorlab.controllers import build_velocity_plan
+
+    scenario = Scenario(controller="velocity")
+    scenario.ik.grasp_offset = list(offset)
+    q = build_velocity_plan(scenario, geometry, plant).q_start
+    X_WL7 = pose(plant, q)
+    p_WQ = X_WL7.multiply(p_L7Q).ravel()
+    tolerance = scenario.ik.grasp_position_tolerance
+    error = p_WQ - (geometry.p_W_handle + np.asarray(offset))
+    assert np.all(np.abs(error) <= tolerance + 1e-9), error
+    angle = (geometry.R_WL7_ref(0.0).inverse() @ X_WL7.rotation()).ToAngleAxis().angle()
+    assert angle <= scenario.ik.theta_bound + 1e-9

@@ -37,6 +37,10 @@ RIGHT_HINGE_RANGE = (0.0, math.pi / 2)
 MAX_CUPBOARD_YAW_ERROR = math.pi / 4
 """Largest |station.cupboard_yaw_error| [rad]: beyond 45 deg the handle faces away from the arm."""
 
+MAX_GRASP_OFFSET = 0.01
+"""Largest |ik.grasp_offset| per axis [m]: the handle is 10 mm thick, so a centimetre off
+the fingers no longer close on it."""
+
 
 @dataclass
 class InnerLoopConfig:
@@ -145,6 +149,10 @@ class IkConfig:
     position_tolerance: float = 0.001  # [m] box half-width around each arc point
     theta_bound: float = 0.005 * math.pi  # [rad] L7 orientation bound
     grasp_position_tolerance: float = 0.0005  # [m] one-shot IK to the handle
+    # [m] (3,) where the one-shot IK aims Q: the handle's centre plus this, in W. The
+    # original's feasibility-only IK grasped 0.5 mm off the handle in each axis;
+    # benchmarks/grasp_offset.py measures what such an offset does.
+    grasp_offset: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
 
 
 @dataclass
@@ -446,6 +454,16 @@ def validate(scenario: Scenario) -> Scenario:
     _choice("ik.objective", ik.objective, IK_OBJECTIVES)
     for name in ("position_tolerance", "theta_bound", "grasp_position_tolerance"):
         _positive(f"ik.{name}", getattr(ik, name))
+    offset = ik.grasp_offset
+    _check(
+        isinstance(offset, (list, tuple))
+        and len(offset) == 3
+        and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) <= MAX_GRASP_OFFSET
+            for v in offset
+        ),
+        f"ik.grasp_offset must be three numbers [m] within +-{MAX_GRASP_OFFSET} m, got {offset!r}",
+    )
     for section in ("velocity", "impedance"):
         for f in dataclasses.fields(getattr(scenario, section)):
             _positive(f"{section}.{f.name}", getattr(getattr(scenario, section), f.name))

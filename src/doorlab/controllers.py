@@ -53,10 +53,11 @@ class Controller:
 def _grasp_configuration(
     scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPlant
 ) -> np.ndarray:
-    """One-shot IK: Q at the handle, L7 at the arc's initial orientation."""
+    """One-shot IK: Q at the handle (plus ``ik.grasp_offset``), L7 at the arc's initial
+    orientation."""
     return solve_ik(
         plant,
-        geometry.p_WQ_ref(0.0),
+        geometry.p_WQ_ref(0.0) + np.asarray(scenario.ik.grasp_offset, dtype=float),
         geometry.R_WL7_ref(0.0),
         Q_HOME,
         position_tolerance=scenario.ik.grasp_position_tolerance,
