@@ -147,12 +147,14 @@ def test_joint_space_plans_in_cpp_send_what_the_runner_sent():
         np.testing.assert_allclose(q_logged, expected, atol=1e-12, rtol=0)
 
 
-def test_a_tick_sees_the_arm_after_the_steps_up_to_it_and_acts_from_the_next():
+@pytest.mark.parametrize("time_step_us", [2000, 3000])
+def test_a_tick_sees_the_arm_after_the_steps_up_to_it_and_acts_from_the_next(time_step_us):
     """At every tick t_k, on a plant step or between two, the plan sees the arm as logged at
     the first plant step after t_k (a log at t shows the state before the step at t), and that
     step runs on its command. The ticks that fall on a step are the ones float rounding used
     to get wrong: with events at t_k itself, about one in five (5 ms ticks, 2 ms steps) saw
-    the arm a step earlier and acted a step sooner."""
+    the arm a step earlier and acted a step sooner. A 3 ms step checks a grid the ticks share
+    less often (every third tick on a step)."""
     from doorlab.plans import Command
     from doorlab.simulation import run_episode
 
@@ -167,9 +169,10 @@ def test_a_tick_sees_the_arm_after_the_steps_up_to_it_and_acts_from_the_next():
             return Command(q_ref, np.zeros(7))
 
     scenario = Scenario()
+    scenario.station.time_step = time_step_us * 1e-6
     timeline = scenario.timeline
-    # The probe starts at 4.3 s, where 49 of the 160 ticks on a step have event times an ulp
-    # before the step's (offset + k 5 ms against n 2 ms, as Drake sums them).
+    # The probe starts at 4.3 s, where (2 ms steps) 49 of the 160 ticks on a step have event
+    # times an ulp before the step's (offset + k 5 ms against n 2 ms, as Drake sums them).
     timeline.hold_duration, timeline.approach_duration, timeline.extra_time = 0.1, 2.2, 0.0
     timeline.log_period = scenario.station.time_step
     result = run_episode(scenario, [Probe()], [0.02], q_start=Q_HOME)
@@ -182,4 +185,7 @@ def test_a_tick_sees_the_arm_after_the_steps_up_to_it_and_acts_from_the_next():
         i = np.searchsorted(result.t, tick + 1e-9)  # the first step after the tick
         np.testing.assert_array_equal(result.q_measured[i], q_seen, err_msg=f"tick {tick}")
         np.testing.assert_allclose(result.q_commanded[i], q_ref, atol=1e-12, rtol=0)
-    assert len(seen) == 320 and on_step == 160  # (0.6 s + 1 s settle) / 5 ms, half on a step
+    # (0.6 s + 1 s settle) / 5 ms ticks from 4.3 s; on a step: 4300 + 5 k ms divisible by h.
+    ticks_ms = [4300 + 5 * k for k in range(320)]
+    assert len(seen) == 320
+    assert on_step == sum(t * 1000 % time_step_us == 0 for t in ticks_ms) > 0
