@@ -153,8 +153,9 @@ class ReplayPlan:
         return Command(self._q_ref[i], self._tau_ff[i])
 
 
-def time_python_floor(scenario, result) -> tuple[float, float]:
-    """Wall and CPU time [s] of the episode's machinery replaying ``result``'s commands."""
+def replay_episode(scenario, result):
+    """The episode's own machinery with :class:`ReplayPlan` as the arc plan (the grasp held
+    at the recorded start), returning its :class:`~doorlab.simulation.EpisodeResult`."""
     import numpy as np
 
     from doorlab.plans import JointSpacePlan
@@ -165,8 +166,13 @@ def time_python_floor(scenario, result) -> tuple[float, float]:
     grasp = JointSpacePlan.hold(q_start, scenario.timeline.grasp_duration, name="grasp")
     replay = ReplayPlan(result, arc_start, scenario.timeline.control_period)
     width = scenario.station.gripper.grasp_width
+    return run_episode(scenario, [grasp, replay], [width, width], q_start=q_start)
+
+
+def time_python_floor(scenario, result) -> tuple[float, float]:
+    """Wall and CPU time [s] of the episode's machinery replaying ``result``'s commands."""
     with advance_clock() as spent:
-        run_episode(scenario, [grasp, replay], [width, width], q_start=q_start)
+        replay_episode(scenario, result)
     return spent[0], spent[1]
 
 

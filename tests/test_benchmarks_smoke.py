@@ -75,3 +75,24 @@ def test_bad_arguments_exit_2_with_one_line(tmp_path):
         assert proc.returncode == 2
         assert len(proc.stderr.strip().splitlines()) == 1
         assert not (tmp_path / "x.json").exists()
+
+
+def test_the_python_variant_replays_the_episode_it_is_compared_with():
+    """design/*'s python variant (the Python runner replaying the recorded commands) must
+    simulate the very episode it times against: the same joint trajectory and door, bit for
+    bit at the shared log times, or its ratio to the floor would compare different physics."""
+    import numpy as np
+
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        from designs import recorded_commands, replay_episode
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+    scenario, recorded = recorded_commands("impedance", "closed")
+    replayed = replay_episode(scenario, recorded)
+    common, i_rec, i_rep = np.intersect1d(
+        np.round(recorded.t, 9), np.round(replayed.t, 9), return_indices=True
+    )
+    assert len(common) == len(replayed.t)
+    np.testing.assert_array_equal(replayed.q_measured, recorded.q_measured[i_rec])
+    np.testing.assert_array_equal(replayed.door_angles, recorded.door_angles[i_rec])
