@@ -151,7 +151,7 @@ class IkConfig:
     grasp_position_tolerance: float = 0.0005  # [m] one-shot IK to the handle
     # [m] (3,) where the one-shot IK aims Q: the handle's centre plus this, in W. The
     # original's feasibility-only IK grasped 0.5 mm off the handle in each axis;
-    # benchmarks/grasp_offset.py measures what such an offset does.
+    # examples/sweep_grasp_offset.yaml measures what such an offset does.
     grasp_offset: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
 
 

@@ -175,8 +175,9 @@ class PlanRunner(LeafSystem):
 
     Timing: the plan ticking at t_k = t_first + k period sees the arm after every plant step at
     or before t_k, and its command acts from the first plant step after t_k. The runner's
-    update event fires ``lag`` after each tick (:func:`_tick_lag`: half the grid that ticks
-    and plant steps share, so no step lies in between) and hands the plan t_k itself. (An
+    update event fires ``lag`` after each tick (:func:`run_episode` passes :func:`_tick_lag`:
+    half the grid that ticks and plant steps share, so no step lies in between; the default 0
+    fires at the tick itself) and hands the plan t_k itself. (An
     event at t_k exactly would leave that order to float rounding when t_k is a plant step:
     Drake sums offset + k period and n time_step separately, and at the default 5 ms / 2 ms
     about one such tick in five fell an ulp before the step, saw the arm one step earlier
