@@ -10,7 +10,9 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 from typing import NoReturn
@@ -23,7 +25,13 @@ from doorlab.config import (
     update_scenario,
     validate,
 )
-from doorlab.errors import ConfigError, DoorlabError, OutputError
+from doorlab.errors import (
+    ConfigError,
+    DoorlabError,
+    Interrupted,
+    OutputError,
+    interrupt_exit_code,
+)
 
 USAGE_ERROR = 2
 
@@ -451,6 +459,19 @@ def _sweep(args: argparse.Namespace) -> int:
     return 1 if (frame["status"] == "error").any() else 0
 
 
+def _raise_interrupted(signum: int, frame) -> None:
+    raise Interrupted(signum)
+
+
+def install_signal_handlers() -> None:
+    """SIGTERM and SIGHUP raise :class:`doorlab.errors.Interrupted` (a KeyboardInterrupt), so
+    they leave through the same clean-up as Ctrl-C (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for signum in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(signum, _raise_interrupted)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``doorlab`` console script; returns the exit code."""
     parser = build_parser()
@@ -461,14 +482,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as e:  # argparse: --help, --version, or a usage error already printed
         return e.code if isinstance(e.code, int) else USAGE_ERROR
     try:
+        install_signal_handlers()
         commands = {"run": _run, "report": _report, "sweep": _sweep, "pset": _pset}
         return commands[args.command](args)
     except DoorlabError as e:
         print(f"doorlab {args.command}: error: {e}", file=sys.stderr)
         return USAGE_ERROR if isinstance(e, (ConfigError, OutputError)) else 1
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as e:
         print("doorlab: interrupted", file=sys.stderr)
-        return 130
+        return interrupt_exit_code(e)
 
 
 if __name__ == "__main__":

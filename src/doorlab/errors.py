@@ -35,3 +35,29 @@ class SimulationError(DoorlabError):
 
 class OutputError(DoorlabError):
     """An output folder cannot be written (exists without --force, not writable)."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """A termination signal (SIGTERM, SIGHUP) raised as an exception, like Ctrl-C's
+    KeyboardInterrupt, so that every way out runs the same clean-up.
+
+    Catch ``KeyboardInterrupt`` to handle Ctrl-C and these alike; the exit code is
+    ``128 + signum`` (130 for SIGINT, 143 for SIGTERM, 129 for SIGHUP).
+
+    Attributes:
+        signum: The signal's number.
+    """
+
+    def __init__(self, signum: int):
+        super().__init__(f"signal {signum}")
+        self.signum = signum
+
+    @property
+    def exit_code(self) -> int:
+        """The process's exit code for this signal (128 + signum)."""
+        return 128 + self.signum
+
+
+def interrupt_exit_code(error: KeyboardInterrupt) -> int:
+    """The exit code of an interruption: 128 + the signal (130 for a plain Ctrl-C)."""
+    return error.exit_code if isinstance(error, Interrupted) else 130
