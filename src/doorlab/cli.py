@@ -232,8 +232,8 @@ def add_pset_parser(sub) -> None:
     auto.add_argument(
         "--jobs",
         type=bounded_int(1),
-        default=2,
-        help="tests run at a time on Gradescope (default 2; give the assignment as many CPUs)",
+        default=1,
+        help="tests run at a time on Gradescope (default 1; 2 with 2 CPUs and 1.5 GB)",
     )
     auto.add_argument(
         "--force", action="store_true", help="replace an existing OUT.zip written by doorlab"
