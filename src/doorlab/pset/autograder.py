@@ -165,7 +165,7 @@ def _render(name: str, context: dict) -> str:
 
 
 def _check_out(out: Path, *, force: bool) -> None:
-    if out.suffix != ".zip":
+    if out.suffix.lower() != ".zip":
         raise OutputError(f"{out}: the autograder is a zip file; give a name ending in .zip")
     for parent in out.parents:
         if parent.exists() and not parent.is_dir():
