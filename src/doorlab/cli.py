@@ -199,10 +199,14 @@ def _scheduler(parser: argparse.ArgumentParser) -> None:
 
 
 def add_pset_parser(sub) -> None:
-    """``doorlab pset {init,grade}``: the problem-set folder and its grader."""
+    """``doorlab pset {init,grade,autograder}``: the problem-set folder, its grader and the
+    grader as a Gradescope autograder zip."""
     pset = sub.add_parser("pset", help="write the problem-set folder for students, or grade one")
     actions = pset.add_subparsers(
-        dest="pset_command", metavar="{init,grade}", parser_class=OneLineParser, required=True
+        dest="pset_command",
+        metavar="{init,grade,autograder}",
+        parser_class=OneLineParser,
+        required=True,
     )
     init = actions.add_parser("init", help="write the problem-set folder DIR")
     init.add_argument("dir", type=Path, metavar="DIR", help="the folder to write")
@@ -221,6 +225,19 @@ def add_pset_parser(sub) -> None:
     grade.add_argument(
         "--jobs", type=bounded_int(1), default=2, help="tests run at a time (default 2)"
     )
+    auto = actions.add_parser(
+        "autograder", help="write a Gradescope autograder zip that grades with this doorlab"
+    )
+    auto.add_argument("out", type=Path, metavar="OUT.zip", help="the zip to write")
+    auto.add_argument(
+        "--jobs",
+        type=bounded_int(1),
+        default=1,
+        help="tests run at a time on Gradescope (default 1; 2 with 2 CPUs and 1.5 GB)",
+    )
+    auto.add_argument(
+        "--force", action="store_true", help="replace an existing OUT.zip written by doorlab"
+    )
 
 
 def _pset(args: argparse.Namespace) -> int:
@@ -230,6 +247,15 @@ def _pset(args: argparse.Namespace) -> int:
         out = init_folder(args.dir, solutions=args.solutions, force=args.force)
         kind = "solutions" if args.solutions else "student stubs"
         print(f"doorlab pset: wrote {out} ({kind}); grade it with: doorlab pset grade {out}")
+        return 0
+    if args.pset_command == "autograder":
+        from doorlab.pset.autograder import write_autograder
+
+        out = write_autograder(args.out, jobs=args.jobs, force=args.force)
+        print(
+            f"doorlab pset: wrote {out} ({out.stat().st_size / 1e3:.0f} kB); upload it as the "
+            "assignment's autograder on Gradescope (base image Ubuntu 22.04 or newer)"
+        )
         return 0
     from doorlab.pset.grader import grade, pretty_format_json_results, write_results
 

@@ -41,6 +41,10 @@ STUDENT_FUNCTIONS = (
     "IiwaTaskSpaceImpedancePlan.CalcTorqueCommand",
 )
 
+STUDENT_FILES = ("ik_utils.py", "open_left_door.py", "manip_station_sim/robot_plans.py")
+"""The files a student edits (they hold every stub of STUDENT_FUNCTIONS): the only files of a
+submission that the Gradescope autograder grades; the rest of the folder is doorlab's."""
+
 _RULES = {
     "Task 1 unit test: InverseKinPointwise": "random knot count (3-7), duration, path (a "
     "shifted piece of the arc) and tolerances: every knot's FK within the tolerances, the "
@@ -100,6 +104,7 @@ def _context(solutions: bool) -> dict:
         "episode_limit": f"{grader.EPISODE_TIME_LIMIT_S:.0f}",
         "tests": tests,
         "reasons": reasons,
+        "student_files": STUDENT_FILES,
     }
 
 

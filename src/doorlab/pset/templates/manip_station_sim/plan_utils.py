@@ -9,13 +9,17 @@ def CreateIiwaControllerPlant():
 
 
 def PlotJointLog(iiwa_joint_log, legend, y_label):
-    """Plots a 7-channel log (one subplot per joint)."""
-    return seedtools.plot_joint_log(iiwa_joint_log, legend, y_label)
+    """Plots a 7-channel log (one subplot per joint) and shows it.
+
+    Returns None, as in 2019: a returned figure, the value of a notebook cell, would be shown
+    a second time.
+    """
+    seedtools.plot_joint_log(iiwa_joint_log, legend, y_label)
 
 
 def PlotIiwaPositionLog(iiwa_position_command_log, iiwa_position_measured_log):
-    """Plots commanded and measured joint positions [deg]."""
-    return seedtools.plot_position_logs(iiwa_position_command_log, iiwa_position_measured_log)
+    """Plots commanded and measured joint positions [deg] and shows them (returns None)."""
+    seedtools.plot_position_logs(iiwa_position_command_log, iiwa_position_measured_log)
 
 
 def CalcL7PoseInWolrdFrame(iiwa_position_log, num_plot_points=None, n_start=0, n_end=None):
