@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import signal
 import sys
 import threading
@@ -32,15 +33,24 @@ from doorlab.errors import (
     OutputError,
     interrupt_exit_code,
 )
+from doorlab.inputs import QUOTE_CHARS, quote_text
 
 USAGE_ERROR = 2
 
 
 class OneLineParser(argparse.ArgumentParser):
-    """argparse with one-line errors (no usage block) and exit code 2."""
+    """argparse with one-line errors (no usage block), values quoted short, exit code 2."""
 
     def error(self, message: str) -> NoReturn:
+        message = " ".join(_LONG_QUOTE.sub(_shorten, message).split())
         self.exit(USAGE_ERROR, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+_LONG_QUOTE = re.compile("'([^']{" + str(QUOTE_CHARS + 1) + ",})'")
+
+
+def _shorten(match: re.Match) -> str:
+    return quote_text(match.group(1))
 
 
 def bounded_int(low: int, high: int | None = None):
@@ -51,7 +61,7 @@ def bounded_int(low: int, high: int | None = None):
         try:
             value = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"must be {valid}, got {text!r}") from None
+            raise argparse.ArgumentTypeError(f"must be {valid}, got {quote_text(text)}") from None
         if value < low or (high is not None and value > high):
             raise argparse.ArgumentTypeError(f"must be {valid}, got {value}")
         return value
@@ -59,13 +69,21 @@ def bounded_int(low: int, high: int | None = None):
     return parse
 
 
+MIN_REALTIME_RATE = 0.01
+"""Slowest ``--realtime`` rate: 1/100 of real time already stretches the default episode to
+40 minutes; a slower one would outlast anyone watching it (0 still means as fast as possible)."""
+
+
 def _rate(text: str) -> float:
+    valid = f"0 (as fast as possible) or a number >= {MIN_REALTIME_RATE}"
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}")
+        raise argparse.ArgumentTypeError(f"must be {valid}, got {quote_text(text)}") from None
+    if not (math.isfinite(value) and (value == 0 or value >= MIN_REALTIME_RATE)):
+        raise argparse.ArgumentTypeError(
+            f"must be {valid} (slower would take over 40 min), got {quote_text(text)}"
+        )
     return value
 
 
@@ -269,20 +287,30 @@ def _version() -> str:
 
 
 def _apply_overrides(scenario: Scenario, overrides: Sequence[str]) -> Scenario:
-    """Applies ``KEY=VALUE`` overrides (dotted keys, YAML values) to a scenario."""
+    """Applies ``KEY=VALUE`` overrides (dotted keys, one YAML value each) to a scenario.
+
+    A VALUE is one YAML scalar or flow value on one line (``0.001``, ``[1, 2]``, ``{kind:
+    stiffness}``), so it can change only its KEY.
+    """
+    import yaml
+
+    from doorlab.inputs import load_yaml_value, quote_text
+
     for item in overrides:
         key, sep, value = item.partition("=")
         if not sep or not key or any(not part.isidentifier() for part in key.split(".")):
-            raise ConfigError(f"--set expects KEY=VALUE with a dotted KEY, got {item!r}")
-        parts = key.split(".")
-        document = value
-        for depth, part in enumerate(reversed(parts)):
-            indent = "  " * (len(parts) - 1 - depth)
-            document = f"{indent}{part}:" + (f" {document}" if depth == 0 else f"\n{document}")
+            raise ConfigError(f"--set expects KEY=VALUE with a dotted KEY, got {quote_text(item)}")
+        shown = quote_text(item)
         try:
-            scenario = update_scenario(scenario, document)
+            data: object = load_yaml_value(value)
         except ConfigError as e:
-            raise ConfigError(f"--set {item}: {e}") from None
+            raise ConfigError(f"--set {shown}: {e}") from None
+        for part in reversed(key.split(".")):
+            data = {part: data}
+        try:
+            scenario = update_scenario(scenario, yaml.safe_dump(data))
+        except ConfigError as e:
+            raise ConfigError(f"--set {shown}: {e}") from None
     return scenario
 
 
@@ -419,14 +447,16 @@ def _report(args: argparse.Namespace) -> int:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from doorlab.sweep import load_spec, run_sweep
-    from doorlab.sweep.results import RESULTS_PARQUET
+    from doorlab.sweep import load_spec
 
     if args.spec is None and not args.grid:
         raise ConfigError("give a SPEC file or at least one --grid KEY=V1,V2,...")
     if args.resume and args.force:
         raise ConfigError("--resume and --force exclude each other")
-    spec = load_spec(args.spec, grid=args.grid)
+    spec = load_spec(args.spec, grid=args.grid)  # before pandas is imported: refusals stay small
+    from doorlab.sweep import run_sweep
+    from doorlab.sweep.results import RESULTS_PARQUET
+
     jobs = args.jobs or os.cpu_count() or 1
     try:
         frame = run_sweep(
