@@ -208,12 +208,39 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _scheduler(parser: argparse.ArgumentParser) -> None:
+    from doorlab.executor import CONNECT_TIMEOUT_S
+
     parser.add_argument(
         "--scheduler",
         default=None,
         metavar="tcp://HOST:PORT",
         help="run on this Dask cluster instead of local processes (workers need doorlab)",
     )
+    parser.add_argument(
+        "--scheduler-timeout",
+        type=_seconds(0.1, 600.0),
+        default=CONNECT_TIMEOUT_S,
+        metavar="SECONDS",
+        help="how long each step of connecting to --scheduler may take "
+        f"(default {CONNECT_TIMEOUT_S:g}; 0.1-600)",
+    )
+
+
+def _seconds(low: float, high: float):
+    """An argparse type: a duration in [low, high] seconds."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(
+                f"must be a number of seconds in [{low:g}, {high:g}], got {quote_text(text)}"
+            )
+        return value
+
+    return parse
 
 
 def add_pset_parser(sub) -> None:
@@ -250,16 +277,37 @@ def _pset(args: argparse.Namespace) -> int:
         print(f"doorlab pset: wrote {out} ({kind}); grade it with: doorlab pset grade {out}")
         return 0
     from doorlab.pset.grader import grade, pretty_format_json_results, write_results
+    from doorlab.runs import record_written
 
     folder = check_problem_set(args.dir)
     out = args.out or folder / "test_results.json"
-    if out.parent and not out.parent.is_dir():
-        raise OutputError(f"cannot write {out}: {out.parent} is not a folder")
+    _check_writable(out)  # before grading: the grading takes minutes
     results = grade(folder, jobs=args.jobs)
     write_results(results, out)
+    record_written(folder, [out])  # doorlab's (pset init --force may replace it)
     print(pretty_format_json_results(out))
     print(f"doorlab pset: wrote {out} in {results['execution_time']:.0f} s")
     return 0
+
+
+def _check_writable(out: Path) -> None:
+    """Raises OutputError unless the file ``out`` can be written: its folder exists and takes
+    a new file (tried, for the real answer on any file system and for any user)."""
+    import tempfile
+
+    folder = out.parent
+    if out.is_dir():
+        raise OutputError(f"cannot write {out}: it is a folder")
+    if not folder.is_dir():
+        raise OutputError(f"cannot write {out}: {folder} is not a folder")
+    try:
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=f".{out.name}.", suffix=".probe"):
+            pass
+        if out.exists():
+            with open(out, "ab"):
+                pass
+    except OSError as e:
+        raise OutputError(f"cannot write {out}: {e.strerror or e}") from None
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
@@ -384,7 +432,7 @@ def _summary(outcome) -> str:
     lines += [f"  {name:<29}{value}" for name, value in rows]
     if outcome.message:
         lines.append(f"  note                         {outcome.message}")
-    files = sorted(p.name for p in outcome.out_dir.iterdir())
+    files = sorted(p.name for p in outcome.out_dir.iterdir() if not p.name.startswith("."))
     pngs = [f for f in files if f.endswith(".png")]
     others = [f for f in files if not f.endswith(".png")]
     lines.append(
@@ -436,12 +484,15 @@ def _report(args: argparse.Namespace) -> int:
         force=args.force,
         base=base,
         scheduler=args.scheduler,
+        scheduler_timeout_s=args.scheduler_timeout,
         robustness=not args.no_robustness,
     )
     if args.pdf:
         from doorlab.pdf import print_pdf
+        from doorlab.runs import record_written
 
         pdf = print_pdf(args.out / "index.html", args.out / "report.pdf", chromium=chromium)
+        record_written(args.out, [pdf])  # doorlab's, so a later --force may replace it
         print(f"doorlab report: wrote {pdf}")
     return code
 
@@ -464,21 +515,14 @@ def _sweep(args: argparse.Namespace) -> int:
             args.out,
             jobs=jobs,
             scheduler=args.scheduler,
+            scheduler_timeout_s=args.scheduler_timeout,
             resume=args.resume,
             force=args.force,
             progress=True,
         )
-    except KeyboardInterrupt:
-        from doorlab.sweep import read_table
-
-        table = read_table(args.out)
-        done = 0 if table is None else len(table)
-        print(
-            f"doorlab sweep: interrupted; {done} finished runs are in "
-            f"{args.out / RESULTS_PARQUET} (--resume continues)",
-            file=sys.stderr,
-        )
-        return 130
+    except KeyboardInterrupt as e:
+        print(f"doorlab sweep: interrupted; {_sweep_left(args.out)}", file=sys.stderr)
+        return interrupt_exit_code(e)
     counts = frame["status"].value_counts()
     statuses = ", ".join(f"{n} {status}" for status, n in counts.items())
     print(f"doorlab sweep: {len(frame)} runs ({statuses}) in {args.out}")
@@ -487,6 +531,22 @@ def _sweep(args: argparse.Namespace) -> int:
     )
     # Failed runs are results of a sweep (the table has them); an exception in a run is not.
     return 1 if (frame["status"] == "error").any() else 0
+
+
+def _sweep_left(out: Path) -> str:
+    """What an interrupted sweep left in ``out``: only what is there."""
+    from doorlab.sweep import read_table
+    from doorlab.sweep.results import RESULTS_PARQUET
+
+    try:
+        table = read_table(out) if out.is_dir() else None
+    except (OSError, ValueError):
+        table = None
+    if table is None:
+        return "no run had finished; nothing was written"
+    if len(table) == 0:
+        return f"no run had finished; {out / RESULTS_PARQUET} holds an empty table"
+    return f"{len(table)} finished runs are in {out / RESULTS_PARQUET} (--resume continues)"
 
 
 def _raise_interrupted(signum: int, frame) -> None:
@@ -521,6 +581,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt as e:
         print("doorlab: interrupted", file=sys.stderr)
         return interrupt_exit_code(e)
+    except ImportError as e:  # a signal while a C extension initialized ("initialization
+        interrupt = _interruption(e)  # failed", caused by the KeyboardInterrupt)
+        if interrupt is None:
+            raise
+        print("doorlab: interrupted", file=sys.stderr)
+        return interrupt_exit_code(interrupt)
+
+
+def _interruption(error: BaseException) -> KeyboardInterrupt | None:
+    """The KeyboardInterrupt (or Interrupted) that caused ``error``, if one did."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, KeyboardInterrupt):
+            return error
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return None
 
 
 if __name__ == "__main__":
