@@ -97,6 +97,8 @@ def spawning_workers() -> Iterator[None]:
     previous = signal.pthread_sigmask(signal.SIG_BLOCK, _BORN_BLOCKED)
     try:
         resource_tracker.ensure_running()
+        # ensure_running unblocks SIGINT and SIGTERM after starting the tracker: again.
+        signal.pthread_sigmask(signal.SIG_BLOCK, _BORN_BLOCKED)
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
