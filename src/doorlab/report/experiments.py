@@ -302,13 +302,15 @@ def run_report(
         start = time.perf_counter()
         records: dict[str, RunRecord] = {}
         everything = (*experiments, *extra)
-        bar = _Progress(len(everything), experiments=seed_names, enabled=progress)
+        bar = None
         if everything:
             with open_executor(
                 jobs=min(jobs, len(everything)),
                 scheduler=scheduler,
                 timeout_s=scheduler_timeout_s or CONNECT_TIMEOUT_S,
             ) as pool:
+                # The bar once connected: a scheduler that cannot be reached is one line.
+                bar = _Progress(len(everything), experiments=seed_names, enabled=progress)
                 work_dir = None
                 if scheduler is None:  # local workers: their temporary folders in ours
                     work_dir = staging / ".work"
@@ -335,6 +337,8 @@ def run_report(
                     bar.update(record)
             if (staging / ".work").is_dir():
                 shutil.rmtree(staging / ".work")  # empty: each worker removed its own folder
+        if bar is None:
+            bar = _Progress(len(everything), experiments=seed_names, enabled=progress)
         total = time.perf_counter() - start
         ordered = [records[name] for name in names]
         bar.close(f"runs done; {bar.failed} of {len(names)} experiments not ok; writing the page")
