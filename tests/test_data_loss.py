@@ -96,13 +96,15 @@ def _copy(source: Path, user: User, name: str) -> Path:
 # --force replaces only what doorlab wrote --------------------------------------------------
 
 
-def test_run_force_refuses_a_folder_holding_a_users_file(user):
-    """``mkdir v && echo precious > v/p.txt && doorlab run --out v --force``: exit 2 naming
-    p.txt, before any episode; v is untouched."""
+@pytest.mark.parametrize("command", ["run", "report", "sweep"])
+def test_force_refuses_a_folder_holding_a_users_file(user, command):
+    """``mkdir v && echo precious > v/p.txt && doorlab run --out v --force`` (and report,
+    sweep): exit 2 naming p.txt, before any episode; v is untouched."""
     folder = user.work / "v"
     folder.mkdir()
     (folder / "p.txt").write_text("precious\n")
-    outcome = user.run("run", "--out", "v", "--force", *SHORT)
+    argv = {"run": SHORT, "report": ["--no-robustness"], "sweep": ["--grid", "impedance.kv=1"]}
+    outcome = user.run(command, "--out", "v", "--force", *argv[command])
     assert_refused(outcome, "'v'", "p.txt", "--force")
     assert _snapshot(folder) == {"p.txt": b"precious\n"}
     assert user.clean()
