@@ -41,6 +41,8 @@ FAR_SPEC = (
     "controllers: [ik]\ndoors: [closed]\naxes:\n  station.cupboard_position: [[3.0, 0.0, 0.4148]]\n"
 )
 """A one-run sweep whose IK fails at once (the cupboard out of reach): a cheap sweep folder."""
+UMASK = 0o002
+"""A course group's umask: what doorlab writes must be group-writable under it."""
 
 
 class User:
@@ -78,11 +80,11 @@ def pristine(tmp_path_factory) -> dict[str, Path]:
     """Folders doorlab wrote, once per module: a run (short episode) and a sweep (one failed
     IK). Tests copy them (the manifest holds relative paths and content hashes)."""
     user = User(tmp_path_factory.mktemp("pristine"))
-    run = user.run("run", "--out", "run", *SHORT)
+    run = user.run("run", "--out", "run", *SHORT, umask=UMASK)
     assert_clean_exit(run, run.code)
     assert run.code in FINISHED, run.stderr
     (user.work / "far.yaml").write_text(FAR_SPEC)
-    sweep = user.run("sweep", "far.yaml", "--out", "sweep", "--jobs", "1")
+    sweep = user.run("sweep", "far.yaml", "--out", "sweep", "--jobs", "1", umask=UMASK)
     assert_clean_exit(sweep, 0)
     return {"run": user.work / "run", "sweep": user.work / "sweep"}
 
@@ -280,18 +282,13 @@ def _assert_umask_modes(folder: Path, umask: int) -> None:
         assert mode == expected, (rel, oct(mode), oct(expected))
 
 
-def test_folders_and_files_follow_the_umask(user):
-    """With umask 002 (a course group's), the pset folder, a run and a sweep's table are
-    group-writable: folders 0775, files 0664 (not tempfile's private 0700/0600)."""
-    (user.work / "far.yaml").write_text(FAR_SPEC)
-    for argv in (
-        ["pset", "init", "pset5"],
-        ["run", "--out", "run", *SHORT],
-        ["sweep", "far.yaml", "--out", "sweep", "--jobs", "1"],
-    ):
-        outcome = user.run(*argv, umask=0o002)
-        assert_clean_exit(outcome, outcome.code)
-        assert outcome.code in FINISHED, outcome.stderr
-    for name in ("pset5", "run", "sweep"):
-        _assert_umask_modes(user.work / name, 0o002)
+def test_folders_and_files_follow_the_umask(user, pristine):
+    """With umask 002 (a course group's), the pset folder, a run and a sweep (its table, page
+    and figures) are group-writable: folders 0775, files 0664 (not tempfile's private
+    0700/0600). The run and the sweep: the module's pristine folders, written under 002."""
+    outcome = user.run("pset", "init", "pset5", umask=UMASK)
+    assert_clean_exit(outcome, 0)
+    for folder in (user.work / "pset5", pristine["run"], pristine["sweep"]):
+        _assert_umask_modes(folder, UMASK)
+    assert (pristine["sweep"] / "results.parquet").is_file()
     assert user.clean()

@@ -166,7 +166,7 @@ def tcp_server(kind: str) -> Iterator[str]:
         server.close()
 
 
-SCHEDULER_TIMEOUT_S = 2.0
+SCHEDULER_TIMEOUT_S = 1.0
 """--scheduler-timeout in these tests (the default 10 s would only make them slower)."""
 
 
@@ -196,9 +196,7 @@ def test_a_server_that_is_no_scheduler_is_one_line_within_its_timeout(user, kind
     assert not (work / "out").exists() and _clean(user)
 
 
-@pytest.mark.parametrize(
-    "address", ["tcp://127.0.0.1:99999999", "tcp://127.0.0.1:0", "127.0.0.1:8786", "tcp://:8786"]
-)
+@pytest.mark.parametrize("address", ["tcp://127.0.0.1:99999999", "127.0.0.1:8786"])
 def test_a_bad_scheduler_address_is_refused_before_connecting(user, address):
     outcome = _run(user, "sweep", "--grid", "impedance.kv=100", "--scheduler", address)
     assert_refused(outcome, "--scheduler", "1-65535")
@@ -234,8 +232,8 @@ SHORT_SET = [
 
 @pytest.mark.parametrize(
     ("signum", "code", "settle_s"),
-    [(signal.SIGINT, 130, 0.0), (signal.SIGINT, 130, 4.0), (signal.SIGTERM, 143, 4.0)],
-    ids=["SIGINT while the workers start", "SIGINT mid-run", "SIGTERM mid-run"],
+    [(signal.SIGINT, 130, 0.0), (signal.SIGTERM, 143, 4.0)],
+    ids=["SIGINT while the workers start", "SIGTERM mid-run"],
 )
 def test_a_signal_to_a_reports_workers_leaves_nothing(user, signum, code, settle_s):
     """Ctrl-C or SIGTERM to the process group of ``doorlab report --jobs 2``: the documented

@@ -135,3 +135,30 @@ def test_only_small_regular_files_are_read(tmp_path):
     for path, needle in cases:
         with pytest.raises(ConfigError, match=needle):
             read_text_file(path, what="config file")
+
+
+@pytest.mark.parametrize(
+    ("address", "ok"),
+    [
+        ("tcp://127.0.0.1:8786", True),
+        ("tcp://[::1]:8786", True),
+        ("tls://scheduler.example.org", True),
+        ("tcp://127.0.0.1:99999999", False),
+        ("tcp://127.0.0.1:0", False),
+        ("tcp://host:", False),
+        ("tcp://:8786", False),
+        ("127.0.0.1:8786", False),
+        ("inproc://x", False),
+        ("tcp://a b:1", False),
+        ("tcp://user@host:1", False),
+        ("tcp://host:1/path", False),
+    ],
+)
+def test_scheduler_addresses_are_checked_with_their_port(address, ok):
+    from doorlab.executor import check_scheduler
+
+    if ok:
+        assert check_scheduler(address) == address
+    else:
+        with pytest.raises(ConfigError, match="1-65535"):
+            check_scheduler(address)

@@ -65,7 +65,7 @@ def test_a_set_value_is_one_value_for_its_key(user):
 
 @pytest.mark.parametrize(
     ("written", "works"),
-    [("1e+300", True), ("nan", False), ("inf", False), ("-inf", False), ("1e3", True)],
+    [("1e+300", True), ("nan", False), ("inf", False)],
 )
 def test_hints_suggest_only_spellings_that_work(user, written, works):
     """A number YAML reads as text: the hint, if any, is a spelling YAML reads as that number

@@ -81,9 +81,8 @@ def _rate(text: str) -> float:
     except ValueError:
         raise argparse.ArgumentTypeError(f"must be {valid}, got {quote_text(text)}") from None
     if not (math.isfinite(value) and (value == 0 or value >= MIN_REALTIME_RATE)):
-        raise argparse.ArgumentTypeError(
-            f"must be {valid} (slower would take over 40 min), got {quote_text(text)}"
-        )
+        why = " (slower would take over 40 min)" if 0 < value < MIN_REALTIME_RATE else ""
+        raise argparse.ArgumentTypeError(f"must be {valid}{why}, got {quote_text(text)}")
     return value
 
 
@@ -468,10 +467,20 @@ def _run(args: argparse.Namespace) -> int:
     return outcome.exit_code
 
 
+def _probe(args: argparse.Namespace) -> None:
+    """A --scheduler is checked and asked who it is before anything else is imported or
+    built: an address that is no Dask scheduler is one line within --scheduler-timeout."""
+    if args.scheduler is not None:
+        from doorlab.executor import check_scheduler, probe_scheduler
+
+        probe_scheduler(check_scheduler(args.scheduler), args.scheduler_timeout)
+
+
 def _report(args: argparse.Namespace) -> int:
+    base = _scenario(args)
+    _probe(args)
     from doorlab.report import run_report
 
-    base = _scenario(args)
     jobs = args.jobs or os.cpu_count() or 1
     chromium = None
     if args.pdf:
@@ -505,11 +514,11 @@ def _sweep(args: argparse.Namespace) -> int:
     if args.resume and args.force:
         raise ConfigError("--resume and --force exclude each other")
     spec = load_spec(args.spec, grid=args.grid)  # before pandas is imported: refusals stay small
-    from doorlab.sweep import run_sweep
-    from doorlab.sweep.results import RESULTS_PARQUET
-
     jobs = args.jobs or os.cpu_count() or 1
     try:
+        _probe(args)
+        from doorlab.sweep import run_sweep
+
         frame = run_sweep(
             spec,
             args.out,
@@ -523,6 +532,8 @@ def _sweep(args: argparse.Namespace) -> int:
     except KeyboardInterrupt as e:
         print(f"doorlab sweep: interrupted; {_sweep_left(args.out)}", file=sys.stderr)
         return interrupt_exit_code(e)
+    from doorlab.sweep.results import RESULTS_PARQUET
+
     counts = frame["status"].value_counts()
     statuses = ", ".join(f"{n} {status}" for status, n in counts.items())
     print(f"doorlab sweep: {len(frame)} runs ({statuses}) in {args.out}")
@@ -535,11 +546,13 @@ def _sweep(args: argparse.Namespace) -> int:
 
 def _sweep_left(out: Path) -> str:
     """What an interrupted sweep left in ``out``: only what is there."""
+    if not out.is_dir():
+        return "no run had finished; nothing was written"
     from doorlab.sweep import read_table
     from doorlab.sweep.results import RESULTS_PARQUET
 
     try:
-        table = read_table(out) if out.is_dir() else None
+        table = read_table(out)
     except (OSError, ValueError):
         table = None
     if table is None:

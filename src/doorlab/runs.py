@@ -324,7 +324,16 @@ def commit_output(staging: Path, out_dir: Path) -> None:
     """
     staging, target = Path(staging), _target(out_dir)
     write_manifest(staging)
+    try:
+        _swap(staging, target, out_dir)
+    except OSError as e:
+        raise OutputError(f"cannot write {str(out_dir)!r}: {e.strerror or e}") from None
+
+
+def _swap(staging: Path, target: Path, out_dir: Path) -> None:
     with deferred_signals():
+        if target.exists() and not target.is_dir():
+            raise OutputError(f"{str(out_dir)!r} is now a file; it was not replaced")
         if target.is_dir():
             found = foreign_file(target)
             if found is not None:
