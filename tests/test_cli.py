@@ -79,7 +79,7 @@ BAD_INPUTS = [
     ("report jobs 0", ["report", "--jobs", "0"], ["--jobs"]),
     ("out under a file", ["run", "--out", "afile/sub"], ["--out", "afile"]),
     ("out is a file", ["run", "--out", "afile"], ["--out", "afile"]),
-    ("out exists", ["run", "--out", "existing"], ["--out", "existing", "--force"]),
+    ("out exists", ["run", "--out", "existing"], ["--out", "existing", "keep.txt", "--force"]),
 ]
 
 

@@ -22,6 +22,7 @@ from doorlab.config import (
     DOOR_STATES,
     IK_OBJECTIVES,
     INNER_LOOPS,
+    MIN_TIME_STEP,
     Scenario,
     load_scenario,
     validate,
@@ -251,11 +252,19 @@ def test_range_boundaries_validate(field, value):
     validate(_with(field, value))
 
 
-@given(time_step=st.floats(min_value=0.0, max_value=CONTROL_PERIOD, exclude_min=True))
+@given(time_step=st.floats(min_value=MIN_TIME_STEP, max_value=CONTROL_PERIOD))
 @settings(max_examples=200, deadline=None, database=None)
 def test_any_time_step_up_to_the_control_period_validates(time_step):
-    """Any float time_step in (0, control_period] validates."""
+    """Any float time_step in [MIN_TIME_STEP, control_period] validates."""
     validate(_with("station.time_step", time_step))
+
+
+@given(time_step=st.floats(min_value=0.0, max_value=MIN_TIME_STEP, exclude_max=True))
+@settings(max_examples=100, deadline=None, database=None)
+def test_a_time_step_below_the_finest_fails(time_step):
+    """A time_step in [0, MIN_TIME_STEP) raises ConfigError naming the bound."""
+    with pytest.raises(ConfigError, match=r"station\.time_step"):
+        validate(_with("station.time_step", time_step))
 
 
 @given(

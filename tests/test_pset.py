@@ -169,6 +169,7 @@ def test_init_writes_the_original_layout_with_stubs_or_solutions(tmp_path):
         "pset5_open_cabinet_door.ipynb",
         "test_pset_5a.py",
         "README.md",
+        ".doorlab-manifest.json",  # what pset init wrote (doorlab.runs.MANIFEST_NAME)
     }
     for folder in (stubs, solutions):
         files = {str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file()}
@@ -204,8 +205,10 @@ def test_init_refuses_a_bad_destination(tmp_path, capsys):
     a_file.write_text("x")
     assert main(["pset", "init", str(a_file / "pset")]) == 2
     assert "is a file" in capsys.readouterr().err
+    assert main(["pset", "init", str(folder), "--force", "--solutions"]) == 2  # issue 19
+    assert "mine.txt" in capsys.readouterr().err and marker.read_text() == "keep"
+    marker.unlink()
     assert main(["pset", "init", str(folder), "--force", "--solutions"]) == 0
-    assert not marker.exists()
     assert main(["pset", "grade", str(tmp_path / "nowhere")]) == 2
     assert main(["pset", "grade", str(tmp_path)]) == 2
     assert "not a problem-set folder" in capsys.readouterr().err

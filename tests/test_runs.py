@@ -15,7 +15,7 @@ from doorlab import plots
 from doorlab.cli import main
 from doorlab.config import Scenario
 from doorlab.errors import OutputError
-from doorlab.runs import run_to_folder
+from doorlab.runs import MANIFEST_NAME, run_to_folder
 from doorlab.simulation import EpisodeResult
 
 METRICS_KEYS = {
@@ -162,7 +162,7 @@ def test_a_failed_simulation_is_a_diverged_run(tmp_path, monkeypatch, capsys):
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["status"] == "diverged" and "12.345" in metrics["error"]
     assert "diverged" in capsys.readouterr().out
-    assert sorted(p.name for p in out.iterdir()) == ["metrics.json"]
+    assert sorted(p.name for p in out.iterdir()) == [MANIFEST_NAME, "metrics.json"]
 
 
 def test_a_cupboard_out_of_reach_is_an_ik_failure(tmp_path, capsys):
@@ -173,7 +173,7 @@ def test_a_cupboard_out_of_reach_is_an_ik_failure(tmp_path, capsys):
     assert code == 6
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["status"] == "ik_failed" and "mm from the target" in metrics["error"]
-    assert sorted(p.name for p in out.iterdir()) == ["metrics.json"]
+    assert sorted(p.name for p in out.iterdir()) == [MANIFEST_NAME, "metrics.json"]
 
 
 def test_adaptive_run_folder_has_its_estimates(tmp_path):

@@ -24,8 +24,9 @@ import yaml
 from doorlab.cli import main
 from doorlab.config import Scenario
 from doorlab.errors import ConfigError
+from doorlab.runs import staged_output
 from doorlab.sweep import load_spec, parse_spec, plan_runs, read_table, run_one, run_sweep
-from doorlab.sweep.results import RESULTS_CSV, RESULTS_PARQUET, TIMING_COLUMNS
+from doorlab.sweep.results import RESULTS_CSV, RESULTS_PARQUET, TIMING_COLUMNS, write_table
 from doorlab.sweep.spec import scenario_key
 
 SHORT_TIMELINE = {
@@ -302,9 +303,10 @@ def test_same_rows_on_a_dask_local_cluster(local_sweep, tmp_path: Path):
 def test_resume_runs_only_the_missing_runs(local_sweep, tmp_path: Path):
     spec_path, out, table = local_sweep
     folder = tmp_path / "resume"
-    folder.mkdir()
+    with staged_output(folder, force=False):  # a sweep folder as doorlab makes it
+        pass
     kept = table.drop(index=0)  # the first run (ik_failed: costs no simulation) is "missing"
-    kept.to_parquet(folder / RESULTS_PARQUET, index=False)
+    write_table(kept, folder)  # written by doorlab: in the folder's manifest
     assert main(["sweep", str(spec_path), "--out", str(folder)]) == 2  # exists: needs --resume
     assert main(["sweep", str(spec_path), "--out", str(folder), "--resume"]) == 0
     resumed = read_table(folder)

@@ -8,12 +8,31 @@ Public API (see the README): :class:`Scenario` and :func:`load_scenario` (config
 :mod:`doorlab.report`.
 """
 
-from doorlab.config import Scenario, load_scenario, validate
-from doorlab.controllers import REGISTRY, get_controller, run_controller
 from doorlab.errors import ConfigError, DoorlabError, IkError, OutputError, SimulationError
-from doorlab.simulation import EpisodeResult, run_episode
 
 __version__ = "0.1.0"
+
+_LAZY = {
+    "Scenario": "config",
+    "load_scenario": "config",
+    "validate": "config",
+    "REGISTRY": "controllers",
+    "get_controller": "controllers",
+    "run_controller": "controllers",
+    "EpisodeResult": "simulation",
+    "run_episode": "simulation",
+}
+"""The API that needs pydrake, imported on first use: ``import doorlab`` stays light, so the
+``doorlab`` command handles signals before its imports (:mod:`doorlab.entry`)."""
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f"doorlab.{_LAZY[name]}"), name)
+    raise AttributeError(f"module 'doorlab' has no attribute {name!r}")
+
 
 __all__ = [
     "REGISTRY",

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import signal
 import sys
 import threading
@@ -32,15 +33,24 @@ from doorlab.errors import (
     OutputError,
     interrupt_exit_code,
 )
+from doorlab.inputs import QUOTE_CHARS, quote_text
 
 USAGE_ERROR = 2
 
 
 class OneLineParser(argparse.ArgumentParser):
-    """argparse with one-line errors (no usage block) and exit code 2."""
+    """argparse with one-line errors (no usage block), values quoted short, exit code 2."""
 
     def error(self, message: str) -> NoReturn:
+        message = " ".join(_LONG_QUOTE.sub(_shorten, message).split())
         self.exit(USAGE_ERROR, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+_LONG_QUOTE = re.compile("'([^']{" + str(QUOTE_CHARS + 1) + ",})'")
+
+
+def _shorten(match: re.Match) -> str:
+    return quote_text(match.group(1))
 
 
 def bounded_int(low: int, high: int | None = None):
@@ -51,7 +61,7 @@ def bounded_int(low: int, high: int | None = None):
         try:
             value = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"must be {valid}, got {text!r}") from None
+            raise argparse.ArgumentTypeError(f"must be {valid}, got {quote_text(text)}") from None
         if value < low or (high is not None and value > high):
             raise argparse.ArgumentTypeError(f"must be {valid}, got {value}")
         return value
@@ -59,13 +69,20 @@ def bounded_int(low: int, high: int | None = None):
     return parse
 
 
+MIN_REALTIME_RATE = 0.01
+"""Slowest ``--realtime`` rate: 1/100 of real time already stretches the default episode to
+40 minutes; a slower one would outlast anyone watching it (0 still means as fast as possible)."""
+
+
 def _rate(text: str) -> float:
+    valid = f"0 (as fast as possible) or a number >= {MIN_REALTIME_RATE}"
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}")
+        raise argparse.ArgumentTypeError(f"must be {valid}, got {quote_text(text)}") from None
+    if not (math.isfinite(value) and (value == 0 or value >= MIN_REALTIME_RATE)):
+        why = " (slower would take over 40 min)" if 0 < value < MIN_REALTIME_RATE else ""
+        raise argparse.ArgumentTypeError(f"must be {valid}{why}, got {quote_text(text)}")
     return value
 
 
@@ -190,12 +207,39 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _scheduler(parser: argparse.ArgumentParser) -> None:
+    from doorlab.executor import CONNECT_TIMEOUT_S
+
     parser.add_argument(
         "--scheduler",
         default=None,
         metavar="tcp://HOST:PORT",
         help="run on this Dask cluster instead of local processes (workers need doorlab)",
     )
+    parser.add_argument(
+        "--scheduler-timeout",
+        type=_seconds(0.1, 600.0),
+        default=CONNECT_TIMEOUT_S,
+        metavar="SECONDS",
+        help="how long each step of connecting to --scheduler may take "
+        f"(default {CONNECT_TIMEOUT_S:g}; 0.1-600)",
+    )
+
+
+def _seconds(low: float, high: float):
+    """An argparse type: a duration in [low, high] seconds."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(
+                f"must be a number of seconds in [{low:g}, {high:g}], got {quote_text(text)}"
+            )
+        return value
+
+    return parse
 
 
 def add_pset_parser(sub) -> None:
@@ -258,16 +302,37 @@ def _pset(args: argparse.Namespace) -> int:
         )
         return 0
     from doorlab.pset.grader import grade, pretty_format_json_results, write_results
+    from doorlab.runs import record_written
 
     folder = check_problem_set(args.dir)
     out = args.out or folder / "test_results.json"
-    if out.parent and not out.parent.is_dir():
-        raise OutputError(f"cannot write {out}: {out.parent} is not a folder")
+    _check_writable(out)  # before grading: the grading takes minutes
     results = grade(folder, jobs=args.jobs)
     write_results(results, out)
+    record_written(folder, [out])  # doorlab's (pset init --force may replace it)
     print(pretty_format_json_results(out))
     print(f"doorlab pset: wrote {out} in {results['execution_time']:.0f} s")
     return 0
+
+
+def _check_writable(out: Path) -> None:
+    """Raises OutputError unless the file ``out`` can be written: its folder exists and takes
+    a new file (tried, for the real answer on any file system and for any user)."""
+    import tempfile
+
+    folder = out.parent
+    if out.is_dir():
+        raise OutputError(f"cannot write {out}: it is a folder")
+    if not folder.is_dir():
+        raise OutputError(f"cannot write {out}: {folder} is not a folder")
+    try:
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=f".{out.name}.", suffix=".probe"):
+            pass
+        if out.exists():
+            with open(out, "ab"):
+                pass
+    except OSError as e:
+        raise OutputError(f"cannot write {out}: {e.strerror or e}") from None
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
@@ -295,20 +360,30 @@ def _version() -> str:
 
 
 def _apply_overrides(scenario: Scenario, overrides: Sequence[str]) -> Scenario:
-    """Applies ``KEY=VALUE`` overrides (dotted keys, YAML values) to a scenario."""
+    """Applies ``KEY=VALUE`` overrides (dotted keys, one YAML value each) to a scenario.
+
+    A VALUE is one YAML scalar or flow value on one line (``0.001``, ``[1, 2]``, ``{kind:
+    stiffness}``), so it can change only its KEY.
+    """
+    import yaml
+
+    from doorlab.inputs import load_yaml_value, quote_text
+
     for item in overrides:
         key, sep, value = item.partition("=")
         if not sep or not key or any(not part.isidentifier() for part in key.split(".")):
-            raise ConfigError(f"--set expects KEY=VALUE with a dotted KEY, got {item!r}")
-        parts = key.split(".")
-        document = value
-        for depth, part in enumerate(reversed(parts)):
-            indent = "  " * (len(parts) - 1 - depth)
-            document = f"{indent}{part}:" + (f" {document}" if depth == 0 else f"\n{document}")
+            raise ConfigError(f"--set expects KEY=VALUE with a dotted KEY, got {quote_text(item)}")
+        shown = quote_text(item)
         try:
-            scenario = update_scenario(scenario, document)
+            data: object = load_yaml_value(value)
         except ConfigError as e:
-            raise ConfigError(f"--set {item}: {e}") from None
+            raise ConfigError(f"--set {shown}: {e}") from None
+        for part in reversed(key.split(".")):
+            data = {part: data}
+        try:
+            scenario = update_scenario(scenario, yaml.safe_dump(data))
+        except ConfigError as e:
+            raise ConfigError(f"--set {shown}: {e}") from None
     return scenario
 
 
@@ -382,7 +457,7 @@ def _summary(outcome) -> str:
     lines += [f"  {name:<29}{value}" for name, value in rows]
     if outcome.message:
         lines.append(f"  note                         {outcome.message}")
-    files = sorted(p.name for p in outcome.out_dir.iterdir())
+    files = sorted(p.name for p in outcome.out_dir.iterdir() if not p.name.startswith("."))
     pngs = [f for f in files if f.endswith(".png")]
     others = [f for f in files if not f.endswith(".png")]
     lines.append(
@@ -418,10 +493,20 @@ def _run(args: argparse.Namespace) -> int:
     return outcome.exit_code
 
 
+def _probe(args: argparse.Namespace) -> None:
+    """A --scheduler is checked and asked who it is before anything else is imported or
+    built: an address that is no Dask scheduler is one line within --scheduler-timeout."""
+    if args.scheduler is not None:
+        from doorlab.executor import check_scheduler, probe_scheduler
+
+        probe_scheduler(check_scheduler(args.scheduler), args.scheduler_timeout)
+
+
 def _report(args: argparse.Namespace) -> int:
+    base = _scenario(args)
+    _probe(args)
     from doorlab.report import run_report
 
-    base = _scenario(args)
     jobs = args.jobs or os.cpu_count() or 1
     chromium = None
     if args.pdf:
@@ -434,47 +519,47 @@ def _report(args: argparse.Namespace) -> int:
         force=args.force,
         base=base,
         scheduler=args.scheduler,
+        scheduler_timeout_s=args.scheduler_timeout,
         robustness=not args.no_robustness,
     )
     if args.pdf:
         from doorlab.pdf import print_pdf
+        from doorlab.runs import record_written
 
         pdf = print_pdf(args.out / "index.html", args.out / "report.pdf", chromium=chromium)
+        record_written(args.out, [pdf])  # doorlab's, so a later --force may replace it
         print(f"doorlab report: wrote {pdf}")
     return code
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from doorlab.sweep import load_spec, run_sweep
-    from doorlab.sweep.results import RESULTS_PARQUET
+    from doorlab.sweep import load_spec
 
     if args.spec is None and not args.grid:
         raise ConfigError("give a SPEC file or at least one --grid KEY=V1,V2,...")
     if args.resume and args.force:
         raise ConfigError("--resume and --force exclude each other")
-    spec = load_spec(args.spec, grid=args.grid)
+    spec = load_spec(args.spec, grid=args.grid)  # before pandas is imported: refusals stay small
     jobs = args.jobs or os.cpu_count() or 1
     try:
+        _probe(args)
+        from doorlab.sweep import run_sweep
+
         frame = run_sweep(
             spec,
             args.out,
             jobs=jobs,
             scheduler=args.scheduler,
+            scheduler_timeout_s=args.scheduler_timeout,
             resume=args.resume,
             force=args.force,
             progress=True,
         )
-    except KeyboardInterrupt:
-        from doorlab.sweep import read_table
+    except KeyboardInterrupt as e:
+        print(f"doorlab sweep: interrupted; {_sweep_left(args.out)}", file=sys.stderr)
+        return interrupt_exit_code(e)
+    from doorlab.sweep.results import RESULTS_PARQUET
 
-        table = read_table(args.out)
-        done = 0 if table is None else len(table)
-        print(
-            f"doorlab sweep: interrupted; {done} finished runs are in "
-            f"{args.out / RESULTS_PARQUET} (--resume continues)",
-            file=sys.stderr,
-        )
-        return 130
     counts = frame["status"].value_counts()
     statuses = ", ".join(f"{n} {status}" for status, n in counts.items())
     print(f"doorlab sweep: {len(frame)} runs ({statuses}) in {args.out}")
@@ -483,6 +568,24 @@ def _sweep(args: argparse.Namespace) -> int:
     )
     # Failed runs are results of a sweep (the table has them); an exception in a run is not.
     return 1 if (frame["status"] == "error").any() else 0
+
+
+def _sweep_left(out: Path) -> str:
+    """What an interrupted sweep left in ``out``: only what is there."""
+    if not out.is_dir():
+        return "no run had finished; nothing was written"
+    from doorlab.sweep import read_table
+    from doorlab.sweep.results import RESULTS_PARQUET
+
+    try:
+        table = read_table(out)
+    except (OSError, ValueError):
+        table = None
+    if table is None:
+        return "no run had finished; nothing was written"
+    if len(table) == 0:
+        return f"no run had finished; {out / RESULTS_PARQUET} holds an empty table"
+    return f"{len(table)} finished runs are in {out / RESULTS_PARQUET} (--resume continues)"
 
 
 def _raise_interrupted(signum: int, frame) -> None:
@@ -517,6 +620,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt as e:
         print("doorlab: interrupted", file=sys.stderr)
         return interrupt_exit_code(e)
+    except ImportError as e:  # a signal while a C extension initialized ("initialization
+        interrupt = _interruption(e)  # failed", caused by the KeyboardInterrupt)
+        if interrupt is None:
+            raise
+        print("doorlab: interrupted", file=sys.stderr)
+        return interrupt_exit_code(interrupt)
+
+
+def _interruption(error: BaseException) -> KeyboardInterrupt | None:
+    """The KeyboardInterrupt (or Interrupted) that caused ``error``, if one did."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, KeyboardInterrupt):
+            return error
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return None
 
 
 if __name__ == "__main__":

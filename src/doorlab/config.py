@@ -19,11 +19,11 @@ import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import yaml
 from pydrake.common.yaml import yaml_load_typed
 
 from doorlab.constants import DOOR_ANGLES, NUM_JOINTS
 from doorlab.errors import ConfigError
+from doorlab.inputs import load_yaml, quote, quote_text, read_text_file, yaml_float_spelling
 
 CONTROLLERS = ("ik", "velocity", "impedance", "adaptive")
 """Names of the door-opening controllers: the seed's tasks 1-3, then the adaptive plan."""
@@ -36,6 +36,21 @@ LEFT_HINGE_RANGE = (-math.pi / 2, 0.0)
 RIGHT_HINGE_RANGE = (0.0, math.pi / 2)
 MAX_CUPBOARD_YAW_ERROR = math.pi / 4
 """Largest |station.cupboard_yaw_error| [rad]: beyond 45 deg the handle faces away from the arm."""
+
+MAX_EPISODE_DURATION = 600.0
+"""Longest timeline [s]: the sum of its durations (hold, approach, grasp, arc, extra_time; each
+plan also settles 1 s). 25x the seed's 24 s episode: the logs are kept in memory, and every
+metric, plot and replay covers the whole episode; a longer one is surely a typo."""
+MIN_TIME_STEP = 1e-5
+"""Finest ``station.time_step`` [s]: 200x finer than the original's 2 ms (the default episode
+is then 2.4 million plant steps)."""
+MIN_ARC_SAMPLES = 10
+"""The arc plan must tick and be logged at least this often: its metrics (tracking errors,
+door lag) come from those samples, so ``control_period`` and ``log_period`` are at most
+``arc_duration`` / 10."""
+MAX_LOG_SAMPLES = 300_000
+"""Most log samples of an episode (its length / ``log_period``): 600 s at 2 ms; each holds
+about 50 numbers, ~120 MB kept in memory before the metrics' copies."""
 
 MAX_GRASP_OFFSET = 0.01
 """Largest |ik.grasp_offset| per axis [m]: the handle is 10 mm thick, so a centimetre off
@@ -237,14 +252,11 @@ def load_scenario(path: str | Path, *, defaults: Scenario | None = None) -> Scen
             out-of-range values (the message names the file and the dotted field).
     """
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"config file {str(path)!r} does not exist")
+    text = read_text_file(path, what="config file")
     try:
-        return update_scenario(defaults or Scenario(), path.read_text())
+        return update_scenario(defaults or Scenario(), text)
     except ConfigError as e:
         raise ConfigError(f"config file {str(path)!r}: {e}") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise ConfigError(f"config file {str(path)!r} cannot be read: {e}") from None
 
 
 def update_scenario(scenario: Scenario, document: str) -> Scenario:
@@ -253,13 +265,7 @@ def update_scenario(scenario: Scenario, document: str) -> Scenario:
     Raises:
         ConfigError: Invalid YAML, unknown keys, wrong types or out-of-range values.
     """
-    try:
-        data = yaml.safe_load(document)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
-        problem = getattr(e, "problem", None) or type(e).__name__
-        raise ConfigError(f"invalid YAML{where}: {problem}") from None
+    data = load_yaml(document)  # within doorlab.inputs' budget, so Drake's parse below is too
     if data is None:
         return validate(scenario)
     _check_shape(data, Scenario, "")
@@ -283,14 +289,14 @@ def _check_shape(data: object, schema: object, path: str) -> None:
     name = path or "the scenario"
     if dataclasses.is_dataclass(schema):
         if not isinstance(data, dict):
-            raise ConfigError(f"{name} must be a mapping of fields, got {data!r}")
+            raise ConfigError(f"{name} must be a mapping of fields, got {quote(data)}")
         fields = {f.name: f.type for f in dataclasses.fields(schema)}
         hints = typing.get_type_hints(schema)
         for key, value in data.items():
             dotted = f"{path}.{key}" if path else str(key)
             if key not in fields:
                 raise ConfigError(
-                    f"unknown field {dotted!r}; valid fields here: {', '.join(fields)}"
+                    f"unknown field {quote(dotted)}; valid fields here: {', '.join(fields)}"
                 )
             _check_shape(value, hints[key], dotted)
         return
@@ -303,7 +309,7 @@ def _check_shape(data: object, schema: object, path: str) -> None:
         return
     if origin is list:
         if not isinstance(data, list):
-            raise ConfigError(f"{name} must be a list, got {data!r}")
+            raise ConfigError(f"{name} must be a list, got {quote(data)}")
         for i, item in enumerate(data):
             _check_shape(item, args[0], f"{path}[{i}]")
         return
@@ -316,11 +322,12 @@ def _check_shape(data: object, schema: object, path: str) -> None:
     if not ok:
         hint = ""
         if schema is float and isinstance(data, str):
-            try:
-                hint = f" (YAML reads {data} as text: write {float(data)!r})"
-            except ValueError:
-                pass
-        raise ConfigError(f"{name} must be {_type_name(schema)}, got {data!r}{hint}")
+            spelled = yaml_float_spelling(data)
+            if spelled is not None:
+                hint = f" (YAML reads {quote_text(data)} as text: write {spelled})"
+            elif data.strip().lower().lstrip("+-.") in ("nan", "inf", "infinity"):
+                hint = " (it must be a finite number)"
+        raise ConfigError(f"{name} must be {_type_name(schema)}, got {quote(data)}{hint}")
 
 
 def _check(condition: bool, message: str) -> None:
@@ -331,28 +338,73 @@ def _check(condition: bool, message: str) -> None:
 def _positive(name: str, value: float) -> None:
     _check(
         isinstance(value, (int, float)) and math.isfinite(value) and value > 0,
-        f"{name} must be a finite number > 0, got {value!r}",
+        f"{name} must be a finite number > 0, got {quote(value)}",
     )
 
 
 def _non_negative(name: str, value: float) -> None:
     _check(
         isinstance(value, (int, float)) and math.isfinite(value) and value >= 0,
-        f"{name} must be a finite number >= 0, got {value!r}",
+        f"{name} must be a finite number >= 0, got {quote(value)}",
     )
 
 
 def _choice(name: str, value: str, choices: tuple[str, ...]) -> None:
-    _check(value in choices, f"{name} must be one of {', '.join(choices)}; got {value!r}")
+    _check(value in choices, f"{name} must be one of {', '.join(choices)}; got {quote(value)}")
 
 
 def _gains(name: str, values: list[float], *, allow_zero: bool) -> None:
     _check(
         isinstance(values, (list, tuple)) and len(values) == NUM_JOINTS,
-        f"{name} must be a list of {NUM_JOINTS} numbers, got {values!r}",
+        f"{name} must be a list of {NUM_JOINTS} numbers, got {quote(values)}",
     )
     for i, v in enumerate(values):
         (_non_negative if allow_zero else _positive)(f"{name}[{i}]", v)
+
+
+def _validate_timeline(scenario: Scenario) -> None:
+    """Every duration and period finite, positive and bounded (see MAX_EPISODE_DURATION)."""
+    timeline, time_step = scenario.timeline, scenario.station.time_step
+    for f in dataclasses.fields(timeline):
+        value = getattr(timeline, f.name)
+        if f.name == "extra_time":
+            _non_negative(f"timeline.{f.name}", value)
+        else:
+            _positive(f"timeline.{f.name}", value)
+    durations = [f.name for f in dataclasses.fields(timeline) if not f.name.endswith("_period")]
+    total = sum(getattr(timeline, name) for name in durations)
+    _check(
+        total <= MAX_EPISODE_DURATION,
+        f"the timeline's durations ({', '.join(f'timeline.{n}' for n in durations)}) add up "
+        f"to {quote(total)} s; at most {MAX_EPISODE_DURATION:g} s (25x the seed's episode: the "
+        "logs are kept in memory and every metric, plot and replay covers the whole episode)",
+    )
+    _check(
+        time_step <= timeline.control_period,
+        f"station.time_step ({time_step} s) must not exceed timeline.control_period "
+        f"({timeline.control_period} s)",
+    )
+    _check(
+        timeline.log_period >= time_step,
+        f"timeline.log_period ({timeline.log_period} s) must be >= station.time_step "
+        f"({time_step} s)",
+    )
+    arc = timeline.arc_duration
+    for name in ("control_period", "log_period"):
+        value = getattr(timeline, name)
+        _check(
+            value <= arc / MIN_ARC_SAMPLES,
+            f"timeline.{name} ({quote(value)} s) must be at most timeline.arc_duration / "
+            f"{MIN_ARC_SAMPLES} ({arc / MIN_ARC_SAMPLES:g} s): the arc plan must "
+            + ("act" if name == "control_period" else "be logged")
+            + f" at least {MIN_ARC_SAMPLES} times, its metrics come from those samples",
+        )
+    samples = (total + 4.0) / timeline.log_period  # + the plans' settle times
+    _check(
+        samples <= MAX_LOG_SAMPLES,
+        f"timeline.log_period ({timeline.log_period} s) gives {samples:.0f} log samples over "
+        f"the episode; at most {MAX_LOG_SAMPLES} (about 50 numbers each, kept in memory)",
+    )
 
 
 def validate(scenario: Scenario) -> Scenario:
@@ -373,13 +425,15 @@ def validate(scenario: Scenario) -> Scenario:
             isinstance(angles, (list, tuple))
             and len(angles) == 2
             and all(isinstance(a, (int, float)) and math.isfinite(a) for a in angles),
-            f"door_angles must be two finite numbers [rad] (left, right), got {angles!r}",
+            f"door_angles must be two finite numbers [rad] (left, right), got {quote(angles)}",
         )
         for name, value, (lo, hi) in (
             ("door_angles[0] (left)", angles[0], LEFT_HINGE_RANGE),
             ("door_angles[1] (right)", angles[1], RIGHT_HINGE_RANGE),
         ):
-            _check(lo <= value <= hi, f"{name} must be in [{lo:.4f}, {hi:.4f}] rad, got {value!r}")
+            _check(
+                lo <= value <= hi, f"{name} must be in [{lo:.4f}, {hi:.4f}] rad, got {quote(value)}"
+            )
 
     station = scenario.station
     _positive("station.time_step", station.time_step)
@@ -389,13 +443,13 @@ def validate(scenario: Scenario) -> Scenario:
         isinstance(position, (list, tuple))
         and len(position) == 3
         and all(isinstance(v, (int, float)) and abs(v) <= 10.0 for v in position),
-        f"station.cupboard_position must be three numbers [m] within +-10 m, got {position!r}",
+        f"station.cupboard_position must be three numbers [m] within +-10 m, got {quote(position)}",
     )
     yaw = station.cupboard_yaw_error
     _check(
         isinstance(yaw, (int, float)) and math.isfinite(yaw) and abs(yaw) <= MAX_CUPBOARD_YAW_ERROR,
         f"station.cupboard_yaw_error must be a number in [-{MAX_CUPBOARD_YAW_ERROR:.4f}, "
-        f"{MAX_CUPBOARD_YAW_ERROR:.4f}] rad (+-45 deg), got {yaw!r}",
+        f"{MAX_CUPBOARD_YAW_ERROR:.4f}] rad (+-45 deg), got {quote(yaw)}",
     )
     _non_negative("station.hinge_damping", station.hinge_damping)
     _non_negative("station.friction", station.friction)
@@ -420,36 +474,25 @@ def validate(scenario: Scenario) -> Scenario:
         value = getattr(gripper, name)
         _check(
             isinstance(value, (int, float)) and 0.0 <= value <= 0.11,
-            f"station.gripper.{name} must be in [0, 0.11] m (finger travel), got {value!r}",
+            f"station.gripper.{name} must be in [0, 0.11] m (finger travel), got {quote(value)}",
         )
 
-    timeline = scenario.timeline
-    for f in dataclasses.fields(timeline):
-        value = getattr(timeline, f.name)
-        if f.name == "extra_time":
-            _non_negative(f"timeline.{f.name}", value)
-        else:
-            _positive(f"timeline.{f.name}", value)
     _check(
-        station.time_step <= timeline.control_period,
-        f"station.time_step ({station.time_step} s) must not exceed timeline.control_period "
-        f"({timeline.control_period} s)",
+        station.time_step >= MIN_TIME_STEP,
+        f"station.time_step must be >= {MIN_TIME_STEP} s, got {quote(station.time_step)} "
+        "(200x finer than the original's 2 ms; the default episode would be 2.4 million steps)",
     )
-    _check(
-        timeline.log_period >= station.time_step,
-        f"timeline.log_period ({timeline.log_period} s) must be >= station.time_step "
-        f"({station.time_step} s)",
-    )
+    _validate_timeline(scenario)
 
     angle_end = scenario.arc.angle_end_deg
     _check(
         isinstance(angle_end, (int, float)) and 15.0 <= angle_end <= 90.0,
-        f"arc.angle_end_deg must be in [15, 90] deg, got {angle_end!r}",
+        f"arc.angle_end_deg must be in [15, 90] deg, got {quote(angle_end)}",
     )
     ik = scenario.ik
     _check(
         isinstance(ik.knots, int) and not isinstance(ik.knots, bool) and 2 <= ik.knots <= 100,
-        f"ik.knots must be an integer in [2, 100], got {ik.knots!r}",
+        f"ik.knots must be an integer in [2, 100], got {quote(ik.knots)}",
     )
     _choice("ik.objective", ik.objective, IK_OBJECTIVES)
     for name in ("position_tolerance", "theta_bound", "grasp_position_tolerance"):
@@ -462,7 +505,8 @@ def validate(scenario: Scenario) -> Scenario:
             isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) <= MAX_GRASP_OFFSET
             for v in offset
         ),
-        f"ik.grasp_offset must be three numbers [m] within +-{MAX_GRASP_OFFSET} m, got {offset!r}",
+        f"ik.grasp_offset must be three numbers [m] within +-{MAX_GRASP_OFFSET} m, "
+        f"got {quote(offset)}",
     )
     for section in ("velocity", "impedance"):
         for f in dataclasses.fields(getattr(scenario, section)):
@@ -473,12 +517,19 @@ def validate(scenario: Scenario) -> Scenario:
         if f.name == "force_target":
             _check(
                 isinstance(value, (int, float)) and math.isfinite(value),
-                f"adaptive.force_target must be a finite number [N], got {value!r}",
+                f"adaptive.force_target must be a finite number [N], got {quote(value)}",
             )
         else:
             _positive(f"adaptive.{f.name}", value)
+    for name in ("ramp_time", "velocity_time_constant"):  # durations within the arc plan
+        value = getattr(adaptive, name)
+        _check(
+            value <= MAX_EPISODE_DURATION,
+            f"adaptive.{name} must be at most {MAX_EPISODE_DURATION:g} s (the longest "
+            f"timeline), got {quote(value)}",
+        )
     _check(
         adaptive.target_angle < 90.0,
-        f"adaptive.target_angle must be in (0, 90) deg, got {adaptive.target_angle!r}",
+        f"adaptive.target_angle must be in (0, 90) deg, got {quote(adaptive.target_angle)}",
     )
     return scenario

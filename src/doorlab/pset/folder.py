@@ -1,14 +1,14 @@
 """``doorlab pset init``: writes the problem-set folder (student stubs or solutions).
 
-The folder is rendered from Jinja2 templates (package data, ``templates/``) into a temporary
-sibling and renamed into place, so it appears complete or not at all.
+The folder is rendered from Jinja2 templates (package data, ``templates/``) into a staging
+sibling and renamed into place (:func:`doorlab.runs.staged_output`), so it appears complete or
+not at all, and carries doorlab's manifest: ``--force`` replaces it only while every file in it
+is the one ``pset init`` wrote.
 """
 
 from __future__ import annotations
 
 import math
-import shutil
-import tempfile
 from importlib.resources import files
 from pathlib import Path
 
@@ -131,45 +131,38 @@ def render_folder(solutions: bool) -> dict[str, str]:
 
 
 def check_destination(out: Path, *, force: bool) -> None:
-    """Raises OutputError if ``out`` cannot be (re)written."""
-    for parent in out.parents:
-        if parent.exists() and not parent.is_dir():
-            raise OutputError(f"{out}: {parent} is a file, not a folder")
-    if out.exists() and not out.is_dir():
-        raise OutputError(f"{out} is a file, not a folder")
-    if out.exists() and not force:
-        raise OutputError(f"{out} already exists; use --force to replace it")
+    """Raises OutputError if ``out`` cannot be (re)written: it exists without ``force``, or
+    holds a file ``pset init`` did not write or that changed since (a student's work)."""
+    from doorlab.runs import check_replaceable
+
+    check_replaceable(out, force=force, label=str(out))
 
 
 def init_folder(out: str | Path, *, solutions: bool = False, force: bool = False) -> Path:
-    """Writes the problem-set folder ``out`` (atomically).
+    """Writes the problem-set folder ``out`` (atomically, with doorlab's manifest).
 
     Args:
         out: The folder to write.
         solutions: Write the reference implementations instead of the stubs.
-        force: Replace an existing folder.
+        force: Replace a folder ``pset init`` wrote, if every file in it is unchanged (a
+            student's edited file is never replaced: the message names it).
 
     Raises:
-        OutputError: ``out`` exists without ``force``, is a file, or is under a file.
+        OutputError: ``out`` exists without ``force``, is a file, is under a file, or holds
+            a file that is not ``pset init``'s or was edited.
     """
+    from doorlab.runs import staged_output
+
     out = Path(out)
     check_destination(out, force=force)
     texts = render_folder(solutions)
     try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+        with staged_output(out, force=force, label=str(out)) as staging:
+            for rel, text in texts.items():
+                path = staging / rel
+                path.parent.mkdir(parents=True, exist_ok=True)
+                path.write_text(text)
     except OSError as e:
-        raise OutputError(f"cannot write {out}: {e.strerror or e}") from None
-    try:
-        for rel, text in texts.items():
-            path = tmp / rel
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(text)
-        if out.exists():
-            shutil.rmtree(out)
-        tmp.rename(out)
-    except OSError as e:
-        shutil.rmtree(tmp, ignore_errors=True)
         raise OutputError(f"cannot write {out}: {e.strerror or e}") from None
     return out
 

@@ -159,20 +159,26 @@ def _record_failure(
 
 
 def _run_experiment(
-    name: str, scenario: Scenario, replay: bool = True
+    name: str, scenario: Scenario, replay: bool = True, work_dir: str | None = None
 ) -> tuple[RunRecord, dict[str, bytes]]:
     """Worker: runs one experiment; returns its record and its run folder's files.
 
-    The folder is written in the worker's temporary directory and shipped back as bytes, so a
-    worker on another machine (a Dask cluster) needs no shared file system. Never raises for a
-    failed run.
+    The folder is written in a temporary directory and shipped back as bytes, so a worker on
+    another machine (a Dask cluster) needs no shared file system. Never raises for a failed
+    run.
+
+    Args:
+        name, scenario, replay: The experiment, and whether to write its replay.
+        work_dir: Where the temporary directory goes (a local worker: inside the report's
+            staging folder, so a worker killed by Ctrl-C or SIGTERM leaves nothing behind
+            once its parent removes that folder); None: the machine's temporary directory.
     """
     import tempfile
 
     from doorlab.runs import run_to_folder
 
     start = time.perf_counter()
-    with tempfile.TemporaryDirectory(prefix="doorlab_run_") as tmp:
+    with tempfile.TemporaryDirectory(prefix="doorlab_run_", dir=work_dir) as tmp:
         folder = Path(tmp) / name
         try:
             outcome = run_to_folder(scenario, folder, replay=replay)
@@ -236,6 +242,7 @@ def run_report(
     experiments: Sequence[tuple[str, Scenario]] | None = None,
     scheduler: str | None = None,
     robustness: bool = True,
+    scheduler_timeout_s: float | None = None,
 ) -> int:
     """Runs the experiments in parallel and writes the report folder atomically.
 
@@ -249,6 +256,8 @@ def run_report(
         experiments: (name, scenario) pairs to run instead of ``make_experiments(base)``.
         scheduler: Run on this Dask cluster (``tcp://HOST:PORT``) instead of ``jobs`` local
             processes (:mod:`doorlab.executor`).
+        scheduler_timeout_s: Each step of connecting to ``scheduler`` [s] (default
+            :data:`doorlab.executor.CONNECT_TIMEOUT_S`).
         robustness: Also run the robustness grid (:func:`make_robustness_cases` on ``base``,
             reusing the experiments' identical runs; no replay) and add its section.
 
@@ -261,8 +270,8 @@ def run_report(
         ConfigError: ``jobs`` < 1, duplicate or unsafe experiment names, invalid ``base``.
         OutputError: ``out_dir`` exists (without ``force``) or cannot be written.
     """
-    from doorlab.executor import check_scheduler, open_executor
-    from doorlab.runs import commit_output, prepare_output
+    from doorlab.executor import CONNECT_TIMEOUT_S, check_scheduler, open_executor
+    from doorlab.runs import staged_output
 
     if scheduler is not None:
         check_scheduler(scheduler)
@@ -287,21 +296,33 @@ def run_report(
             raise ConfigError(f"experiment names clash with the robustness runs: {clash}")
     seed_names = set(names)
 
-    staging = prepare_output(Path(out_dir), force=force)
-    try:
+    with staged_output(Path(out_dir), force=force) as staging:
         runs_dir = staging / "runs"
         runs_dir.mkdir()
         start = time.perf_counter()
         records: dict[str, RunRecord] = {}
         everything = (*experiments, *extra)
-        bar = _Progress(len(everything), experiments=seed_names, enabled=progress)
+        bar = None
         if everything:
-            with open_executor(jobs=min(jobs, len(everything)), scheduler=scheduler) as pool:
+            with open_executor(
+                jobs=min(jobs, len(everything)),
+                scheduler=scheduler,
+                timeout_s=scheduler_timeout_s or CONNECT_TIMEOUT_S,
+            ) as pool:
+                # The bar once connected: a scheduler that cannot be reached is one line.
+                bar = _Progress(len(everything), experiments=seed_names, enabled=progress)
+                work_dir = None
+                if scheduler is None:  # local workers: their temporary folders in ours
+                    work_dir = staging / ".work"
+                    work_dir.mkdir()
                 futures = {
-                    pool.submit(_run_experiment, name, scenario, name in seed_names): (
+                    pool.submit(
+                        _run_experiment,
                         name,
                         scenario,
-                    )
+                        name in seed_names,
+                        None if work_dir is None else str(work_dir),
+                    ): (name, scenario)
                     for name, scenario in everything
                 }
                 for future in concurrent.futures.as_completed(futures):
@@ -314,6 +335,10 @@ def run_report(
                         )
                     records[name] = record
                     bar.update(record)
+            if (staging / ".work").is_dir():
+                shutil.rmtree(staging / ".work")  # empty: each worker removed its own folder
+        if bar is None:
+            bar = _Progress(len(everything), experiments=seed_names, enabled=progress)
         total = time.perf_counter() - start
         ordered = [records[name] for name in names]
         bar.close(f"runs done; {bar.failed} of {len(names)} experiments not ok; writing the page")
@@ -321,10 +346,6 @@ def run_report(
 
         grid = [(case, records[case.run]) for case in cases] if robustness else None
         build_page(ordered, staging, total_wall_time_s=total, jobs=jobs, robustness=grid)
-        commit_output(staging, Path(out_dir))
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
     if progress:
         sys.stderr.write(f"report written to {out_dir} in {time.perf_counter() - start:.0f} s\n")
     return 0 if all(r.status == "ok" for r in ordered) else 1

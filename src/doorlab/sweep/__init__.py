@@ -4,11 +4,23 @@
 states and axis values (:mod:`doorlab.sweep.spec`) through one executor
 (:mod:`doorlab.executor`), collect one row per run (:mod:`doorlab.sweep.results`) and write
 the sweep page (:mod:`doorlab.sweep.page`).
+
+Running and the table (pandas) are imported on first use, so reading and checking a SPEC
+(:func:`load_spec`) costs no pandas import: a refused SPEC stays small and fast.
 """
 
-from doorlab.sweep.execution import run_one, run_sweep
-from doorlab.sweep.results import read_table
 from doorlab.sweep.spec import Axis, PlannedRun, SweepSpec, load_spec, parse_spec, plan_runs
+
+_LAZY = {"run_one": "execution", "run_sweep": "execution", "read_table": "results"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f"doorlab.sweep.{_LAZY[name]}"), name)
+    raise AttributeError(f"module 'doorlab.sweep' has no attribute {name!r}")
+
 
 __all__ = [
     "Axis",

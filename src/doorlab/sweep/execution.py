@@ -10,7 +10,6 @@ those that ended with ``error`` (an exception may be transient: a lost worker).
 from __future__ import annotations
 
 import concurrent.futures
-import shutil
 import sys
 import threading
 import time
@@ -82,12 +81,29 @@ def run_one(scenario: Scenario) -> dict:
     return row
 
 
+SWEEP_FILES = (RESULTS_PARQUET, RESULTS_CSV, *PAGE_FILES)
+"""What a sweep writes into its folder (and a resumed sweep rewrites)."""
+
+
 def _check_dir(out_dir: Path, *, resume: bool, force: bool) -> pd.DataFrame | None:
-    """Checks ``out_dir`` may be written (writing nothing); returns the table to resume from."""
+    """Checks ``out_dir`` may be written (writing nothing); returns the table to resume from.
+
+    A new sweep needs a missing or empty folder, or with ``force`` one holding nothing but
+    an earlier sweep's files, unchanged (:func:`doorlab.runs.check_replaceable`); a resumed
+    one rewrites only its own files, so those must be doorlab's and unchanged.
+    """
+    from doorlab.runs import check_replaceable, foreign_file
+
     if out_dir.exists() and not out_dir.is_dir():
         raise OutputError(f"--out {str(out_dir)!r} is a file, not a folder")
     existing = out_dir.is_dir() and any(out_dir.iterdir())
     if existing and resume:
+        found = foreign_file(out_dir, only=SWEEP_FILES)
+        if found is not None:
+            raise OutputError(
+                f"--out {str(out_dir)!r} holds {found[0]!r}, {found[1]}, and --resume would "
+                "overwrite it; move it away or choose another --out"
+            )
         try:
             return read_table(out_dir)
         except (OSError, ValueError) as e:
@@ -97,22 +113,19 @@ def _check_dir(out_dir: Path, *, resume: bool, force: bool) -> pd.DataFrame | No
             f"--out {str(out_dir)!r} already exists; pass --resume to continue its sweep or "
             "--force to start over"
         )
-    for ancestor in out_dir.resolve().parents:
-        if ancestor.exists() and not ancestor.is_dir():
-            raise OutputError(f"--out {str(out_dir)!r}: {str(ancestor)!r} is a file")
+    check_replaceable(out_dir, force=force)
     return None
 
 
-def _make_dir(out_dir: Path, *, resume: bool) -> None:
-    """Creates ``out_dir``; without ``resume``, removes an earlier sweep's files from it."""
-    try:
-        if not resume and out_dir.is_dir():
-            for name in (RESULTS_PARQUET, RESULTS_CSV, *PAGE_FILES):
-                path = out_dir / name
-                shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise OutputError(f"cannot write --out {str(out_dir)!r}: {e.strerror}") from None
+def _make_dir(out_dir: Path, *, resume: bool, force: bool) -> None:
+    """Creates ``out_dir`` (empty, with a manifest: it replaces an earlier sweep's folder), or
+    with ``resume`` keeps it."""
+    from doorlab.runs import staged_output
+
+    if resume and out_dir.is_dir():
+        return
+    with staged_output(out_dir, force=force):
+        pass
 
 
 def _row(run: PlannedRun, outcome: dict) -> dict:
@@ -132,6 +145,7 @@ def run_sweep(
     *,
     jobs: int = 1,
     scheduler: str | None = None,
+    scheduler_timeout_s: float | None = None,
     resume: bool = False,
     force: bool = False,
     progress: bool = False,
@@ -145,6 +159,8 @@ def run_sweep(
             write nothing, return the table).
         jobs: Local worker processes (ignored with ``scheduler``).
         scheduler: Dask scheduler address ``tcp://HOST:PORT`` (None: local processes).
+        scheduler_timeout_s: Each step of connecting to it [s] (default
+            :data:`doorlab.executor.CONNECT_TIMEOUT_S`).
         resume: Keep the rows of ``out_dir``'s table and run only the missing runs.
         force: Start over in an existing ``out_dir``.
         progress: Show a progress bar (counts, failures, ETA) on stderr.
@@ -158,7 +174,7 @@ def run_sweep(
             ``resume`` or ``force``) or cannot be written.
         KeyboardInterrupt: After writing the table of the runs finished so far.
     """
-    from doorlab.executor import check_scheduler, open_executor
+    from doorlab.executor import CONNECT_TIMEOUT_S, check_scheduler, open_executor
 
     if not isinstance(spec, SweepSpec):
         spec = load_spec(spec)
@@ -202,14 +218,18 @@ def run_sweep(
     started = False  # the folder is ours to write from here on
     try:
         if not todo and out is not None:
-            _make_dir(out, resume=resume)
+            _make_dir(out, resume=resume, force=force)
             started = True
             save(now=True)
         if todo:
             # The executor first: a scheduler that cannot be reached leaves nothing written.
-            with open_executor(jobs=min(jobs, len(todo)), scheduler=scheduler) as executor:
+            with open_executor(
+                jobs=min(jobs, len(todo)),
+                scheduler=scheduler,
+                timeout_s=scheduler_timeout_s or CONNECT_TIMEOUT_S,
+            ) as executor:
                 if out is not None:
-                    _make_dir(out, resume=resume)
+                    _make_dir(out, resume=resume, force=force)
                     started = True
                     save(now=True)
                 description = executor.description
@@ -219,7 +239,10 @@ def run_sweep(
                 futures = {executor.submit(run_one, run.scenario): run for run in todo}
                 for future in concurrent.futures.as_completed(futures):
                     run = futures[future]
-                    error = future.exception()
+                    try:
+                        error = future.exception()
+                    except concurrent.futures.CancelledError:  # a cluster that lost the task
+                        error = RuntimeError("the run was cancelled (its worker was lost)")
                     if isinstance(error, KeyboardInterrupt):
                         raise KeyboardInterrupt
                     if error is not None:  # the worker died or could not run the task

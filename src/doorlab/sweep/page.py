@@ -5,14 +5,13 @@ axes, and the table of every run. Built from the results table only (never simul
 from __future__ import annotations
 
 import itertools
-import shutil
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from doorlab.pages import Figures, format_number, machine_rows, metric_header, metric_unit, render
-from doorlab.runs import write_json
+from doorlab.runs import record_written, remove_written, write_json
 from doorlab.sweep.figures import headline_metrics, plot_heatmaps, plot_metrics_vs_axis
 from doorlab.sweep.spec import Axis, SweepSpec
 
@@ -109,7 +108,7 @@ def build_sweep_page(
     """
     out_dir = Path(out_dir)
     figures_dir = out_dir / "figures"
-    shutil.rmtree(figures_dir, ignore_errors=True)
+    remove_written(out_dir, "figures")  # the last page's figures; a user's files there stay
     figures = Figures(figures_dir)
     metrics = headline_metrics(frame)
     connect = spec.is_grid or len(spec.axes) == 1
@@ -204,4 +203,5 @@ def build_sweep_page(
             ],
         },
     )
+    record_written(out_dir, [index, out_dir / "sweep.json", *figures.paths])
     return index

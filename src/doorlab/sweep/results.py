@@ -79,9 +79,12 @@ def make_table(rows: Sequence[dict], axes: Sequence[str]) -> pd.DataFrame:
 
 
 def _atomic(path: Path, write) -> None:
+    from doorlab.runs import follow_umask
+
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
     try:
+        follow_umask(Path(tmp), folder=False)  # mkstemp makes it 0600; a table is shared
         write(tmp)
         os.replace(tmp, path)
     except BaseException:
@@ -90,10 +93,14 @@ def _atomic(path: Path, write) -> None:
 
 
 def write_table(frame: pd.DataFrame, out_dir: Path) -> None:
-    """Writes ``results.parquet`` and ``results.csv`` into ``out_dir``, each atomically."""
+    """Writes ``results.parquet`` and ``results.csv`` into ``out_dir``, each atomically, and
+    records them in the folder's manifest (so ``--force`` knows them for doorlab's)."""
+    from doorlab.runs import record_written
+
     out_dir = Path(out_dir)
     _atomic(out_dir / RESULTS_PARQUET, lambda p: frame.to_parquet(p, index=False))
     _atomic(out_dir / RESULTS_CSV, lambda p: frame.to_csv(p, index=False))
+    record_written(out_dir, [out_dir / RESULTS_PARQUET, out_dir / RESULTS_CSV])
 
 
 def read_table(out_dir: Path) -> pd.DataFrame | None:

@@ -44,6 +44,14 @@ from doorlab.config import (
     validate,
 )
 from doorlab.errors import ConfigError
+from doorlab.inputs import (
+    load_yaml,
+    load_yaml_value,
+    quote,
+    quote_text,
+    read_text_file,
+    shorten,
+)
 from doorlab.sweep.document import SpecDocument
 
 SPEC_KEYS = ("base", "scenario", "controllers", "doors", "axes", "samples", "seed")
@@ -145,18 +153,19 @@ def field_type(dotted: str) -> object:
     for depth, part in enumerate(parts):
         if not dataclasses.is_dataclass(schema):
             raise ConfigError(
-                f"unknown scenario field {dotted!r}: {'.'.join(parts[:depth])} has no fields"
+                f"unknown scenario field {quote(dotted)}: {'.'.join(parts[:depth])} has no fields"
             )
         hints = typing.get_type_hints(schema)
         if part not in hints:
             where = ".".join(parts[:depth]) or "the scenario"
             raise ConfigError(
-                f"unknown scenario field {dotted!r}; valid fields of {where}: {', '.join(hints)}"
+                f"unknown scenario field {quote(dotted)}; valid fields of {where}: "
+                f"{', '.join(hints)}"
             )
         schema = hints[part]
     if dataclasses.is_dataclass(schema):
         raise ConfigError(
-            f"{dotted!r} is a group of fields; sweep one of: "
+            f"{quote(dotted)} is a group of fields; sweep one of: "
             f"{', '.join(f'{dotted}.{k}' for k in typing.get_type_hints(schema))}"
         )
     return schema
@@ -184,9 +193,9 @@ def _is_number(value: object) -> bool:
 
 
 def _parse_axis(name: object, raw: object, *, grid: bool) -> Axis:
-    where = f"axes.{name}"
+    where = f"axes.{shorten(str(name))}"
     if not isinstance(name, str) or not name:
-        raise ConfigError(f"axes: field names must be dotted scenario fields, got {name!r}")
+        raise ConfigError(f"axes: field names must be dotted scenario fields, got {quote(name)}")
     if name in RESERVED_FIELDS:
         raise ConfigError(f"{where}: set {name} with the SPEC's controllers:/doors: lists")
     kind = field_type(name)
@@ -199,12 +208,13 @@ def _parse_axis(name: object, raw: object, *, grid: bool) -> Axis:
     if not isinstance(raw, dict):
         raise ConfigError(
             f"{where} must be a list of values or a range {{low, high, num, log, unit}}, "
-            f"got {raw!r}"
+            f"got {quote(raw)}"
         )
     for key in raw:
         if key not in RANGE_KEYS:
             raise ConfigError(
-                f"unknown key {where}.{key}; valid keys of a range: {', '.join(RANGE_KEYS)}"
+                f"unknown key {where}.{shorten(str(key))}; valid keys of a range: "
+                f"{', '.join(RANGE_KEYS)}"
             )
     if kind not in (float, int):
         raise ConfigError(f"{where}: a range needs a numeric field; give a list of values")
@@ -212,13 +222,13 @@ def _parse_axis(name: object, raw: object, *, grid: bool) -> Axis:
         if key not in raw:
             raise ConfigError(f"{where}.{key} is missing (a range needs low and high)")
         if not _is_number(raw[key]) or not math.isfinite(raw[key]):
-            raise ConfigError(f"{where}.{key} must be a number, got {raw[key]!r}")
+            raise ConfigError(f"{where}.{key} must be a number, got {quote(raw[key])}")
     log = raw.get("log", False)
     if not isinstance(log, bool):
-        raise ConfigError(f"{where}.log must be true or false, got {log!r}")
+        raise ConfigError(f"{where}.log must be true or false, got {quote(log)}")
     unit = raw.get("unit", "")
     if unit not in ("", *AXIS_UNITS):
-        raise ConfigError(f"{where}.unit must be one of {', '.join(AXIS_UNITS)}, got {unit!r}")
+        raise ConfigError(f"{where}.unit must be one of {', '.join(AXIS_UNITS)}, got {quote(unit)}")
     scale = AXIS_UNITS.get(unit, 1.0)
     low, high = float(raw["low"]) * scale, float(raw["high"]) * scale
     if not low < high:
@@ -227,7 +237,7 @@ def _parse_axis(name: object, raw: object, *, grid: bool) -> Axis:
         raise ConfigError(f"{where}: a log range needs low > 0, got {raw['low']}")
     num = raw.get("num")
     if num is not None and (not isinstance(num, int) or isinstance(num, bool) or num < 1):
-        raise ConfigError(f"{where}.num must be an integer >= 1, got {num!r}")
+        raise ConfigError(f"{where}.num must be an integer >= 1, got {quote(num)}")
     values = None
     if num is not None:
         space = np.geomspace if log else np.linspace
@@ -238,6 +248,48 @@ def _parse_axis(name: object, raw: object, *, grid: bool) -> Axis:
     elif grid:
         raise ConfigError(f"{where}.num is missing: a grid needs the number of values")
     return Axis(name, values, low, high, log, unit, kind)
+
+
+def _axis_size(raw: object) -> int:
+    """How many values an axis of the SPEC has on the grid, read from its YAML alone."""
+    if isinstance(raw, list):
+        return len(raw)
+    if isinstance(raw, dict):
+        num = raw.get("num")
+        if isinstance(num, int) and not isinstance(num, bool) and num >= 1:
+            return num
+    return 1  # a malformed axis: _parse_axis names the problem
+
+
+def check_run_count(
+    raw_axes: dict, *, samples: int, controllers: list[str], doors: list[str]
+) -> int:
+    """The sweep's run count from the SPEC's axes alone (before any value exists).
+
+    Returns:
+        The count: controllers x doors x (the grid's points, or ``samples``).
+
+    Raises:
+        ConfigError: More than :data:`MAX_RUNS` (the message has the count and its factors).
+    """
+    if samples:
+        factors = [samples]
+        what = f"{samples} samples"
+    else:
+        factors = [_axis_size(raw) for raw in raw_axes.values()]
+        shown = [
+            f"{size} ({quote_text(str(name))})"
+            for name, size in itertools.islice(zip(raw_axes, factors, strict=True), 6)
+        ]
+        what = " x ".join(shown) + (f" x ... ({len(factors)} axes)" if len(factors) > 6 else "")
+    total = len(controllers) * len(doors) * math.prod(factors)
+    if total > MAX_RUNS:
+        raise ConfigError(
+            f"the sweep has {total} runs ({what} x {len(controllers)} controller(s) x "
+            f"{len(doors)} door state(s)); at most {MAX_RUNS}: each run is an episode of "
+            "seconds, so split the sweep or draw samples:"
+        )
+    return total
 
 
 def parse_spec(data: object, *, base_dir: Path | None = None) -> SweepSpec:
@@ -255,7 +307,7 @@ def parse_spec(data: object, *, base_dir: Path | None = None) -> SweepSpec:
         raise ConfigError(f"a SPEC must be a mapping with keys {', '.join(SPEC_KEYS)}")
     for key in data:
         if key not in SPEC_KEYS:
-            raise ConfigError(f"unknown key {key!r}; valid keys: {', '.join(SPEC_KEYS)}")
+            raise ConfigError(f"unknown key {quote(key)}; valid keys: {', '.join(SPEC_KEYS)}")
     from doorlab.controllers import REGISTRY
 
     # The typed keys: the scenario's shape check (naming the key), then yaml_load_typed.
@@ -282,34 +334,54 @@ def parse_spec(data: object, *, base_dir: Path | None = None) -> SweepSpec:
     for name in controllers:
         if name not in REGISTRY:
             raise ConfigError(
-                f"controllers: unknown controller {name!r}; choose from {', '.join(REGISTRY)}"
+                f"controllers: unknown controller {quote(name)}; choose from {', '.join(REGISTRY)}"
             )
     doors = document.doors if document.doors is not None else [base.doors]
     for state in doors:
         if state not in DOOR_STATES:
             raise ConfigError(
-                f"doors: unknown state {state!r}; choose from {', '.join(DOOR_STATES)}"
+                f"doors: unknown state {quote(state)}; choose from {', '.join(DOOR_STATES)}"
             )
     for name, values in (("controllers", controllers), ("doors", doors)):
         if not values:
             raise ConfigError(f"{name} is empty; give at least one")
         if len(set(values)) != len(values):
-            raise ConfigError(f"{name} lists a value twice: {values}")
+            raise ConfigError(f"{name} lists a value twice: {quote(values)}")
     samples, seed = document.samples, document.seed
     if samples < 0:
-        raise ConfigError(f"samples must be an integer >= 0 (0: the full grid), got {samples!r}")
+        raise ConfigError(
+            f"samples must be an integer >= 0 (0: the full grid), got {quote(samples)}"
+        )
     if seed < 0:
-        raise ConfigError(f"seed must be an integer >= 0, got {seed!r}")
+        raise ConfigError(f"seed must be an integer >= 0, got {quote(seed)}")
 
     raw_axes = data.get("axes")
     if raw_axes is None or raw_axes == {}:
         raise ConfigError("axes is empty; name at least one scenario field to sweep")
     if not isinstance(raw_axes, dict):
-        raise ConfigError(f"axes must map dotted scenario fields to values, got {raw_axes!r}")
+        raise ConfigError(f"axes must map dotted scenario fields to values, got {quote(raw_axes)}")
+    check_run_count(raw_axes, samples=samples, controllers=controllers, doors=doors)
     axes = [_parse_axis(name, raw, grid=samples == 0) for name, raw in raw_axes.items()]
     spec = SweepSpec(validate(base), list(controllers), list(doors), axes, samples, seed)
     plan_runs(spec)  # every run's scenario is valid, or this raises now
     return spec
+
+
+def _check_draft_count(data: dict, axes: dict, prefix: str) -> None:
+    """:func:`check_run_count` on a SPEC not yet parsed (controllers and doors as written, or
+    their defaults: every controller, one door state)."""
+    from doorlab.controllers import REGISTRY
+
+    controllers, doors, samples = (data.get(k) for k in ("controllers", "doors", "samples"))
+    try:
+        check_run_count(
+            axes,
+            samples=samples if isinstance(samples, int) and samples > 0 else 0,
+            controllers=controllers if isinstance(controllers, list) else list(REGISTRY),
+            doors=doors if isinstance(doors, list) else [None],
+        )
+    except ConfigError as e:
+        raise ConfigError(f"{prefix}{e}") from None
 
 
 def load_spec(path: str | Path | None, *, grid: list[str] = ()) -> SweepSpec:
@@ -329,30 +401,30 @@ def load_spec(path: str | Path | None, *, grid: list[str] = ()) -> SweepSpec:
     if path is not None:
         path = Path(path)
         prefix = f"SPEC {str(path)!r}: "
-        if not path.is_file():
-            raise ConfigError(f"SPEC file {str(path)!r} does not exist")
+        text = read_text_file(path, what="SPEC file")
         try:
-            data = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as e:
-            mark = getattr(e, "problem_mark", None)
-            where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
-            raise ConfigError(f"{prefix}invalid YAML{where}") from None
-        except (OSError, UnicodeDecodeError) as e:
-            raise ConfigError(f"SPEC file {str(path)!r} cannot be read: {e}") from None
+            data = load_yaml(text)
+        except ConfigError as e:
+            raise ConfigError(f"{prefix}{e}") from None
         data = {} if data is None else data
         base_dir = path.parent
     if grid:
         if not isinstance(data, dict):
             raise ConfigError(f"{prefix}a SPEC must be a mapping")
         axes = dict(data.get("axes") or {}) if isinstance(data.get("axes"), dict) else {}
+        texts = {}
         for item in grid:
             key, sep, text = item.partition("=")
             if not sep or not key or not text:
-                raise ConfigError(f"--grid expects KEY=V1,V2,... got {item!r}")
+                raise ConfigError(f"--grid expects KEY=V1,V2,... got {quote_text(item)}")
+            texts[key] = (item, text.split(","))
+        # Counted before any value is parsed (a --grid may list a million values).
+        _check_draft_count(data, {**axes, **{k: v for k, (_, v) in texts.items()}}, prefix)
+        for key, (item, values) in texts.items():
             try:
-                axes[key] = [yaml.safe_load(v) for v in text.split(",")]
-            except yaml.YAMLError:
-                raise ConfigError(f"--grid {item}: values must be YAML scalars") from None
+                axes[key] = [load_yaml_value(v) for v in values]
+            except ConfigError as e:
+                raise ConfigError(f"--grid {quote_text(item)}: {e}") from None
         data = {**data, "axes": axes}
     try:
         return parse_spec(data, base_dir=base_dir)
@@ -408,7 +480,7 @@ def plan_runs(spec: SweepSpec) -> list[PlannedRun]:
                 try:
                     validate(scenario)
                 except ConfigError as e:
-                    shown = ", ".join(f"{k} = {v!r}" for k, v in values.items())
+                    shown = ", ".join(f"{k} = {quote(v)}" for k, v in values.items())
                     raise ConfigError(f"axes: the run with {shown}: {e}") from None
                 key = scenario_key(scenario)
                 if key in keys and not spec.is_grid:

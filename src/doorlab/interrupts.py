@@ -1,0 +1,140 @@
+"""How doorlab's processes leave on a signal, so that every way out cleans up.
+
+In the ``doorlab`` process (:func:`doorlab.cli.install_signal_handlers`), Ctrl-C raises
+KeyboardInterrupt and SIGTERM/SIGHUP raise :class:`doorlab.errors.Interrupted`, so one
+``except``/``finally`` path removes staging folders and stops workers. Two places must not be
+cut short by that exception: :func:`deferred_signals` holds a signal back over a few steps
+that must happen together (swapping an output folder into place, removing a staging folder)
+and raises it right after.
+
+Worker processes (the plot worker, the report's and the sweep's local workers) are spawned
+with SIGINT and SIGHUP blocked (:func:`spawning_workers`): Ctrl-C in a terminal reaches the
+whole process group, and it is the parent's to handle (it stops its workers), so a worker
+never prints a KeyboardInterrupt traceback. :func:`worker_signals` (their initializer) keeps SIGINT
+ignored and leaves SIGTERM/SIGHUP to end them at once, silently: a worker writes only into
+its parent's staging folder, which the parent removes after :func:`stop_processes`.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+INTERRUPTS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+"""The signals doorlab turns into an exception (and its workers into a quiet exit)."""
+
+
+def _main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
+
+
+@contextmanager
+def deferred_signals() -> Iterator[None]:
+    """Holds Ctrl-C, SIGTERM and SIGHUP back for the ``with`` block; raises the first one
+    that arrived right after it, through the handler that was installed (main thread only;
+    elsewhere signals are not delivered to Python anyway)."""
+    if not _main_thread():
+        yield
+        return
+    pending: list[int] = []
+
+    def remember(signum: int, frame) -> None:
+        pending.append(signum)
+
+    previous = {signum: signal.signal(signum, remember) for signum in INTERRUPTS}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        if pending:
+            signum = pending[0]
+            handler = previous[signum]
+            if callable(handler):
+                handler(signum, None)  # raises KeyboardInterrupt or Interrupted
+            elif handler == signal.SIG_DFL:
+                signal.raise_signal(signum)
+
+
+@contextmanager
+def ignoring_signals() -> Iterator[None]:
+    """Ignores Ctrl-C, SIGTERM and SIGHUP for the block (the last clean-up at exit)."""
+    if not _main_thread():
+        yield
+        return
+    previous = {signum: signal.signal(signum, signal.SIG_IGN) for signum in INTERRUPTS}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+_BORN_BLOCKED = {signal.SIGINT, signal.SIGHUP}
+"""Signals a worker is born with blocked (see :func:`spawning_workers`)."""
+
+
+@contextmanager
+def spawning_workers() -> Iterator[None]:
+    """Wrap what creates a process pool or starts its workers.
+
+    The workers are born with SIGINT and SIGHUP blocked (a thread's signal mask survives fork
+    and exec) until :func:`worker_signals` handles them: Ctrl-C and a closed terminal reach
+    the whole process group, and both are this process's to handle. multiprocessing's
+    resource tracker, started here if it is not running, keeps them blocked for good (it
+    already ignores SIGINT and SIGTERM; a hang-up would kill it and leave its parent
+    warning). A signal that arrives meanwhile is held, not lost: it is delivered when the
+    block ends.
+    """
+    if not hasattr(signal, "pthread_sigmask"):  # pragma: no cover - not POSIX
+        yield
+        return
+    from multiprocessing import resource_tracker
+
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, _BORN_BLOCKED)
+    try:
+        resource_tracker.ensure_running()
+        # ensure_running unblocks SIGINT and SIGTERM after starting the tracker: again.
+        signal.pthread_sigmask(signal.SIG_BLOCK, _BORN_BLOCKED)
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def worker_signals() -> None:
+    """A worker process's signal handling (its pool's initializer): Ctrl-C ignored (the
+    parent's to handle); SIGTERM and SIGHUP end it at once, silently, as by default (a
+    worker leaves nothing to clean up: what it writes lies in its parent's staging folder,
+    which the parent removes once the worker is gone, :func:`stop_processes`)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for signum in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(signum, signal.SIG_DFL)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, _BORN_BLOCKED)
+
+
+def stop_processes(processes, *, grace_s: float = 2.0) -> None:
+    """Terminates worker processes, waits ``grace_s`` for their clean-up, then kills the rest.
+
+    Args:
+        processes: ``multiprocessing.Process`` objects (a pool's workers).
+        grace_s: How long a worker may take to unwind its task [s].
+    """
+    processes = [p for p in processes if p.is_alive()]
+    for process in processes:
+        try:
+            process.terminate()
+        except (OSError, ValueError):  # already gone, or closed
+            pass
+    for process in processes:
+        process.join(timeout=grace_s)
+    for process in processes:
+        if process.is_alive():
+            try:
+                os.kill(process.pid, signal.SIGKILL)
+            except OSError:
+                pass
+            process.join(timeout=grace_s)
