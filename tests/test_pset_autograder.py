@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import importlib.metadata
 import json
 import os
 import shutil
@@ -136,7 +137,14 @@ def test_zip_holds_the_scripts_the_settings_and_this_doorlab_as_a_wheel(zip_path
         assert not any("__pycache__" in n or n.endswith(".pyc") for n in entries)
         for name in ("METADATA", "WHEEL", "RECORD", "entry_points.txt"):
             assert f"{info_dir}/{name}" in entries
-        assert "doorlab = doorlab.cli:main" in w.read(f"{info_dir}/entry_points.txt").decode()
+        # The console script is the installed distribution's (pyproject's [project.scripts]).
+        (script,) = [
+            e
+            for e in importlib.metadata.entry_points(group="console_scripts")
+            if e.name == "doorlab"
+        ]
+        entry = f"doorlab = {script.value}"
+        assert entry in w.read(f"{info_dir}/entry_points.txt").decode()
         assert "Requires-Dist: drake" in w.read(f"{info_dir}/METADATA").decode()
         record = w.read(f"{info_dir}/RECORD").decode().splitlines()
         assert len(record) == len(entries)
