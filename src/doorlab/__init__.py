@@ -6,14 +6,30 @@ Public API (see the README): :class:`Scenario` and :func:`load_scenario` (config
 (your own plans), :class:`EpisodeResult` (named logs), :func:`compute_metrics`; sweeps in
 :mod:`doorlab.sweep` (``run_sweep(spec) -> pandas.DataFrame``), the report in
 :mod:`doorlab.report`.
+
+The names below are imported on first use (PEP 562), so importing one submodule (say
+``doorlab.constants``) does not load the controllers: the problem set's graded process
+must not load doorlab's reference solutions (:mod:`doorlab.pset.honesty`).
 """
 
-from doorlab.config import Scenario, load_scenario, validate
-from doorlab.controllers import REGISTRY, get_controller, run_controller
+from __future__ import annotations
+
+import importlib
+
 from doorlab.errors import ConfigError, DoorlabError, IkError, OutputError, SimulationError
-from doorlab.simulation import EpisodeResult, run_episode
 
 __version__ = "0.1.0"
+
+_LAZY = {
+    "Scenario": "doorlab.config",
+    "load_scenario": "doorlab.config",
+    "validate": "doorlab.config",
+    "REGISTRY": "doorlab.controllers",
+    "get_controller": "doorlab.controllers",
+    "run_controller": "doorlab.controllers",
+    "EpisodeResult": "doorlab.simulation",
+    "run_episode": "doorlab.simulation",
+}
 
 __all__ = [
     "REGISTRY",
@@ -30,3 +46,16 @@ __all__ = [
     "run_episode",
     "validate",
 ]
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'doorlab' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
