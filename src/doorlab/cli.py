@@ -221,6 +221,13 @@ def add_pset_parser(sub) -> None:
     grade.add_argument(
         "--jobs", type=bounded_int(1), default=2, help="tests run at a time (default 2)"
     )
+    grade.add_argument(
+        "--reference",
+        type=Path,
+        default=None,
+        metavar="RESULTS_JSON",
+        help="reuse the reference episodes of an earlier grading's results (saves 3 episodes)",
+    )
 
 
 def _pset(args: argparse.Namespace) -> int:
@@ -231,15 +238,16 @@ def _pset(args: argparse.Namespace) -> int:
         kind = "solutions" if args.solutions else "student stubs"
         print(f"doorlab pset: wrote {out} ({kind}); grade it with: doorlab pset grade {out}")
         return 0
-    from doorlab.pset.grader import grade, pretty_format_json_results, write_results
+    from doorlab.pset import grader
 
     folder = check_problem_set(args.dir)
     out = args.out or folder / "test_results.json"
     if out.parent and not out.parent.is_dir():
         raise OutputError(f"cannot write {out}: {out.parent} is not a folder")
-    results = grade(folder, jobs=args.jobs)
-    write_results(results, out)
-    print(pretty_format_json_results(out))
+    reference = None if args.reference is None else grader.load_reference(args.reference)
+    results = grader.grade(folder, jobs=args.jobs, reference=reference)
+    grader.write_results(results, out)
+    print(grader.pretty_format_json_results(out))
     print(f"doorlab pset: wrote {out} in {results['execution_time']:.0f} s")
     return 0
 

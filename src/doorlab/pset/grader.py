@@ -52,6 +52,7 @@ __all__ = [
     "UNIT_TIME_LIMIT_S",
     "GradingError",
     "grade",
+    "load_reference",
     "pretty_format_json_results",
     "write_results",
 ]
@@ -409,20 +410,45 @@ def pretty_format_json_results(path: str | Path) -> str:
     return "\n".join(lines)
 
 
+def load_reference(path: str | Path) -> dict[str, dict]:
+    """The reference episodes' figures of an earlier results file (its
+    ``extra_data["reference"]``), to pass as :func:`grade`'s ``reference``.
+
+    Raises:
+        OutputError: The file cannot be read or holds no reference figures.
+    """
+    try:
+        data = json.loads(Path(path).read_text())
+        reference = data["extra_data"]["reference"]
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise OutputError(f"{path}: not a results file with reference figures ({e})") from None
+    if not isinstance(reference, dict) or not reference:
+        raise OutputError(f"{path}: its results hold no reference figures")
+    return reference
+
+
 def main(argv: Sequence[str]) -> int:
-    """``python -I -m doorlab.pset.grader FOLDER [RESULTS_JSON]`` (what the folder's
-    ``test_pset_5a.py`` runs): grades FOLDER, writes the JSON (default
+    """``python -I -m doorlab.pset.grader FOLDER [RESULTS_JSON] [--reference FILE]`` (what the
+    folder's ``test_pset_5a.py`` runs): grades FOLDER, writes the JSON (default
     ``test_results.json`` in the working directory) and prints the summary."""
+    import argparse
+
     from doorlab.errors import interrupt_exit_code
 
-    if not 1 <= len(argv) <= 2:
-        print("usage: python3 test_pset_5a.py [RESULTS_JSON]", file=sys.stderr)
-        return 2
-    folder = Path(argv[0]).resolve()
-    out = Path(argv[1] if len(argv) == 2 else "test_results.json").resolve()
+    parser = argparse.ArgumentParser(
+        prog="test_pset_5a.py", description="Grades the problem-set folder."
+    )
+    parser.add_argument("folder", type=Path, help=argparse.SUPPRESS)
+    parser.add_argument("out", nargs="?", type=Path, default=Path("test_results.json"))
+    parser.add_argument(
+        "--reference", type=Path, help="reuse the reference episodes of an earlier results file"
+    )
+    args = parser.parse_args(argv)
+    folder, out = args.folder.resolve(), args.out.resolve()
     os.chdir("/")  # nothing of the folder in this process either
     try:
-        results = grade(folder)
+        reference = None if args.reference is None else load_reference(args.reference)
+        results = grade(folder, reference=reference)
         write_results(results, out)
     except DoorlabError as e:
         print(f"test_pset_5a.py: {e}", file=sys.stderr)

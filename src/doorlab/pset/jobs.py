@@ -63,6 +63,7 @@ def _first_line(e: BaseException) -> str:
 
 def run_job(job: str, folder: Path, workdir: Path, limit: float) -> dict:
     """Runs one job in this process and returns its JSON-ready result."""
+    from doorlab.pset.channel import ProtocolError
     from doorlab.pset.student import SandboxError, StudentFailure, StudentProcess
 
     kind, _, name = job.partition(":")
@@ -86,6 +87,9 @@ def run_job(job: str, folder: Path, workdir: Path, limit: float) -> dict:
                     result = {"figures": student_episode(student, name)}
             except StudentFailure as e:
                 result = {"passed": False, "error": str(e), "output": e.detail}
+            except ProtocolError as e:  # an answer that does not hold what was asked
+                message = f"your code's process answered something invalid: {e}"
+                result = {"passed": False, "error": message}
             result["sandbox"] = student.facts
             return result
     except StudentFailure as e:

@@ -271,6 +271,8 @@ class StudentProcess:
     def _check_answer(self, answer: dict) -> dict:
         if "honesty" in answer:
             raise StudentFailure(as_text(answer["honesty"], 500), self._detail())
+        if "invalid" in answer:
+            raise StudentFailure(as_text(answer["invalid"], 500), self._detail())
         if "error" in answer:
             error = answer["error"] if isinstance(answer["error"], dict) else {}
             kind = as_text(error.get("type"), 100) or "Error"
@@ -281,6 +283,8 @@ class StudentProcess:
                     f"your code ran out of memory (the limit is "
                     f"{self.limits.memory_bytes >> 30} GiB of address space): {message}"
                 )
+            elif "[Errno 27]" in text:  # EFBIG: Python ignores SIGXFSZ, the write fails
+                message = f"{_signal_message(signal.SIGXFSZ, self.limits)}: {message}"
             raise StudentFailure(message, self._detail(as_text(error.get("traceback"))))
         if self.output.overflowed:
             raise self._failure(ProtocolError("output"))
