@@ -54,6 +54,11 @@ class Channel:
     def __init__(self, rfd: int, wfd: int, *, max_frame: int = MAX_FRAME_BYTES):
         self.rfd, self.wfd = rfd, wfd
         self.max_frame = max_frame
+        self._pollers = {}
+        for fd, event in ((rfd, select.POLLIN), (wfd, select.POLLOUT)):
+            poller = select.poll()
+            poller.register(fd, event | select.POLLHUP | select.POLLERR)
+            self._pollers[fd] = poller
 
     # Writing ----------------------------------------------------------------------------
 
@@ -63,7 +68,7 @@ class Channel:
             try:
                 n = os.write(self.wfd, data)
             except BlockingIOError:
-                self._wait(select.POLLOUT, self.wfd, deadline, "to take the grader's request")
+                self._wait(self.wfd, deadline, "to take the grader's request")
                 continue
             except BrokenPipeError:
                 raise ChannelClosed("the process closed the channel") from None
@@ -81,20 +86,18 @@ class Channel:
 
     # Reading ----------------------------------------------------------------------------
 
-    @staticmethod
-    def _wait(event: int, fd: int, deadline: float | None, what: str) -> None:
+    def _wait(self, fd: int, deadline: float | None, what: str) -> None:
         timeout = None if deadline is None else deadline - time.monotonic()
         if timeout is not None and timeout <= 0:
             raise ChannelTimeout(f"no answer in time (waiting {what})")
-        poller = select.poll()
-        poller.register(fd, event | select.POLLHUP | select.POLLERR)
-        if not poller.poll(None if timeout is None else max(1, math.ceil(timeout * 1e3))):
+        ms = None if timeout is None else max(1, math.ceil(timeout * 1e3))
+        if not self._pollers[fd].poll(ms):
             raise ChannelTimeout(f"no answer in time (waiting {what})")
 
     def _read_exactly(self, n: int, deadline: float | None) -> bytes:
         chunks, got = [], 0
         while got < n:
-            self._wait(select.POLLIN, self.rfd, deadline, "for an answer")
+            self._wait(self.rfd, deadline, "for an answer")
             try:
                 chunk = os.read(self.rfd, min(n - got, 1 << 20))
             except OSError as e:

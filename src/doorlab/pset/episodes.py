@@ -156,16 +156,30 @@ def reference_episode(controller: str) -> dict:
     return _episode_figures(result, scenario)
 
 
+def grasp_configuration() -> np.ndarray:
+    """Where the task cell's plans 2 and 3 start: the seed's ``SolveOneShotIk`` at the handle,
+    L7 pitched by 3 pi / 4, from q_home (7,) [rad] (computed here, not by the student's copy)."""
+    from doorlab.ik import solve_ik
+    from doorlab.station import make_controller_plant
+
+    return solve_ik(
+        make_controller_plant(),
+        default_door_geometry().p_W_handle,
+        RollPitchYaw(0, np.pi / 4 * 3, 0).ToRotationMatrix(),
+        Q_HOME,
+        position_tolerance=0.0005,
+        theta_bound=0.005,
+    )
+
+
 def student_episode(student: StudentProcess, controller: str) -> dict:
     """The seed's task cell for one controller with the student's functions, simulated here:
     hold 2 s, move 7 s to the start, hold 1 (+1) s, the arc plan (10 + 1 s), 2 s more."""
     from dataclasses import replace
 
-    from doorlab.ik import solve_ik
     from doorlab.plans import JointSpacePlan
     from doorlab.pset.seedapi import seed_scenario
     from doorlab.simulation import run_episode
-    from doorlab.station import make_controller_plant
 
     doors = "closed" if controller == "impedance" else "open"
     angle = DOOR_CLOSED if controller == "impedance" else DOOR_OPEN
@@ -196,15 +210,7 @@ def student_episode(student: StudentProcess, controller: str) -> dict:
         q_start = q_knots[0]
         arc = JointSpacePlan(qtraj, name="student_ik")
     else:
-        g = default_door_geometry()
-        q_start = solve_ik(
-            make_controller_plant(),
-            g.p_W_handle,
-            RollPitchYaw(0, np.pi / 4 * 3, 0).ToRotationMatrix(),
-            Q_HOME,
-            position_tolerance=0.0005,
-            theta_bound=0.005,
-        )
+        q_start = grasp_configuration()
         student.call(
             "plan",
             kind=controller,

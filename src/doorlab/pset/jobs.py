@@ -136,15 +136,15 @@ class _Jobs:
         argv = [sys.executable, "-I", "-m", "doorlab.pset.jobs", "job", job]
         argv += [str(self.folder), str(jobdir), repr(limit), str(os.getpid())]
         start = time.perf_counter()
-        proc = subprocess.Popen(
-            argv,
-            cwd=jobdir,
-            env=trusted_environment(),
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-        )
-        with self.lock:
+        with self.lock:  # no orphan hunt (below) between the spawn and its registration
+            proc = subprocess.Popen(
+                argv,
+                cwd=jobdir,
+                env=trusted_environment(),
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+            )
             self.active.add(proc.pid)
         try:
             out, err = proc.communicate(timeout=limit + JOB_MARGIN_S)
@@ -156,9 +156,8 @@ class _Jobs:
             proc.wait()
             with self.lock:
                 self.active.discard(proc.pid)
-                keep = set(self.active)
-            # Orphans of a job that died come here (we are their subreaper): kill them now.
-            sandbox.kill_descendants(keep=keep, unreaped=keep)
+                # Orphans of a job that died come here (we are their subreaper): kill them.
+                sandbox.kill_descendants(keep=self.active, unreaped=self.active)
             proc.communicate()  # closes the pipes (nothing holds them any more)
         result["seconds"] = time.perf_counter() - start
         return result

@@ -267,6 +267,9 @@ def _enter_namespaces(
         return
     if not as_root:
         try:
+            # The grader's processes are not dumpable, which makes /proc/self/* root's;
+            # this child's (exec would reset it anyway) must be ours to write its maps.
+            prctl(PR_SET_DUMPABLE, 1)
             _write("/proc/self/setgroups", "deny")
             _write("/proc/self/uid_map", f"{uid} {uid} 1")
             _write("/proc/self/gid_map", f"{gid} {gid} 1")

@@ -131,7 +131,9 @@ class StudentProcess:
     """The worker for one test, running the submission's code in a scratch copy.
 
     Use as a context manager; :meth:`close` (on exit) kills the process and every
-    descendant. Every call raises :class:`StudentFailure` when the student's side fails.
+    descendant of the calling process: the caller is a trusted job process (a child
+    subreaper, see :mod:`doorlab.pset.sandbox`) whose only child is this one. Every call
+    raises :class:`StudentFailure` when the student's side fails.
 
     Args:
         folder: The submission. workdir: The grading's private folder (scratch copies go
