@@ -43,10 +43,10 @@ STUDENT_FUNCTIONS = (
 
 _RULES = {
     "Task 1 unit test: InverseKinPointwise": "random knot count (3-7), duration (3-8 s), "
-    "path (a shifted piece of the arc), grasp point p_L7Q (doorlab's +-1 cm), initial guess "
-    "and tolerances (below the defaults): every knot's FK within the tolerances, the "
-    "trajectory through the knots over [0, duration], at rest at both ends, no jump to "
-    "another branch of the arm between knots",
+    "path (a shifted piece of the arc), grasp point p_L7Q (5-10 mm off doorlab's on each "
+    "axis), initial guess and tolerances (below the defaults): every knot's FK within the "
+    "tolerances, the trajectory through the knots over [0, duration], at rest at both ends, "
+    "no jump to another branch of the arm between knots",
     "Task 2 unit test: calc_p_Q": "equals the arc minus the handle at 7 values of tau (1e-6 m)",
     "Task 2 unit test: calc_R_WL7_ref": "equals the reference at 7 values of tau (1e-6 rad)",
     "Task 2 unit test: IiwaTaskSpaceVelocityPlan.CalcPositionCommand": "q_iiwa + J^+ V_des "
