@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -635,6 +636,24 @@ def test_sandbox_limits_memory_files_and_processes(tmp_path):
     assert "file: refused at 33554432" in out
     if AS_ROOT:  # as an ordinary user the limit counts that user's other processes too
         assert "threads: refused at" in out, out
+
+
+def test_sandbox_limits_cpu_time(tmp_path):
+    """A busy loop past its CPU limit (1 s here) gets SIGXCPU (the grader's wall-clock
+    deadline usually ends a hang first; this catches CPU spent where no answer is awaited)."""
+    work = tmp_path / "work"
+    work.mkdir()
+    os.chmod(work, 0o777)
+    proc = sandbox.spawn(
+        [sys.executable, "-I", "-c", "while True:\n    pass"],
+        cwd=work,
+        env={"PATH": "/usr/bin:/bin"},
+        limits=sandbox.Limits(cpu_seconds=1),
+        identity=sandbox.sandbox_identity(),
+        blanks=sandbox.make_blanks(tmp_path / "blanks"),
+    )
+    sandbox.OutputCollector(proc.stdout)
+    assert proc.wait(timeout=60) == -signal.SIGXCPU
 
 
 def test_sandbox_runs_as_another_user_without_network_or_reference_files(tmp_path):
