@@ -452,7 +452,7 @@ def main(argv: Sequence[str]) -> int:
         write_results(results, out)
     except DoorlabError as e:
         print(f"test_pset_5a.py: {e}", file=sys.stderr)
-        return 2
+        return 1 if isinstance(e, GradingError) else 2  # as doorlab's CLI
     except KeyboardInterrupt as e:
         return interrupt_exit_code(e)
     print(pretty_format_json_results(out))

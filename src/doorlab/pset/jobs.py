@@ -72,7 +72,10 @@ def run_job(job: str, folder: Path, workdir: Path, limit: float) -> dict:
             from doorlab.pset.episodes import reference_episode
 
             return {"figures": reference_episode(name)}
-        identity = sandbox.sandbox_identity()
+        try:
+            identity = sandbox.sandbox_identity()
+        except OSError as e:
+            return {"grader_error": str(e)}
         # The student's process starts first (no thread may exist at its fork), then the
         # grader's side imports Drake while it starts.
         with StudentProcess(folder, workdir, job, limit, identity) as student:

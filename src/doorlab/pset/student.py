@@ -14,6 +14,7 @@ import os
 import shutil
 import signal
 import stat
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -154,8 +155,11 @@ class StudentProcess:
         self.deadline = time.monotonic() + time_limit
         self.facts: dict = {}
         self.scratch = workdir / ("scratch_" + name.replace(":", "_"))
-        copy_submission(folder, self.scratch, identity)
-        blanks = sandbox.make_blanks(workdir / "blanks")
+        try:
+            copy_submission(folder, self.scratch, identity)
+            blanks = sandbox.make_blanks(workdir / "blanks")
+        except OSError as e:
+            raise SandboxError(f"cannot copy the submission: {e}") from None
         request_r, self._request_w = os.pipe()
         self._answer_r, answer_w = os.pipe()
         os.set_blocking(self._request_w, False)
@@ -171,7 +175,7 @@ class StudentProcess:
                 hide=reference_paths(),
                 blanks=blanks,
             )
-        except OSError as e:
+        except (OSError, subprocess.SubprocessError) as e:  # the latter: a limit refused
             raise SandboxError(f"cannot start the student's process: {e}") from None
         finally:
             os.close(request_r)
