@@ -1,11 +1,17 @@
 """Wall time of a full grading of a correct problem-set folder (target: under 3 minutes).
 
     python benchmarks/pset_grading.py [--repeats N] [--jobs J] [--out FILE.json]
+                                      [--baseline-src DIR]
 
 Writes a ``--solutions`` folder to a temporary directory and grades it N times from scratch
 (reference episodes included), printing the median wall time against the target, the score,
 and the per-job process times of the last grading. Timings depend on the machine's load: the
 line ``other cpu`` is the average number of cores other processes used meanwhile.
+
+``--baseline-src DIR`` (another version's ``src`` folder, e.g. ``git archive main src | tar
+-x -C /tmp/main``) also grades the same folder with that version, alternately with this one
+(each grading in a fresh interpreter, the baseline's through ``PYTHONPATH``), and prints
+both medians and their ratio: the two see the same load.
 """
 
 from __future__ import annotations
@@ -14,6 +20,7 @@ import argparse
 import json
 import os
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -33,12 +40,88 @@ def _cpu_times() -> tuple[float, float]:
     return sum(fields) - idle, sum(fields)
 
 
+_GRADE = """
+import json, sys, time
+from doorlab.pset.grader import grade
+start = time.perf_counter()
+r = grade(sys.argv[1], jobs=int(sys.argv[2]))
+print(json.dumps({"wall": time.perf_counter() - start, "score": r["score"]}))
+"""
+
+
+def _grade_in_subprocess(folder: Path, jobs: int, src: Path | None) -> tuple[float, float]:
+    """(wall [s] of the whole interpreter, score) of one grading by the version at ``src``
+    (None: the installed doorlab)."""
+    env = dict(os.environ)
+    env.pop("PYTHONPATH", None)
+    if src is not None:
+        env["PYTHONPATH"] = str(src)
+    start = time.perf_counter()
+    proc = subprocess.run(
+        [sys.executable, "-c", _GRADE, str(folder), str(jobs)],
+        env=env,
+        cwd="/",
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    wall = time.perf_counter() - start
+    return wall, json.loads(proc.stdout.strip().splitlines()[-1])["score"]
+
+
+def _side_by_side(args) -> int:
+    walls: dict[str, list[float]] = {"this": [], "baseline": []}
+    scores: dict[str, float] = {}
+    with tempfile.TemporaryDirectory(prefix="doorlab_pset_bench_") as tmp:
+        os.chmod(tmp, 0o755)
+        folder = init_folder(Path(tmp) / "solutions", solutions=True)
+        busy0, total0 = _cpu_times()
+        for _ in range(args.repeats):
+            for name, src in (("this", None), ("baseline", args.baseline_src)):
+                wall, scores[name] = _grade_in_subprocess(folder, args.jobs, src)
+                walls[name].append(wall)
+        busy1, total1 = _cpu_times()
+    ticks = os.sysconf("SC_CLK_TCK")
+    cores = os.cpu_count() or 1
+    elapsed = (total1 - total0) / ticks / cores
+    busy = (busy1 - busy0) / ticks / max(elapsed, 1e-9)
+    medians = {k: statistics.median(v) for k, v in walls.items()}
+    ratio = medians["this"] / medians["baseline"]
+    print(f"full grading of a --solutions folder, jobs={args.jobs}, {cores} cores, alternately")
+    for name in ("this", "baseline"):
+        w = walls[name]
+        print(
+            f"  {name:9s} median {medians[name]:.1f} s over {len(w)} (min {min(w):.1f}, "
+            f"max {max(w):.1f}); score {scores[name]:g}"
+        )
+    print(f"  this / baseline {ratio:.2f}")
+    print(f"  busy cores      {busy:.2f} of {cores} (these gradings and everything else)")
+    if args.out:
+        figures = {
+            "wall_s": walls,
+            "median_wall_s": medians,
+            "ratio": ratio,
+            "scores": scores,
+            "jobs": args.jobs,
+            "cores": cores,
+            "busy_cores": busy,
+            "baseline_src": str(args.baseline_src),
+        }
+        args.out.write_text(json.dumps(figures, indent=2) + "\n")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=1, help="gradings (default 1)")
     parser.add_argument("--jobs", type=int, default=2, help="processes at a time (default 2)")
     parser.add_argument("--out", type=Path, default=None, help="write the figures as JSON")
+    parser.add_argument(
+        "--baseline-src", type=Path, default=None, help="also grade with the version at DIR"
+    )
     args = parser.parse_args(argv)
+    if args.baseline_src is not None:
+        return _side_by_side(args)
     walls, last = [], None
     with tempfile.TemporaryDirectory(prefix="doorlab_pset_bench_") as tmp:
         folder = init_folder(Path(tmp) / "solutions", solutions=True)

@@ -1,33 +1,26 @@
 """The problem set (``doorlab pset``): the folder, the seed notebook's own cells, the grader.
 
-Expensive work is shared through module-scoped fixtures: one solutions folder runs the seed's
-code cells (three episodes) and its last cell runs the full grader (with the reference
-episodes); the other gradings reuse those reference figures and run only the tests a case
-needs (``only=``), so this module simulates about a dozen episodes in all.
+Expensive work is shared (``pset_fixtures``, cached per session): one solutions folder runs
+the seed's code cells (three episodes) and its last cell runs the full grader (with the
+reference episodes); the other gradings reuse those reference figures and run only the tests
+a case needs (``only=``), so this module simulates about a dozen episodes in all.
 """
 
 from __future__ import annotations
 
 import json
 import os
-import re
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
+import pset_fixtures
 import pytest
 
 from doorlab.cli import main
 from doorlab.pset.folder import STUDENT_FUNCTIONS, init_folder
 from doorlab.pset.grader import TESTS, grade, pretty_format_json_results
-
-SEED = Path(__file__).resolve().parents[2] / "shared" / "seed" / "000_f5f6c01857f13f46.txt"
-"""The seed notebook as text (read at test time; its code is not copied into the project)."""
-if not SEED.exists():
-    SEED = Path("/work/shared/seed/000_f5f6c01857f13f46.txt")
-SEED_CELLS_TIMEOUT_S = 900
-"""The seed's cells: three episodes and a full grading (~1-2 min on a busy 2-core machine)."""
 
 UNIT = {t.name.split(": ", 1)[1]: t.name for t in TESTS if "unit test" in t.name}
 EPISODE = {
@@ -36,96 +29,21 @@ EPISODE = {
 }
 
 
-def _code_cells(text: str) -> list[str]:
-    """The seed's code cells: after each ``In [ ]:`` marker, the longest run of lines that
-    parses as Python once IPython magics are removed (the prose that follows does not)."""
-    cells = []
-    for part in re.split(r"^In\s*\[\s*\]:\s*$", text, flags=re.M)[1:]:
-        lines = part.strip("\n").splitlines()
-        for k in range(len(lines), 0, -1):
-            source = "\n".join(lines[:k])
-            try:
-                compile(_strip_magics(source), "<cell>", "exec")
-            except SyntaxError:
-                continue
-            if source.strip():
-                cells.append(source)
-            break
-    return cells
-
-
-def _strip_magics(source: str) -> str:
-    return "\n".join(line for line in source.splitlines() if not line.lstrip().startswith("%"))
-
-
-def _adapt(source: str) -> str:
-    """IPython magics removed; the standalone ``meshcat`` server cells replaced by Drake's
-    Meshcat (documented in the folder's README)."""
-    out = []
-    for line in _strip_magics(source).splitlines():
-        if re.match(r"\s*import meshcat(\.geometry as g)?\s*$", line):
-            continue
-        if re.match(r"\s*vis = meshcat\.Visualizer\(\)\s*$", line):
-            out.append("from manip_station_sim.manipulation_station_simulator import StartMeshcat")
-            out.append("vis = StartMeshcat()")
-            continue
-        out.append(line.replace("vis.delete()", "vis.Delete()"))
-    return "\n".join(out)
-
-
-_DRIVER = """
-import json, sys, traceback
-cells = json.load(open(sys.argv[1]))
-namespace = {"__name__": "__main__"}
-for i, source in enumerate(cells):
-    print(f"--- cell {i}", flush=True)
-    try:
-        exec(compile(source, f"<seed cell {i}>", "exec"), namespace)
-    except BaseException:
-        traceback.print_exc()
-        sys.exit(10 + i)
-print("--- all cells ran", flush=True)
-log = namespace.get("iiwa_position_command_log")
-if log is not None:
-    facts = {"t": log.sample_times().tolist(), "t_plan": list(map(float, namespace["t_plan"]))}
-    print("FACTS " + json.dumps(facts), flush=True)
-"""
-
-
 @pytest.fixture(scope="module")
 def seed_cells() -> list[str]:
-    if not SEED.exists():
-        pytest.skip(f"the seed notebook is not at {SEED}")
-    return _code_cells(SEED.read_text())
+    return pset_fixtures.seed_cells()
 
 
 @pytest.fixture(scope="module")
-def solutions_run(tmp_path_factory, seed_cells):
-    """A fresh ``--solutions`` folder in which the seed's cells ran in order."""
-    folder = tmp_path_factory.mktemp("pset") / "solutions"
-    assert main(["pset", "init", str(folder), "--solutions"]) == 0
-    cells_file = folder.parent / "cells.json"
-    cells_file.write_text(json.dumps([_adapt(c) for c in seed_cells]))
-    env = dict(os.environ, MPLBACKEND="Agg")
-    # The seed's last cell runs `python3 ./test_pset_5a.py`: python3 must be this interpreter.
-    env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
-    env["PYTHONPATH"] = str(folder)
-    proc = subprocess.run(
-        [sys.executable, "-c", _DRIVER, str(cells_file)],
-        cwd=folder,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=SEED_CELLS_TIMEOUT_S,
-    )
-    return folder, proc
+def solutions_run(seed_cells):
+    """A fresh ``--solutions`` folder in which the seed's cells ran in order (shared)."""
+    return pset_fixtures.solutions_run()
 
 
 @pytest.fixture(scope="module")
-def reference(solutions_run) -> dict:
+def reference() -> dict:
     """The reference episodes' figures from the solutions' grading (reused below)."""
-    folder, _ = solutions_run
-    return json.loads((folder / "test_results.json").read_text())["extra_data"]["reference"]
+    return pset_fixtures.reference()
 
 
 def _wrong_folder(tmp_path_factory, name: str, edits: list[tuple[str, str, str]]) -> Path:
@@ -254,16 +172,13 @@ def test_solutions_score_full_marks_with_fresh_references(solutions_run):
 # Stubs, wrong implementations, exceptions, NaN, endless loops ------------------------------
 
 
-def test_stubs_score_zero_without_crashing(tmp_path, reference, monkeypatch, capsys):
+def test_stubs_score_zero_without_crashing(tmp_path, reference, capsys):
     """`doorlab pset grade` on the untouched stubs (reusing the reference episodes)."""
-    import functools
-
-    from doorlab.pset import grader
-
-    monkeypatch.setattr(grader, "grade", functools.partial(grade, reference=reference))
+    reference_file = tmp_path / "earlier_results.json"
+    reference_file.write_text(json.dumps({"extra_data": {"reference": reference}}))
     folder = tmp_path / "stubs"
     assert main(["pset", "init", str(folder)]) == 0
-    assert main(["pset", "grade", str(folder)]) == 0
+    assert main(["pset", "grade", str(folder), "--reference", str(reference_file)]) == 0
     out = capsys.readouterr().out
     assert f"Total score: 0 / {sum(t.max_score for t in TESTS):g}" in out
     results = json.loads((folder / "test_results.json").read_text())
@@ -403,6 +318,71 @@ def test_an_endless_loop_hits_the_time_limit_only(tmp_path_factory):
     assert "time limit" in _output(results, UNIT["calc_R_WL7_ref"])
 
 
+def test_using_the_wrong_argument_fails_the_unit_test_naming_it(tmp_path_factory):
+    """The inputs tell the arguments apart: the velocity plan starting from q_cmd instead of
+    the measured q_iiwa, the impedance plan adding damping from v_iiwa, and the IK aiming
+    doorlab's default grasp point instead of its p_L7Q argument each lose their unit test,
+    whose message names the argument."""
+    folder = _wrong_folder(
+        tmp_path_factory,
+        "wrong_arguments",
+        [
+            (
+                "manip_station_sim/robot_plans.py",
+                "return q_iiwa + q_dot_des * control_period",
+                "return q_cmd + q_dot_des * control_period",
+            ),
+            (
+                "manip_station_sim/robot_plans.py",
+                "return self.Jv_WL7q.T @ F",
+                "return self.Jv_WL7q.T @ F - 0.5 * np.asarray(v_iiwa)",
+            ),
+            (
+                "ik_utils.py",
+                "l7_frame, p_L7Q, world_frame",
+                "l7_frame, __import__('doorlab.frames').frames.p_L7Q, world_frame",
+            ),
+        ],
+    )
+    vel = UNIT["IiwaTaskSpaceVelocityPlan.CalcPositionCommand"]
+    imp = UNIT["IiwaTaskSpaceImpedancePlan.CalcTorqueCommand"]
+    ik = UNIT["InverseKinPointwise"]
+    results = grade(folder, only=[vel, imp, ik])
+    assert _failed(results) == {vel, imp, ik}, pretty(results)
+    velocity = _output(results, vel)
+    assert "q_cmd + J^+ V_des dt: q_ref must start from the measured q_iiwa" in velocity
+    assert "your answer depends on q_cmd (the last position command)" in velocity
+    impedance = _output(results, imp)
+    assert "your answer depends on v_iiwa (the measured joint velocities)" in impedance
+    assert "use the p_L7Q argument" in _output(results, ik)
+
+
+def test_the_folder_s_grader_with_a_python_lacking_doorlab_says_which_to_use(tmp_path):
+    """`python3 test_pset_5a.py` with an interpreter that has no doorlab: one line naming
+    it and what to do, exit 2, no traceback."""
+    import venv
+
+    bare = tmp_path / "bare"
+    venv.create(bare, with_pip=False)
+    folder = init_folder(tmp_path / "pset")
+    proc = subprocess.run(
+        [str(bare / "bin" / "python"), "test_pset_5a.py"],
+        cwd=folder,
+        env={"PATH": f"{Path(sys.executable).parent}{os.pathsep}/usr/bin:/bin"},
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert "has no doorlab" in lines[0] and str(bare / "bin" / "python") in lines[0]
+    doorlab_command = Path(sys.executable).parent / "doorlab"
+    if doorlab_command.exists():  # the interpreter of the `doorlab` on PATH is named
+        assert f"run it with {doorlab_command.read_text().splitlines()[0][2:]}" in lines[0]
+    assert not (folder / "test_results.json").exists()
+
+
 def pretty(results: dict) -> str:
     return "\n".join(
         f"{t['name']}: {t['score']}/{t['max_score']}\n{t['output']}" for t in results["tests"]
@@ -416,15 +396,15 @@ def test_our_notebook_runs_in_the_solutions_folder(solutions_run):
     cells = ["".join(c["source"]) for c in notebook["cells"] if c["cell_type"] == "code"]
     assert "test_pset_5a" in cells[-1]
     cells_file = folder.parent / "our_cells.json"
-    cells_file.write_text(json.dumps([_strip_magics(c) for c in cells[:-1]]))
+    cells_file.write_text(json.dumps([pset_fixtures.strip_magics(c) for c in cells[:-1]]))
     env = dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=str(folder))
     proc = subprocess.run(
-        [sys.executable, "-c", _DRIVER, str(cells_file)],
+        [sys.executable, "-c", pset_fixtures.DRIVER, str(cells_file)],
         cwd=folder,
         env=env,
         capture_output=True,
         text=True,
-        timeout=SEED_CELLS_TIMEOUT_S,
+        timeout=pset_fixtures.SEED_CELLS_TIMEOUT_S,
     )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     assert "--- all cells ran" in proc.stdout

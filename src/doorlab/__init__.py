@@ -6,6 +6,10 @@ Public API (see the README): :class:`Scenario` and :func:`load_scenario` (config
 (your own plans), :class:`EpisodeResult` (named logs), :func:`compute_metrics`; sweeps in
 :mod:`doorlab.sweep` (``run_sweep(spec) -> pandas.DataFrame``), the report in
 :mod:`doorlab.report`.
+
+The names below are imported on first use (PEP 562), so importing one submodule (say
+``doorlab.constants``) does not load the controllers: the problem set's graded process
+must not load doorlab's reference solutions (:mod:`doorlab.pset.honesty`).
 """
 
 from doorlab.errors import ConfigError, DoorlabError, IkError, OutputError, SimulationError
@@ -26,14 +30,6 @@ _LAZY = {
 ``doorlab`` command handles signals before its imports (:mod:`doorlab.entry`)."""
 
 
-def __getattr__(name: str):
-    if name in _LAZY:
-        import importlib
-
-        return getattr(importlib.import_module(f"doorlab.{_LAZY[name]}"), name)
-    raise AttributeError(f"module 'doorlab' has no attribute {name!r}")
-
-
 __all__ = [
     "REGISTRY",
     "ConfigError",
@@ -49,3 +45,18 @@ __all__ = [
     "run_episode",
     "validate",
 ]
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'doorlab' has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(f"doorlab.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

@@ -269,6 +269,13 @@ def add_pset_parser(sub) -> None:
     grade.add_argument(
         "--jobs", type=bounded_int(1), default=2, help="tests run at a time (default 2)"
     )
+    grade.add_argument(
+        "--reference",
+        type=Path,
+        default=None,
+        metavar="RESULTS_JSON",
+        help="reuse the reference episodes of an earlier grading's results (saves 3 episodes)",
+    )
     auto = actions.add_parser(
         "autograder", help="write a Gradescope autograder zip that grades with this doorlab"
     )
@@ -301,16 +308,17 @@ def _pset(args: argparse.Namespace) -> int:
             "assignment's autograder on Gradescope (base image Ubuntu 22.04 or newer)"
         )
         return 0
-    from doorlab.pset.grader import grade, pretty_format_json_results, write_results
+    from doorlab.pset import grader
     from doorlab.runs import record_written
 
     folder = check_problem_set(args.dir)
     out = args.out or folder / "test_results.json"
     _check_writable(out)  # before grading: the grading takes minutes
-    results = grade(folder, jobs=args.jobs)
-    write_results(results, out)
+    reference = None if args.reference is None else grader.load_reference(args.reference)
+    results = grader.grade(folder, jobs=args.jobs, reference=reference)
+    grader.write_results(results, out)
     record_written(folder, [out])  # doorlab's (pset init --force may replace it)
-    print(pretty_format_json_results(out))
+    print(grader.pretty_format_json_results(out))
     print(f"doorlab pset: wrote {out} in {results['execution_time']:.0f} s")
     return 0
 

@@ -46,25 +46,31 @@ STUDENT_FILES = ("ik_utils.py", "open_left_door.py", "manip_station_sim/robot_pl
 submission that the Gradescope autograder grades; the rest of the folder is doorlab's."""
 
 _RULES = {
-    "Task 1 unit test: InverseKinPointwise": "random knot count (3-7), duration, path (a "
-    "shifted piece of the arc) and tolerances: every knot's FK within the tolerances, the "
-    "trajectory through the knots over [0, duration], at rest at both ends, no jump over "
-    "0.5 rad between knots",
+    "Task 1 unit test: InverseKinPointwise": "random knot count (3-7), duration (3-8 s), "
+    "path (a shifted piece of the arc), grasp point p_L7Q (5-10 mm off doorlab's on each "
+    "axis), initial guess and tolerances (below the defaults): every knot's FK within the "
+    "tolerances, the trajectory through the knots over [0, duration], at rest at both ends, "
+    "no jump to another branch of the arm between knots",
     "Task 2 unit test: calc_p_Q": "equals the arc minus the handle at 7 values of tau (1e-6 m)",
     "Task 2 unit test: calc_R_WL7_ref": "equals the reference at 7 values of tau (1e-6 rad)",
-    "Task 2 unit test: IiwaTaskSpaceVelocityPlan.CalcPositionCommand": "q + J^+ V_des dt at "
-    "6 random arm states, errors and control periods (1e-6 rad; q_dot clipped at +-1 rad/s "
-    "as in 2019 is accepted too)",
+    "Task 2 unit test: IiwaTaskSpaceVelocityPlan.CalcPositionCommand": "q_iiwa + J^+ V_des "
+    "control_period at 6 random arm states, errors and control periods, with q_cmd != "
+    "q_iiwa, v_iiwa and tau_iiwa != 0 (1e-6 rad; q_dot clipped at +-1 rad/s as in 2019 is "
+    "accepted too); changing q_cmd, v_iiwa or tau_iiwa alone must not change the answer",
     "Task 3 unit test: IiwaTaskSpaceImpedancePlan.CalcTorqueCommand": "J^T F at 6 random "
-    "arm states and errors (1e-6 N m; clipped at +-20 N m as in 2019 is accepted too)",
+    "arm states and errors (1e-6 N m; clipped at +-20 N m as in 2019 is accepted too); "
+    "changing q_cmd, v_iiwa, tau_iiwa or control_period alone must not change the answer",
     "Task 1 episode: IK with 10 knots, doors open": "Q's max radial error along the arc at "
     "most the reference's + {ik_margin:.2f} mm; Q ends the arc within {arc_end:.0f} deg of "
-    "the reference",
+    "the reference (Q's angle about the hinge is the seed's theta, measured from W's y "
+    "axis, not the door's opening, which counts from the closed door)",
     "Task 2 episode: velocity plan, doors open": "Q's max radial error below the reference "
     "pointwise IK's (10 knots); L7's orientation error at most the reference's + "
-    "{o_margin} rad; Q ends within {arc_end:.0f} deg of the reference",
+    "{o_margin} rad; Q ends within {arc_end:.0f} deg of the reference (the same angle as "
+    "in task 1)",
     "Task 3 episode: impedance plan, doors closed": "the gripper still holds the handle at "
-    "the end; the door opens within {door:.0f} deg of the reference's opening",
+    "the end; the door opens within {door:.0f} deg of the reference's opening (measured "
+    "from the closed door)",
 }
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 from pydrake.geometry import Meshcat
@@ -26,9 +27,16 @@ from doorlab.config import Scenario, validate
 from doorlab.constants import NUM_JOINTS
 from doorlab.errors import ConfigError
 from doorlab.frames import L7_FRAME
-from doorlab.plans import ArmState, Command
-from doorlab.simulation import EpisodeResult, run_episode
 from doorlab.station import make_controller_plant
+
+if TYPE_CHECKING:
+    from doorlab.plans import ArmState, Command
+    from doorlab.simulation import EpisodeResult
+
+# doorlab.plans and doorlab.simulation (which hold or load doorlab's reference control laws)
+# are imported where an episode runs, not here: the grader's student process imports this
+# module for the plans' base classes and must not load the reference solutions
+# (doorlab.pset.honesty).
 
 _ZERO = np.zeros(NUM_JOINTS)
 
@@ -96,6 +104,8 @@ class SeedPlanAdapter:
 
     def command(self, t: float, state: ArmState) -> Command:
         """Asks the seed plan for q_ref (7,) [rad] and tau_ff (7,) [N m] at t [s]."""
+        from doorlab.plans import Command
+
         q_cmd = state.q if self._q_cmd is None else self._q_cmd
         args = (state.q, q_cmd.copy(), state.v, state.tau_external, t, self.control_period)
         q_ref = _checked(self.seed_plan.CalcPositionCommand(*args), "CalcPositionCommand", t)
@@ -215,6 +225,29 @@ class SeedTaskSpacePlanBase(SeedPlanBase):
         return self.R_WL7.inverse() @ self.calc_R_WL7_ref(tau)
 
 
+def seed_scenario(
+    base: Scenario,
+    door_angles: Sequence[float],
+    *,
+    extra_time: float,
+    gripper_setpoint_initial: float,
+) -> Scenario:
+    """``base`` with the seed's ``RunSimulation`` arguments: the (left, right) hinge angles
+    [rad], the time simulated after the last plan [s] and the initial finger separation [m]
+    (validated)."""
+    scenario = replace(
+        base,
+        door_angles=[float(door_angles[0]), float(door_angles[1])],
+        timeline=replace(base.timeline, extra_time=float(extra_time)),
+        station=replace(
+            base.station,
+            gripper=replace(base.station.gripper, approach_width=float(gripper_setpoint_initial)),
+        ),
+    )
+    validate(scenario)
+    return scenario
+
+
 class StationRun:
     """The seed's ``RunSimulation``, on doorlab's station and timeline."""
 
@@ -246,18 +279,14 @@ class StationRun:
                 "the first plan must be a JointSpacePlan (its trajectory's start is where the "
                 "arm moves before the plans run)"
             )
-        scenario = replace(
+        from doorlab.simulation import run_episode
+
+        scenario = seed_scenario(
             self.scenario,
-            door_angles=[float(door_angles[0]), float(door_angles[1])],
-            timeline=replace(self.scenario.timeline, extra_time=float(extra_time)),
-            station=replace(
-                self.scenario.station,
-                gripper=replace(
-                    self.scenario.station.gripper, approach_width=float(gripper_setpoint_initial)
-                ),
-            ),
+            door_angles,
+            extra_time=extra_time,
+            gripper_setpoint_initial=gripper_setpoint_initial,
         )
-        validate(scenario)
         self.last_scenario = scenario
         period = scenario.timeline.control_period
         plans = [SeedPlanAdapter(p, period) for p in plan_list]

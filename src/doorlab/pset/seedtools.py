@@ -8,18 +8,32 @@ simulated cell cannot drift apart.
 
 from __future__ import annotations
 
+import importlib
 import math
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
-import matplotlib.pyplot as plt
 import numpy as np
-from matplotlib.figure import Figure
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.plant import MultibodyPlant
 
 from doorlab.frames import L7_FRAME
 from doorlab.geometry import default_door_geometry
 from doorlab.station import make_controller_plant
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+
+class _Pyplot:
+    """``matplotlib.pyplot``, imported on first use: the grader's student process imports
+    this module for the door constants and never plots (pyplot costs 0.7 s to import)."""
+
+    def __getattr__(self, name: str):
+        return getattr(importlib.import_module("matplotlib.pyplot"), name)
+
+
+plt = _Pyplot()
 
 ARC_PLOT_POINTS = 100
 """Points of the drawn handle arc."""

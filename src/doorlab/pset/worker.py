@@ -1,58 +1,310 @@
-"""Runs one grading job in its own process: ``python -m doorlab.pset.worker JOB FOLDER OUT``.
+"""The student's process: runs the submission's functions and answers the grader in numbers.
 
-JOB is ``unit:<name>``, ``student:<controller>`` or ``reference:<controller>``; the result
-(a JSON object) goes to OUT. A student's exception becomes ``{"passed": false, "error": ...}``
-with the end of its traceback; the grader enforces the time limit by killing this process.
+Started by :class:`doorlab.pset.student.StudentProcess` as ``python -I -B -m
+doorlab.pset.worker RFD WFD`` in a scratch copy of the submission, under the limits of
+:mod:`doorlab.pset.sandbox`. Before any of the student's code runs it imports everything
+the problem set's files need (so a helper named ``json.py``, ``copy.py`` or ``numpy.py`` in
+the folder shadows nothing), installs the honesty guard (:mod:`doorlab.pset.honesty`), says
+hello, and only then puts the folder on ``sys.path``. Then it serves requests (JSON frames;
+per-tick array frames) until the grader closes the channel.
+
+Nothing this process says is trusted: the student's code can replace any of it. It only
+answers the grader's questions (the student's outputs for inputs the grader chose); every
+verdict is computed on the grader's side.
 """
 
 from __future__ import annotations
 
-import json
+import importlib
+import os
 import sys
 import traceback
 from pathlib import Path
 
 TRACEBACK_LINES = 12
-"""Lines of a student's traceback kept in a test's output."""
+"""Lines of a student's traceback kept."""
+MESSAGE_CHARS = 500
+"""Characters of an exception's message kept."""
 
 
-def run_job(job: str, folder: Path) -> dict:
-    """Runs one job and returns its JSON-ready result."""
-    from doorlab.pset import checks
+def _preload() -> None:
+    """What the problem set's files import, loaded before the folder is on sys.path."""
+    import copy  # noqa: F401
+    import struct  # noqa: F401
 
-    kind, _, name = job.partition(":")
-    if kind == "unit":
-        return getattr(checks, f"check_{name}")(folder)
-    if kind == "student":
-        return {"figures": checks.student_episode(folder, name)}
-    if kind == "reference":
-        return {"figures": checks.reference_episode(name)}
-    raise ValueError(f"unknown job {job!r}")
+    import numpy  # noqa: F401
+    import pydrake.math  # noqa: F401
+    import pydrake.multibody.inverse_kinematics  # noqa: F401
+    import pydrake.multibody.plant  # noqa: F401
+    import pydrake.solvers  # noqa: F401
+    import pydrake.trajectories  # noqa: F401
+
+    import doorlab.constants  # noqa: F401
+    import doorlab.frames  # noqa: F401
+    import doorlab.geometry  # noqa: F401
+    import doorlab.ik  # noqa: F401
+    import doorlab.pset.seedapi  # noqa: F401
+    import doorlab.pset.seedtools  # noqa: F401
+
+
+class AnswerError(Exception):
+    """The student's function returned something that is not the expected kind of value."""
+
+
+def _vector(value, size: int, what: str):
+    import numpy as np
+
+    try:
+        array = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise AnswerError(
+            f"{what} returned {type(value).__name__}, expected a ({size},) array"
+        ) from None
+    if array.shape != (size,):
+        raise AnswerError(f"{what} returned shape {np.shape(value)}, expected ({size},)")
+    return array
+
+
+def _trajectory(qtraj) -> dict:
+    """A PiecewisePolynomial as numbers: breaks and each segment's coefficients."""
+    from pydrake.trajectories import PiecewisePolynomial
+
+    from doorlab.pset.channel import MAX_DEGREE, MAX_SEGMENTS
+
+    if not isinstance(qtraj, PiecewisePolynomial):
+        raise AnswerError(f"qtraj must be a PiecewisePolynomial, got {type(qtraj).__name__}")
+    if qtraj.rows() != 7 or qtraj.cols() != 1:
+        raise AnswerError(f"qtraj must have 7 rows and 1 column, has {qtraj.rows()}x{qtraj.cols()}")
+    n = qtraj.get_number_of_segments()
+    if n > MAX_SEGMENTS:
+        raise AnswerError(f"qtraj has {n} segments (at most {MAX_SEGMENTS} are accepted)")
+    segments = []
+    for i in range(n):
+        degree = qtraj.getSegmentPolynomialDegree(i)
+        if degree > MAX_DEGREE:
+            raise AnswerError(f"qtraj's segment {i} has degree {degree} (at most {MAX_DEGREE})")
+        rows = []
+        for r in range(7):
+            c = list(qtraj.getPolynomial(i, r, 0).GetCoefficients())
+            rows.append([float(x) for x in c] + [0.0] * (degree + 1 - len(c)))
+        segments.append(rows)
+    return {"breaks": [float(t) for t in qtraj.get_segment_times()], "coefficients": segments}
+
+
+class Server:
+    """Answers the grader's requests with the student's functions."""
+
+    def __init__(self, folder: Path):
+        self.folder = folder
+        self.plan = None
+
+    @staticmethod
+    def module(name: str):
+        return importlib.import_module(name)
+
+    def _plan_class(self, kind: str):
+        plans = self.module("manip_station_sim.robot_plans")
+        return {
+            "velocity": plans.IiwaTaskSpaceVelocityPlan,
+            "impedance": plans.IiwaTaskSpaceImpedancePlan,
+        }[kind]
+
+    # Unit tests -------------------------------------------------------------------------
+
+    def op_p_Q(self, request: dict) -> dict:
+        calc_p_Q = self.module("open_left_door").calc_p_Q
+        return {
+            "values": [_vector(calc_p_Q(float(t)), 3, "calc_p_Q").tolist() for t in request["taus"]]
+        }
+
+    def op_R_WL7_ref(self, request: dict) -> dict:
+        from pydrake.math import RotationMatrix
+
+        calc_R_WL7_ref = self.module("open_left_door").calc_R_WL7_ref
+        values = []
+        for t in request["taus"]:
+            R = calc_R_WL7_ref(float(t))
+            if isinstance(R, RotationMatrix):
+                values.append({"matrix": R.matrix().tolist()})
+            else:
+                values.append({"type": type(R).__name__})
+        return {"values": values}
+
+    def op_law(self, request: dict) -> dict:
+        import numpy as np
+        from pydrake.math import RotationMatrix
+
+        cls = self._plan_class(request["kind"])
+        method = "CalcPositionCommand" if request["kind"] == "velocity" else "CalcTorqueCommand"
+        values = []
+        for case in request["cases"]:
+            p_Q_end = np.array(case["p_Q_end"], dtype=float)
+            R_end = RotationMatrix(np.array(case["R_ref_end"], dtype=float))
+            plan = cls(
+                calc_p_Q=lambda s, p=p_Q_end: p * s,
+                calc_R_WL7_ref=lambda s, R=R_end: R,
+                duration=float(case["duration"]),
+                p_L7Q=np.array(case["p_L7Q"], dtype=float),
+            )
+            plan.UpdatePwq0(np.array(case["p_WQ_0"], dtype=float))
+            q, q_cmd, v, tau, t_plan, dt = case["args"]
+            args = (
+                np.array(q, dtype=float),
+                np.array(q_cmd, dtype=float),
+                np.array(v, dtype=float),
+                np.array(tau, dtype=float),
+                float(t_plan),
+                float(dt),
+            )
+            values.append(_vector(getattr(plan, method)(*args), 7, method).tolist())
+        return {"values": values}
+
+    def op_ik(self, request: dict) -> dict:
+        import numpy as np
+
+        from doorlab.geometry import default_door_geometry
+
+        g = default_door_geometry()
+        a, b = float(request["a"]), float(request["b"])
+        offset = np.array(request["offset"], dtype=float)
+
+        def position(tau):
+            return g.p_WQ_ref(a + (b - a) * tau) + offset
+
+        def orientation(tau):
+            return g.R_WL7_ref(a + (b - a) * tau)
+
+        kwargs = {
+            "InterpolatePosition": position,
+            "InterpolateOrientation": orientation,
+            "p_L7Q": np.array(request["p_L7Q"], dtype=float),
+            "duration": float(request["duration"]),
+            "num_knot_points": int(request["num_knot_points"]),
+            "q_initial_guess": np.array(request["q_initial_guess"], dtype=float),
+            "position_tolerance": float(request["position_tolerance"]),
+        }
+        if request.get("theta_bound") is not None:
+            kwargs["theta_bound"] = float(request["theta_bound"])
+        result = self.module("ik_utils").InverseKinPointwise(**kwargs)
+        try:
+            qtraj, q_knots = result
+        except (TypeError, ValueError):
+            raise AnswerError(
+                f"InverseKinPointwise must return (qtraj, q_knots), got {type(result).__name__}"
+            ) from None
+        try:
+            knots = np.asarray(q_knots, dtype=float).tolist()
+        except (TypeError, ValueError):
+            raise AnswerError(f"q_knots is {type(q_knots).__name__}, not an array") from None
+        return {"q_knots": knots, "qtraj": _trajectory(qtraj)}
+
+    # Episodes ---------------------------------------------------------------------------
+
+    def op_plan(self, request: dict) -> dict:
+        import numpy as np
+
+        old = self.module("open_left_door")
+        cls = self._plan_class(request["kind"])
+
+        def make():
+            return cls(
+                calc_p_Q=old.calc_p_Q,
+                calc_R_WL7_ref=old.calc_R_WL7_ref,
+                duration=float(request["duration"]),
+                p_L7Q=np.array(request["p_L7Q"], dtype=float),
+            )
+
+        # Fail fast (before the grader simulates 11 s) if the student's plan cannot run.
+        probe = make()
+        q = np.array(request["q_start"], dtype=float)
+        args = (q, q.copy(), np.zeros(7), np.zeros(7), 0.5, 0.005)
+        _vector(probe.CalcPositionCommand(*args), 7, "CalcPositionCommand")
+        _vector(probe.CalcTorqueCommand(*args), 7, "CalcTorqueCommand")
+        self.plan = make()
+        return {"ok": True}
+
+    def tick(self, values) -> list:
+        import numpy as np
+
+        q, q_cmd, v, tau = (values[i : i + 7].copy() for i in (0, 7, 14, 21))
+        args = (q, q_cmd, v, tau, float(values[28]), float(values[29]))
+        q_ref = _vector(self.plan.CalcPositionCommand(*args), 7, "CalcPositionCommand")
+        tau_ff = _vector(self.plan.CalcTorqueCommand(*args), 7, "CalcTorqueCommand")
+        return np.concatenate([q_ref, tau_ff])
+
+
+def _error(e: BaseException, folder: Path) -> dict:
+    if isinstance(e, AnswerError):
+        return {"invalid": str(e)[:MESSAGE_CHARS]}
+    frames = traceback.extract_tb(e.__traceback__)
+    mine = []
+    for f in frames:
+        try:
+            path = Path(f.filename).resolve()
+        except (OSError, ValueError):
+            continue
+        if path.is_relative_to(folder):
+            # Named as in the student's folder, not as in the grader's scratch copy.
+            f.filename = str(path.relative_to(folder))
+            mine.append(f)
+    shown = traceback.format_list(mine or frames[-3:])
+    lines = [line[:300] for line in "".join(shown).rstrip().splitlines()[-TRACEBACK_LINES:]]
+    try:
+        text = str(e)
+    except BaseException:  # noqa: BLE001 - a student's __str__ may raise anything
+        text = ""
+    first = text.strip().splitlines()[0][:MESSAGE_CHARS] if text.strip() else ""
+    return {"error": {"type": type(e).__name__, "message": first, "traceback": "\n".join(lines)}}
+
+
+def serve(rfd: int, wfd: int) -> int:
+    """Says hello, then answers requests until the channel closes."""
+    _preload()
+    import numpy as np
+
+    from doorlab.pset import sandbox
+    from doorlab.pset.channel import KIND_ARRAY, Channel, ChannelClosed, parse_json
+    from doorlab.pset.honesty import Guard, reference_paths
+
+    paths = reference_paths()
+    files = [p for p in paths if p.is_file()]
+    facts = {
+        "uid": os.getuid(),
+        "network_isolated": sandbox.network_isolated(),
+        "reference_hidden": bool(files) and all(p.stat().st_size == 0 for p in files),
+    }
+    guard = Guard(paths)
+    guard.install()
+    channel = Channel(rfd, wfd)
+    channel.send_json({"hello": facts})
+    folder = Path.cwd().resolve()
+    sys.path.insert(0, str(folder))
+    server = Server(folder)
+    while True:
+        try:
+            kind, body = channel.receive()
+        except ChannelClosed:
+            return 0
+        try:
+            if kind == KIND_ARRAY:
+                answer = server.tick(np.frombuffer(body, dtype="<f8").astype(float))
+            else:
+                request = parse_json(body)
+                answer = getattr(server, "op_" + request["op"])(request)
+        except BaseException as e:  # noqa: BLE001 - a student's code may raise anything
+            answer = _error(e, folder)
+        if guard.violation is not None:
+            answer = {"honesty": guard.violation}
+        if isinstance(answer, dict):
+            channel.send_json(answer, allow_nan=True)
+        else:
+            channel.send_array(answer)
 
 
 def main(argv: list[str]) -> int:
-    job, folder, out = argv
-    folder_path = Path(folder).resolve()
-    try:
-        result = run_job(job, folder_path)
-    except BaseException as e:  # noqa: BLE001 - a student's code may raise anything
-        frames = traceback.extract_tb(e.__traceback__)
-        # Show the student's own frames (files in the folder); doorlab's only if there are none.
-        mine = [f for f in frames if Path(f.filename).resolve().is_relative_to(folder_path)]
-        shown = traceback.format_list(mine or frames[-3:])
-        tail = "".join(shown).rstrip().splitlines()[-TRACEBACK_LINES:]
-        message = str(e).strip().splitlines()[0] if str(e).strip() else ""
-        result = {
-            "passed": False,
-            "error": f"{type(e).__name__}: {message}".rstrip(": "),
-            "output": "\n".join(tail),
-        }
-    Path(out).write_text(json.dumps(result, default=str))
-    return 0
+    rfd, wfd = int(argv[0]), int(argv[1])
+    return serve(rfd, wfd)
 
 
 if __name__ == "__main__":
-    import os
-
-    os.environ.setdefault("MPLBACKEND", "Agg")
     sys.exit(main(sys.argv[1:]))

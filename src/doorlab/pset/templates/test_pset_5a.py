@@ -1,15 +1,62 @@
 """The problem set's grader: ``python3 test_pset_5a.py test_results.json``.
 
 Writes Gradescope-format JSON and prints a summary; the tests and their thresholds are
-described in README.md (the grader itself is doorlab.pset.grader).
+described in README.md (the grader itself is doorlab.pset.grader). It runs in Python's
+isolated mode and imports nothing from this folder: your code is graded in a separate,
+sandboxed process.
 """
 
+import os
 import sys
-from pathlib import Path
 
-from doorlab.pset.grader import main, pretty_format_json_results
+_HERE = os.path.dirname(os.path.abspath(__file__))
 
-__all__ = ["pretty_format_json_results"]
+
+def pretty_format_json_results(path):
+    """A readable summary of a results file (for the notebook's last cell)."""
+    from doorlab.pset.grader import pretty_format_json_results as summary
+
+    return summary(path)
+
+
+def _doorlab_python():
+    """The interpreter of the ``doorlab`` command on PATH, if there is one."""
+    import shutil
+
+    command = shutil.which("doorlab")
+    if command is None:
+        return None
+    try:
+        with open(command, "rb") as f:
+            first = f.readline().decode("utf-8", "replace").strip()
+    except OSError:
+        return None
+    if not first.startswith("#!"):
+        return None
+    return first[2:].strip() or None
+
+
+def _main():
+    # Nothing from this folder may shadow the standard library here (json.py, copy.py...).
+    sys.path[:] = [p for p in sys.path if os.path.abspath(p or os.curdir) != _HERE]
+    import subprocess
+
+    probe = "import importlib.util, sys; sys.exit(importlib.util.find_spec('doorlab') is None)"
+    if subprocess.run([sys.executable, "-I", "-c", probe], check=False).returncode != 0:
+        other = _doorlab_python()
+        hint = (
+            f"run it with {other} test_pset_5a.py"
+            if other
+            else (
+                f"install doorlab into it ({sys.executable} -m pip install doorlab) or run the "
+                "grader with the Python that has doorlab"
+            )
+        )
+        print(f"test_pset_5a.py: {sys.executable} has no doorlab; {hint}", file=sys.stderr)
+        return 2
+    argv = [sys.executable, "-I", "-m", "doorlab.pset.grader", _HERE, *sys.argv[1:]]
+    os.execv(sys.executable, argv)
+
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:], folder=Path(__file__).resolve().parent))
+    sys.exit(_main())

@@ -1,0 +1,320 @@
+"""The trusted side's handle on one student process (:mod:`doorlab.pset.worker`).
+
+:class:`StudentProcess` copies the submission to a scratch folder (its working directory),
+starts the worker there under :mod:`doorlab.pset.sandbox`'s limits, and asks it for numbers
+over :mod:`doorlab.pset.channel`. Whatever goes wrong on that side (an exception in the
+student's code, a crash, an exit, a signal, a limit, a hang, garbage on the channel, the
+honesty boundary) becomes a :class:`StudentFailure` whose message says so in a student's
+words; the process and every descendant are killed when the test ends.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import stat
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from doorlab.pset import sandbox
+from doorlab.pset.channel import (
+    KIND_ARRAY,
+    Channel,
+    ChannelClosed,
+    ChannelTimeout,
+    ProtocolError,
+    as_text,
+    parse_array,
+    parse_json,
+)
+from doorlab.pset.honesty import reference_paths
+
+MAX_SUBMISSION_BYTES = 64 << 20
+"""Largest submission copied to the scratch folder [bytes]."""
+MAX_DETAIL_CHARS = 3000
+"""Longest detail (traceback and printed output) kept for a test's output."""
+TICK_SIZE = 30
+"""Floats of a tick's request: q, q_cmd, v, tau_ext (7 each), t_plan, control_period."""
+ANSWER_SIZE = 14
+"""Floats of a tick's answer: q_ref and tau_ff (7 each)."""
+
+
+class StudentFailure(Exception):
+    """The student's code failed this test: ``str()`` is the message, ``detail`` the
+    traceback and printed output (both capped)."""
+
+    def __init__(self, message: str, detail: str = ""):
+        super().__init__(message)
+        self.detail = detail
+
+
+class SandboxError(Exception):
+    """The grader could not run the student's process (not the student's doing)."""
+
+
+def copy_submission(folder: Path, dest: Path, identity: sandbox.Identity | None) -> None:
+    """Copies the submission: folders, regular files (no compiled ``.pyc``: what runs is
+    the source) and symbolic links as links (never their targets: the copy is made by the
+    grader's user); owned by ``identity``.
+
+    Raises:
+        StudentFailure: The submission is larger than :data:`MAX_SUBMISSION_BYTES`.
+    """
+    total = 0
+    dest.mkdir(mode=0o700)
+    for root, dirs, files in os.walk(folder, followlinks=False):
+        rel = Path(root).relative_to(folder)
+        dirs[:] = [d for d in dirs if d != "__pycache__"]
+        for d in list(dirs):
+            src = Path(root, d)
+            if src.is_symlink():
+                dirs.remove(d)
+                os.symlink(os.readlink(src), dest / rel / d)
+            else:
+                (dest / rel / d).mkdir()
+        for f in files:
+            src, dst = Path(root, f), dest / rel / f
+            st = os.lstat(src)
+            if stat.S_ISLNK(st.st_mode):
+                os.symlink(os.readlink(src), dst)
+            elif stat.S_ISREG(st.st_mode) and not f.endswith(".pyc"):
+                total += st.st_size
+                if total > MAX_SUBMISSION_BYTES:
+                    raise StudentFailure(
+                        f"the submission holds more than {MAX_SUBMISSION_BYTES >> 20} MiB"
+                    )
+                shutil.copyfile(src, dst, follow_symlinks=False)
+    if identity is not None:
+        for root, dirs, files in os.walk(dest):
+            for name in [*dirs, *files]:
+                os.lchown(Path(root, name), identity.uid, identity.gid)
+        os.chown(dest, identity.uid, identity.gid)
+
+
+def _signal_message(signum: int, limits: sandbox.Limits) -> str:
+    if signum == signal.SIGXCPU:
+        return f"your code used more than {limits.cpu_seconds:.0f} s of CPU time (the CPU limit)"
+    if signum == signal.SIGXFSZ:
+        return (
+            f"your code wrote a file larger than {limits.file_size_bytes >> 20} MiB "
+            "(the file-size limit)"
+        )
+    if signum == signal.SIGSEGV:
+        return "your code crashed its process (SIGSEGV, a segmentation fault)"
+    try:
+        name = signal.Signals(signum).name
+    except ValueError:
+        name = f"signal {signum}"
+    return f"your code's process was killed by {name}"
+
+
+def student_environment(scratch: Path) -> dict[str, str]:
+    """The student process's whole environment (nothing of the grader's)."""
+    return {
+        "PATH": "/usr/local/bin:/usr/bin:/bin",
+        "HOME": str(scratch),
+        "TMPDIR": str(scratch),
+        "LANG": "C.UTF-8",
+        "MPLBACKEND": "Agg",
+        "MPLCONFIGDIR": str(scratch / ".matplotlib"),
+        "OPENBLAS_NUM_THREADS": "1",
+        "OMP_NUM_THREADS": "1",
+        "MKL_NUM_THREADS": "1",
+    }
+
+
+class StudentProcess:
+    """The worker for one test, running the submission's code in a scratch copy.
+
+    Use as a context manager; :meth:`close` (on exit) kills the process and every
+    descendant of the calling process: the caller is a trusted job process (a child
+    subreaper, see :mod:`doorlab.pset.sandbox`) whose only child is this one. Every call
+    raises :class:`StudentFailure` when the student's side fails.
+
+    Args:
+        folder: The submission. workdir: The grading's private folder (scratch copies go
+            in it). name: The test's job name (the scratch folder's name).
+        time_limit: Wall and CPU time for the whole test [s].
+        identity: The user to run as (see :func:`doorlab.pset.sandbox.sandbox_identity`).
+    """
+
+    def __init__(
+        self,
+        folder: Path,
+        workdir: Path,
+        name: str,
+        time_limit: float,
+        identity: sandbox.Identity | None,
+    ):
+        self.limits = sandbox.Limits(cpu_seconds=time_limit)
+        self.deadline = time.monotonic() + time_limit
+        self.facts: dict = {}
+        self.scratch = workdir / ("scratch_" + name.replace(":", "_"))
+        try:
+            copy_submission(folder, self.scratch, identity)
+            blanks = sandbox.make_blanks(workdir / "blanks")
+        except OSError as e:
+            raise SandboxError(f"cannot copy the submission: {e}") from None
+        request_r, self._request_w = os.pipe()
+        self._answer_r, answer_w = os.pipe()
+        os.set_blocking(self._request_w, False)
+        argv = [sys.executable, "-I", "-B", "-m", "doorlab.pset.worker"]
+        try:
+            self.proc = sandbox.spawn(
+                [*argv, str(request_r), str(answer_w)],
+                cwd=self.scratch,
+                env=student_environment(self.scratch),
+                limits=self.limits,
+                identity=identity,
+                pass_fds=(request_r, answer_w),
+                hide=reference_paths(),
+                blanks=blanks,
+            )
+        except (OSError, subprocess.SubprocessError) as e:  # the latter: a limit refused
+            raise SandboxError(f"cannot start the student's process: {e}") from None
+        finally:
+            os.close(request_r)
+            os.close(answer_w)
+        self.channel = Channel(self._answer_r, self._request_w)
+        self.output = sandbox.OutputCollector(
+            self.proc.stdout, limit=self.limits.output_bytes, on_overflow=self._stop
+        )
+        try:
+            hello = self.channel.receive_json(self.deadline)
+        except ProtocolError as e:
+            self.close()
+            raise SandboxError(
+                f"the student's process did not start ({self._death(e)}): "
+                + self.output.text()[-500:]
+            ) from None
+        facts = hello.get("hello")
+        self.facts = facts if isinstance(facts, dict) else {}
+
+    def _stop(self) -> None:
+        try:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+
+    def __enter__(self) -> StudentProcess:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Kills the process and every descendant, then collects the output."""
+        if getattr(self, "_closed", False):
+            return
+        self._closed = True
+        self._stop()
+        sandbox.kill_descendants(unreaped=[self.proc.pid])
+        try:
+            self.proc.wait(timeout=10)
+        except Exception:  # noqa: BLE001 - nothing more can be done
+            pass
+        sandbox.kill_descendants()
+        self.output.join(timeout=5)
+        for fd in (self._answer_r, self._request_w):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        shutil.rmtree(self.scratch, ignore_errors=True)
+
+    # What went wrong --------------------------------------------------------------------
+
+    def _death(self, error: ProtocolError) -> str:
+        """The cause of a broken exchange, in a student's words."""
+        if self.output.overflowed:
+            return (
+                f"your code printed more than {self.output.limit >> 20} MiB "
+                "(the output limit); the test was stopped"
+            )
+        if isinstance(error, ChannelTimeout):
+            return (
+                f"time limit: your code did not answer within {self.limits.cpu_seconds:.0f} s "
+                "(an endless loop? a long sleep?)"
+            )
+        try:
+            code = self.proc.wait(timeout=2.0)
+        except Exception:  # noqa: BLE001 - still running
+            code = None
+        if code is None:
+            if isinstance(error, ChannelClosed):
+                return "your code closed the grader's channel"
+            return f"your code's process sent something that is not an answer ({error})"
+        if code < 0:
+            return _signal_message(-code, self.limits)
+        return (
+            f"your code ended its process (exit code {code}) before answering "
+            "(sys.exit, os._exit or os.kill in your code?)"
+        )
+
+    def _detail(self, traceback: str = "") -> str:
+        parts = []
+        if traceback:
+            parts.append(traceback)
+        self.output.join(timeout=0.05 if self.proc.poll() is None else 1.0)
+        printed = self.output.text().strip()
+        if printed:
+            parts.append(f"your code printed ({self.output.total} bytes):\n{printed}")
+        text = "\n".join(parts)
+        if len(text) > MAX_DETAIL_CHARS:
+            text = text[:MAX_DETAIL_CHARS] + " [...]"
+        return text
+
+    def _failure(self, error: ProtocolError) -> StudentFailure:
+        message = self._death(error)
+        self._stop()
+        return StudentFailure(message, self._detail())
+
+    def _check_answer(self, answer: dict) -> dict:
+        if "honesty" in answer:
+            raise StudentFailure(as_text(answer["honesty"], 500), self._detail())
+        if "invalid" in answer:
+            raise StudentFailure(as_text(answer["invalid"], 500), self._detail())
+        if "error" in answer:
+            error = answer["error"] if isinstance(answer["error"], dict) else {}
+            kind = as_text(error.get("type"), 100) or "Error"
+            text = as_text(error.get("message"), 500)
+            message = f"{kind}: {text}" if text else kind
+            if "MemoryError" in kind:
+                message = (
+                    f"your code ran out of memory (the limit is "
+                    f"{self.limits.memory_bytes >> 30} GiB of address space): {message}"
+                )
+            elif "[Errno 27]" in text:  # EFBIG: Python ignores SIGXFSZ, the write fails
+                message = f"{_signal_message(signal.SIGXFSZ, self.limits)}: {message}"
+            raise StudentFailure(message, self._detail(as_text(error.get("traceback"))))
+        if self.output.overflowed:
+            raise self._failure(ProtocolError("output"))
+        return answer
+
+    # Requests ---------------------------------------------------------------------------
+
+    def call(self, op: str, **args) -> dict:
+        """Sends request ``op`` and returns the answer (a JSON object, not yet validated)."""
+        try:
+            self.channel.send_json({"op": op, **args}, self.deadline)
+            return self._check_answer(self.channel.receive_json(self.deadline))
+        except ProtocolError as e:
+            raise self._failure(e) from None
+
+    def tick(self, values: np.ndarray) -> np.ndarray:
+        """One control tick: (q, q_cmd, v, tau_ext, t_plan, control_period) in, the 14
+        floats (q_ref, tau_ff) of the student's plan out (not yet checked for finiteness)."""
+        try:
+            self.channel.send_array(values, self.deadline)
+            kind, body = self.channel.receive(self.deadline)
+            if kind == KIND_ARRAY:
+                return parse_array(body, ANSWER_SIZE)
+            self._check_answer(parse_json(body))
+            raise ProtocolError("an object where a tick's answer was expected")
+        except ProtocolError as e:
+            raise self._failure(e) from None
