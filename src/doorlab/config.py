@@ -94,6 +94,21 @@ class GripperConfig:
 
 
 @dataclass
+class SafetyConfig:
+    """Limits every arm command is checked against before it goes out (:mod:`doorlab.safety`).
+
+    Always on for ``doorlab run --hardware``; in simulation only when ``enabled``, to rehearse a
+    plan under the real run's limits.
+    """
+
+    enabled: bool = False  # check the commands in simulation too
+    joint_limit_margin: float = 0.0873  # [rad] (5 deg) q_ref stays this far inside the limits
+    gap_time: float = 0.02  # [s] |q_ref - q| <= data-sheet speed x this
+    speed_fraction: float = 0.5  # [-] implied joint speed <= this x the data-sheet speed
+    torque_fraction: float = 0.25  # [-] |tau_ff| <= this x the data-sheet torque
+
+
+@dataclass
 class StationConfig:
     """Physics of the cell."""
 
@@ -116,6 +131,7 @@ class StationConfig:
     friction: float = 1.0  # Coulomb friction of fingers and handle [-]
     inner_loop: InnerLoopConfig = field(default_factory=InnerLoopConfig)
     gripper: GripperConfig = field(default_factory=GripperConfig)
+    safety: SafetyConfig = field(default_factory=SafetyConfig)
 
 
 @dataclass
@@ -355,6 +371,23 @@ def _gains(name: str, values: list[float], *, allow_zero: bool) -> None:
         (_non_negative if allow_zero else _positive)(f"{name}[{i}]", v)
 
 
+def _validate_safety(safety: SafetyConfig) -> None:
+    _check(isinstance(safety.enabled, bool), "station.safety.enabled must be true or false")
+    _check(
+        isinstance(safety.joint_limit_margin, (int, float))
+        and 0.0 <= safety.joint_limit_margin <= 0.5,
+        f"station.safety.joint_limit_margin must be in [0, 0.5] rad, got "
+        f"{safety.joint_limit_margin!r}",
+    )
+    _positive("station.safety.gap_time", safety.gap_time)
+    for name in ("speed_fraction", "torque_fraction"):
+        value = getattr(safety, name)
+        _check(
+            isinstance(value, (int, float)) and 0.0 < value <= 1.0,
+            f"station.safety.{name} must be in (0, 1], got {value!r}",
+        )
+
+
 def validate(scenario: Scenario) -> Scenario:
     """Checks every field's type and range.
 
@@ -422,6 +455,8 @@ def validate(scenario: Scenario) -> Scenario:
             isinstance(value, (int, float)) and 0.0 <= value <= 0.11,
             f"station.gripper.{name} must be in [0, 0.11] m (finger travel), got {value!r}",
         )
+
+    _validate_safety(station.safety)
 
     timeline = scenario.timeline
     for f in dataclasses.fields(timeline):

@@ -22,10 +22,11 @@ from pydrake.systems.primitives import LogVectorOutput
 from doorlab.config import Scenario
 from doorlab.constants import Q_HOME
 from doorlab.episode import EpisodeLogger, EpisodeResult, schedule_fields, wire_commands
-from doorlab.errors import SimulationError
+from doorlab.errors import SafetyStop, SimulationError
 from doorlab.frames import FINGER_JOINTS, LEFT_HINGE, RIGHT_HINGE
 from doorlab.plan_runner import PlanRunner
 from doorlab.plans import Plan
+from doorlab.safety import SafetyLimits, SafetyMonitor
 from doorlab.schedule import (
     PLAN_SETTLE_TIME,
     ScheduledPlan,
@@ -116,6 +117,8 @@ def build_simulated_episode(
         "tau_external": cell.GetOutputPort("iiwa_torque_external"),
         "plant_state": cell.GetOutputPort("plant_state"),
     }
+    if scenario.station.safety.enabled:
+        _add_safety_monitor(builder, cell, wiring, scenario, q_initial=q_initial, lag=lag)
     log_period = scenario.timeline.log_period
     logger = EpisodeLogger(builder, channels, log_period)
     if _SEPARATE_LOGGERS:  # the 353b732 design's nine loggers, for doorlab.legacy (unused)
@@ -127,16 +130,32 @@ def build_simulated_episode(
     return SimulatedEpisode(diagram, station, logger, list(schedule), t_final)
 
 
+def _add_safety_monitor(
+    builder: DiagramBuilder, cell, wiring, scenario: Scenario, *, q_initial: np.ndarray, lag: float
+) -> None:
+    """``station.safety``: every command checked at its tick, before the plant steps with it
+    (halfway between the command's switch, ``lag`` after the tick, and the next plant step)."""
+    limits = SafetyLimits.from_config(scenario.station.safety, q_initial)
+    monitor = builder.AddSystem(
+        SafetyMonitor(limits, control_period=scenario.timeline.control_period, offset=1.5 * lag)
+    )
+    builder.Connect(wiring.q_ref, monitor.GetInputPort("iiwa_position"))
+    builder.Connect(wiring.tau_ff, monitor.GetInputPort("iiwa_feedforward_torque"))
+    builder.Connect(
+        cell.GetOutputPort("iiwa_position_measured"), monitor.GetInputPort("iiwa_position_measured")
+    )
+
+
 def _simulate(
+    simulator: Simulator,
     episode: SimulatedEpisode,
     scenario: Scenario,
     q_initial: np.ndarray,
     *,
     meshcat: Meshcat | None,
     realtime_rate: float,
-):
-    """Runs the episode to its end; returns (root context, wall time [s])."""
-    simulator = Simulator(episode.diagram)
+) -> float:
+    """Runs the episode to its end (or a safety stop); returns the wall time [s]."""
     # Every state is discrete (plant, plan runner, gripper): no continuous state to
     # integrate, so the cheapest fixed-step integrator just advances time between events
     # (the default error-controlled one costs ~10 % of an episode for nothing).
@@ -155,12 +174,11 @@ def _simulate(
         raise SimulationError(
             f"the simulation failed at t = {context.get_time():.3f} s: {message}"
         ) from None
-    wall_time = time.perf_counter() - wall_start
-    if meshcat is not None:
-        meshcat.StopRecording()
-        meshcat.PublishRecording()
-    # The simulator goes out of scope here; its context stays valid for the logs.
-    return simulator, wall_time
+    finally:
+        if meshcat is not None:
+            meshcat.StopRecording()
+            meshcat.PublishRecording()
+    return time.perf_counter() - wall_start
 
 
 def plant_state_channels(station: Station, x: np.ndarray) -> dict[str, np.ndarray]:
@@ -218,12 +236,34 @@ def run_episode(
         plans, gripper_widths, q_initial=q_initial, q_start=q_start, scenario=scenario
     )
     episode = build_simulated_episode(scenario, schedule, q_initial=q_initial, meshcat=meshcat)
-    simulator, wall_time = _simulate(
-        episode, scenario, q_initial, meshcat=meshcat, realtime_rate=realtime_rate
-    )
+    arc_index = (len(plans) - 1 if arc_plan_index is None else arc_plan_index) + 2
+    simulator = Simulator(episode.diagram)
+    wall_start = time.perf_counter()
+    try:
+        wall_time = _simulate(
+            simulator, episode, scenario, q_initial, meshcat=meshcat, realtime_rate=realtime_rate
+        )
+    except SafetyStop as stop:
+        wall_time = time.perf_counter() - wall_start
+        partial, _ = _result(episode, simulator, scenario, wall_time, arc_index)
+        raise SafetyStop(stop.violation, result=partial) from None
+    result, finite = _result(episode, simulator, scenario, wall_time, arc_index)
+    if not finite:
+        raise SimulationError("the simulation diverged: the plant state became non-finite")
+    return result
+
+
+def _result(
+    episode: SimulatedEpisode,
+    simulator: Simulator,
+    scenario: Scenario,
+    wall_time: float,
+    arc_index: int,
+) -> tuple[EpisodeResult, bool]:
+    """The episode's logs as they stand in the simulator's context, and whether the logged
+    plant state is finite."""
     t, data = episode.logger.read(simulator.get_context())
     measured = plant_state_channels(episode.station, data["plant_state"])
-    arc_index = (len(plans) - 1 if arc_plan_index is None else arc_plan_index) + 2
     result = EpisodeResult(
         t=t,
         q_commanded=data["q_commanded"],
@@ -239,6 +279,4 @@ def run_episode(
         scenario_yaml=yaml_dump_typed(scenario),
         **schedule_fields(episode.schedule, arc_index),
     )
-    if not np.all(np.isfinite(data["plant_state"])):
-        raise SimulationError("the simulation diverged: the plant state became non-finite")
-    return result
+    return result, bool(np.all(np.isfinite(data["plant_state"])))
