@@ -120,6 +120,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="real-time rate (0: as fast as possible; default 0, 1 with --meshcat)",
     )
     run.add_argument("--no-replay", action="store_true", help="skip replay.html (faster)")
+    add_hardware_options(run)
 
     report = sub.add_parser("report", help="run the seed's experiment set and write index.html")
     report.add_argument(
@@ -187,6 +188,44 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_pset_parser(sub)
     return parser
+
+
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text!r}") from None
+    if not (math.isfinite(value) and 0 < value <= 3600):
+        raise argparse.ArgumentTypeError(f"must be a number of seconds in (0, 3600], got {text!r}")
+    return value
+
+
+def add_hardware_options(run: argparse.ArgumentParser) -> None:
+    """``doorlab run --hardware [--lcm-url URL] [--wait S] [--yes]`` (README, "On the real arm")."""
+    group = run.add_argument_group("the real arm (README: On the real arm)")
+    group.add_argument(
+        "--hardware",
+        action="store_true",
+        help="run on the real iiwa + WSG over LCM (drake-iiwa-driver, drake-schunk-driver, "
+        "or doorlab sim-driver)",
+    )
+    group.add_argument(
+        "--lcm-url",
+        default=None,
+        metavar="URL",
+        help="the drivers' LCM URL (default: Drake's, $LCM_DEFAULT_URL or "
+        "udpm://239.255.76.67:7667?ttl=0)",
+    )
+    group.add_argument(
+        "--wait",
+        type=_seconds,
+        default=5.0,
+        metavar="S",
+        help="seconds to wait for the driver's first status (default 5)",
+    )
+    group.add_argument(
+        "--yes", action="store_true", help="do not ask before the arm moves (the plan is printed)"
+    )
 
 
 def _scheduler(parser: argparse.ArgumentParser) -> None:
@@ -368,6 +407,13 @@ def _summary(outcome) -> str:
 def _run(args: argparse.Namespace) -> int:
     from doorlab.runs import run_to_folder
 
+    if args.hardware:
+        from doorlab.hardware.cli import run_hardware_command
+
+        return run_hardware_command(args, _scenario(args))
+    for option, given in (("--lcm-url", args.lcm_url), ("--yes", args.yes)):
+        if given:
+            raise ConfigError(f"{option} applies to --hardware only")
     scenario = _scenario(args)
     out = args.out or Path("doorlab_out") / f"{scenario.controller}_{scenario.doors}"
     meshcat = None

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import io
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -67,7 +67,8 @@ class EpisodeResult:
         tau_feedforward: tau_ff sent by the plans (n, 7) [N m].
         tau_commanded: Torque the joints receive (n, 7) [N m]: the actuators' after
             saturation plus, for the stiffness loop, the joints' damping -(Dq + h Kq) qdot.
-        door_angles: Hinge angles (n, 2) [rad], columns (left, right).
+        door_angles: Hinge angles (n, 2) [rad], columns (left, right); None on the real
+            cell, which has no hinge sensor.
         wsg_width: Finger separation (n,) [m].
         plant_positions: Positions of the whole plant (n, nq), for replays.
         plan_names: Names of the scheduled plans. plan_starts: Their start times (k,) [s].
@@ -77,6 +78,12 @@ class EpisodeResult:
         plan_log: The arc plan's own per-tick table {channel: (m,)} (empty for plans that
             record nothing); its ``t`` column is the episode's time [s]. The adaptive plan's
             channels are listed in :data:`doorlab.adaptive.LOG_CHANNELS`.
+        door_angle_estimated: The real cell's estimate of the left hinge angle (n,) [rad]:
+            Q's angle about the believed hinge while the handle is held, nan elsewhere
+            (:func:`doorlab.hardware.estimates.door_angle_estimate`); None in simulation.
+        status_time: The real cell's ``utime`` of the status each sample shows, as seconds
+            (n,) [s]; None in simulation.
+        cell: ``simulation`` or ``hardware`` (the real cell over LCM).
     """
 
     t: np.ndarray
@@ -86,7 +93,7 @@ class EpisodeResult:
     tau_external: np.ndarray
     tau_feedforward: np.ndarray
     tau_commanded: np.ndarray
-    door_angles: np.ndarray
+    door_angles: np.ndarray | None
     wsg_width: np.ndarray
     plant_positions: np.ndarray
     plan_names: tuple[str, ...]
@@ -95,6 +102,9 @@ class EpisodeResult:
     wall_time_s: float = 0.0
     scenario_yaml: str = field(default="", compare=False)
     plan_log: dict[str, np.ndarray] = field(default_factory=dict, compare=False)
+    door_angle_estimated: np.ndarray | None = None
+    status_time: np.ndarray | None = None
+    cell: str = "simulation"
 
     @property
     def sim_time_s(self) -> float:
@@ -110,9 +120,10 @@ class EpisodeResult:
         """Writes every channel to an ``.npz`` file (see :meth:`load`)."""
         arrays = {}
         for f in fields(self):
-            if f.name == "plan_log":
+            value = getattr(self, f.name)
+            if f.name == "plan_log" or value is None:  # None: not measured on this cell
                 continue
-            arrays[f.name] = np.asarray(getattr(self, f.name))
+            arrays[f.name] = np.asarray(value)
         for name, column in self.plan_log.items():
             arrays[f"{_PLAN_LOG_PREFIX}{name}"] = np.asarray(column)
         buffer = io.BytesIO()
@@ -132,12 +143,15 @@ class EpisodeResult:
                         if key.startswith(_PLAN_LOG_PREFIX)
                     }
                     continue
+                if f.name not in data.files:  # a channel the cell did not measure
+                    values[f.name] = None if f.default is MISSING else f.default
+                    continue
                 value = data[f.name]
                 if f.name == "plan_names":
                     value = tuple(str(s) for s in value)
                 elif f.name in ("wall_time_s",):
                     value = float(value)
-                elif f.name == "scenario_yaml":
+                elif f.name in ("scenario_yaml", "cell"):
                     value = str(value)
                 values[f.name] = value
         return cls(**values)
