@@ -62,7 +62,7 @@ def _confirm(yes: bool):
 def run_hardware_command(args: argparse.Namespace, scenario: Scenario) -> int:
     """``doorlab run --hardware``; returns the exit code."""
     from doorlab.hardware.link import DriverLink
-    from doorlab.hardware.run import hardware_summary, run_hardware_to_folder
+    from doorlab.hardware.run import check_out_dir, hardware_summary, run_hardware_to_folder
 
     if args.meshcat or args.realtime is not None:
         raise ConfigError(
@@ -70,8 +70,14 @@ def run_hardware_command(args: argparse.Namespace, scenario: Scenario) -> int:
         )
     url = check_lcm_url(args.lcm_url)
     out = args.out or Path("doorlab_out") / f"{scenario.controller}_{scenario.doors}_hardware"
+    check_out_dir(out, force=args.force)
     link = DriverLink(url=url)
+    print(
+        f"doorlab run --hardware: waiting up to {args.wait:g} s for IIWA_STATUS on {link.url}",
+        flush=True,
+    )
     try:
+        first = link.wait_first_status(args.wait)
         outcome = run_hardware_to_folder(
             scenario,
             out,
@@ -80,6 +86,7 @@ def run_hardware_command(args: argparse.Namespace, scenario: Scenario) -> int:
             confirm=_confirm(args.yes),
             force=args.force,
             replay=not args.no_replay,
+            first=first,
         )
     except NoDriver as e:
         print(f"doorlab run: error: {e}", file=sys.stderr)

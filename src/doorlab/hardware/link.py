@@ -22,8 +22,8 @@ from doorlab.errors import NoDriver
 from doorlab.hardware.interface import IIWA_STATUS
 
 MULTICAST_HINT = (
-    "on a multicast (udpm) URL the host needs a multicast route: one machine: "
-    "ip route add 224.0.0.0/4 dev lo; the arm's network: ... dev <its interface>"
+    "a udpm URL needs a multicast route (one machine: ip route add 224.0.0.0/4 dev lo; "
+    "to the arm: ... dev <its interface>)"
 )
 
 

@@ -91,6 +91,13 @@ def describe_plan(scenario: Scenario, q_start: np.ndarray, status: Status, url: 
     return "\n".join(lines)
 
 
+def check_out_dir(out_dir: Path, *, force: bool) -> None:
+    """Refuses an existing ``out_dir`` without ``force`` before anything waits or moves
+    (:func:`doorlab.runs.prepare_output` checks everything when the folder is made)."""
+    if Path(out_dir).exists() and not force:
+        raise OutputError(f"--out {str(out_dir)!r} already exists; pass --force to replace it")
+
+
 def run_hardware_to_folder(
     scenario: Scenario,
     out_dir: Path,
@@ -101,6 +108,7 @@ def run_hardware_to_folder(
     force: bool = False,
     replay: bool = True,
     plots: bool = True,
+    first: Status | None = None,
 ) -> HardwareRunOutcome:
     """Runs ``scenario``'s controller on the real cell behind ``link`` and writes its folder.
 
@@ -111,6 +119,7 @@ def run_hardware_to_folder(
         wait: How long to wait for the driver's first status [s].
         confirm: Shown the plan; True lets the arm move (``--yes``: always True).
         replay, plots: Write ``replay.html`` and the PNG plots (a completed run only).
+        first: The driver's first status if the caller already waited for it.
 
     Raises:
         NoDriver: No status within ``wait`` (nothing written).
@@ -120,9 +129,8 @@ def run_hardware_to_folder(
 
     validate(scenario)
     out_dir = Path(out_dir)
-    if out_dir.exists() and not force:  # before waiting for the driver (prepare_output again)
-        raise OutputError(f"--out {str(out_dir)!r} already exists; pass --force to replace it")
-    first = link.wait_first_status(wait)
+    check_out_dir(out_dir, force=force)
+    first = first or link.wait_first_status(wait)
     base = {"controller": scenario.controller, "doors": scenario.doors, "cell": "hardware"}
     try:
         plans, widths, arc = episode_plans(scenario)
