@@ -106,6 +106,22 @@ class LinkRecord:
         """Time between consecutive commands [s]."""
         return np.diff(np.asarray(self.command_sent))
 
+    def answer_times(self) -> np.ndarray:
+        """From each status's arrival to the command that answered it [s]."""
+        arrival = dict(zip(self.status_utime, self.status_arrival, strict=True))
+        return np.array(
+            [
+                sent - arrival[utime]
+                for sent, utime in zip(self.command_sent, self.command_utime, strict=True)
+            ]
+        )
+
+    def status_jitter(self) -> np.ndarray:
+        """Each status's arrival minus the driver's clock (its utime), less the smallest such
+        difference [s]: how late each came against the earliest one (pacing and transport)."""
+        lateness = np.asarray(self.status_arrival) - 1e-6 * np.asarray(self.status_utime)
+        return lateness - lateness.min() if len(lateness) else lateness
+
 
 @dataclass(frozen=True)
 class HardwareOutcome:
@@ -398,22 +414,26 @@ def _result(runner: _Runner, scenario: Scenario, wall: float, arc_index: int) ->
 
 
 def describe_latency(record: LinkRecord) -> dict[str, float]:
-    """Link statistics for metrics.json: round trip and command interval [ms]."""
-    rt = 1e3 * record.round_trips()
-    dt = 1e3 * record.command_intervals()
-
+    """Link statistics for metrics.json [ms]: the round trip (a command to the first status
+    that reflects it), the interval between commands, the answer time (a status's arrival to
+    its command) and how late statuses came against the earliest (the driver's pacing)."""
     def stat(x: np.ndarray, f) -> float:
         return float(f(x)) if len(x) else math.nan
 
-    return {
+    out: dict[str, float] = {
         "commands": len(record.command_sent),
         "statuses": len(record.status_arrival),
         "skipped_statuses": record.skipped,
-        "round_trip_median_ms": stat(rt, np.median),
-        "round_trip_p99_ms": stat(rt, lambda x: np.percentile(x, 99)),
-        "round_trip_max_ms": stat(rt, np.max),
-        "command_interval_median_ms": stat(dt, np.median),
-        "command_interval_std_ms": stat(dt, np.std),
-        "command_interval_p99_ms": stat(dt, lambda x: np.percentile(x, 99)),
-        "command_interval_max_ms": stat(dt, np.max),
     }
+    for name, values in (
+        ("round_trip", record.round_trips()),
+        ("command_interval", record.command_intervals()),
+        ("answer", record.answer_times()),
+        ("status_lateness", record.status_jitter()),
+    ):
+        ms = 1e3 * values
+        out[f"{name}_median_ms"] = stat(ms, np.median)
+        out[f"{name}_p99_ms"] = stat(ms, lambda x: np.percentile(x, 99))
+        out[f"{name}_max_ms"] = stat(ms, np.max)
+    out["command_interval_std_ms"] = stat(1e3 * record.command_intervals(), np.std)
+    return out
