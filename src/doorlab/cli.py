@@ -1,5 +1,6 @@
-"""The ``doorlab`` command: ``doorlab run`` (one controller), ``doorlab report`` (all) and
-``doorlab sweep`` (scenario fields over a grid or random samples).
+"""The ``doorlab`` command: ``doorlab run`` (one controller), ``doorlab report`` (all),
+``doorlab sweep`` (scenario fields over a grid or random samples) and ``doorlab sim-driver``
+(the simulated cell behind the real drivers' LCM protocol).
 
 Bad input prints one line naming the valid choices and exits with code 2; a run's status
 sets the exit code otherwise (see :data:`doorlab.runs.EXIT_CODES`).
@@ -79,7 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(
-        dest="command", metavar="{run,report,sweep,pset}", parser_class=OneLineParser
+        dest="command", metavar="{run,report,sweep,pset,sim-driver}", parser_class=OneLineParser
     )
 
     run = sub.add_parser("run", help="run one controller and write its metrics, logs and plots")
@@ -187,6 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--force", action="store_true", help="start over in an existing output folder"
     )
     add_pset_parser(sub)
+    add_sim_driver_parser(sub)
     return parser
 
 
@@ -281,6 +283,71 @@ def _pset(args: argparse.Namespace) -> int:
     print(pretty_format_json_results(out))
     print(f"doorlab pset: wrote {out} in {results['execution_time']:.0f} s")
     return 0
+
+
+def _duration(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text!r}")
+    return value
+
+
+def add_sim_driver_parser(sub) -> None:
+    """``doorlab sim-driver``: the simulated cell behind the real drivers' LCM protocol."""
+    driver = sub.add_parser(
+        "sim-driver",
+        help="serve the simulated cell over LCM as the iiwa and WSG drivers do (until Ctrl-C)",
+    )
+    driver.add_argument(
+        "--lcm-url",
+        default=None,
+        metavar="URL",
+        help="udpm://GROUP:PORT?ttl=N (default: $LCM_DEFAULT_URL, else "
+        "udpm://239.255.76.67:7667?ttl=0)",
+    )
+    driver.add_argument(
+        "--doors",
+        choices=DOOR_STATES,
+        default=None,
+        help="start with the doors open or closed (default: closed, or the config's)",
+    )
+    driver.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="on exit write the ground truth here (ground_truth.npz, driver.json, scenario.yaml)",
+    )
+    driver.add_argument(
+        "--utime-warmup",
+        action="store_true",
+        help="send utime -1 in the first 200 statuses, as the real driver does",
+    )
+    driver.add_argument(
+        "--duration",
+        type=_duration,
+        default=None,
+        metavar="S",
+        help="stop after S seconds (default: run until Ctrl-C or SIGTERM)",
+    )
+    _common(driver)
+
+
+def _sim_driver(args: argparse.Namespace) -> int:
+    from doorlab.hardware.protocol import resolve_lcm_url
+    from doorlab.hardware.serve import serve
+
+    scenario = _scenario(args)
+    return serve(
+        scenario,
+        lcm_url=resolve_lcm_url(args.lcm_url),
+        out=args.out,
+        force=args.force,
+        utime_warmup=args.utime_warmup,
+        duration=args.duration if args.duration is not None else math.inf,
+    )
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
@@ -529,7 +596,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return e.code if isinstance(e.code, int) else USAGE_ERROR
     try:
         install_signal_handlers()
-        commands = {"run": _run, "report": _report, "sweep": _sweep, "pset": _pset}
+        commands = {
+            "run": _run,
+            "report": _report,
+            "sweep": _sweep,
+            "pset": _pset,
+            "sim-driver": _sim_driver,
+        }
         return commands[args.command](args)
     except DoorlabError as e:
         print(f"doorlab {args.command}: error: {e}", file=sys.stderr)
