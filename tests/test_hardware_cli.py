@@ -12,8 +12,9 @@ from doorlab.cli import main
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--lcm-url", "foo://bar"], "is not an LCM URL; use one of udpm://"),
-        (["--lcm-url", "udpm://10.0.0.1:7667"], "udpm needs a multicast address"),
+        (["--lcm-url", "foo://bar"], "is not an LCM URL: use udpm://GROUP:PORT"),
+        (["--lcm-url", "udpm://10.0.0.1:7667"], "is not a multicast group"),
+        (["--lcm-url", "memq://"], "memq:// works inside one process only"),
         (["--wait", "0"], "--wait: must be a number of seconds in (0, 3600]"),
         (["--meshcat"], "--meshcat and --realtime do not apply to --hardware"),
     ],

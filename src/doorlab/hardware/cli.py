@@ -3,44 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import ipaddress
-import re
 import sys
 from pathlib import Path
 
 from doorlab.config import Scenario
 from doorlab.errors import ConfigError, NoDriver
+from doorlab.hardware.protocol import resolve_lcm_url
 from doorlab.runs import EXIT_CODES
-
-LCM_PROVIDERS = ("udpm", "memq", "tcpq", "file")
-
-
-def check_lcm_url(url: str | None) -> str | None:
-    """``url`` if LCM can open it (a known provider; for udpm a multicast address and port).
-
-    Raises:
-        ConfigError: It cannot (LCM itself would only print a warning and receive nothing).
-    """
-    if url is None:
-        return None
-    match = re.fullmatch(r"([a-z]+)://([^?]*)(\?.*)?", url)
-    if match is None or match.group(1) not in LCM_PROVIDERS:
-        raise ConfigError(
-            f"--lcm-url {url!r} is not an LCM URL; use one of "
-            f"{', '.join(p + '://...' for p in LCM_PROVIDERS)}, e.g. udpm://239.255.76.67:7667"
-        )
-    if match.group(1) == "udpm":
-        host, _, port = match.group(2).partition(":")
-        try:
-            multicast = ipaddress.ip_address(host).is_multicast
-        except ValueError:
-            multicast = False
-        if not multicast or not port.isdigit() or not 0 < int(port) < 65536:
-            raise ConfigError(
-                f"--lcm-url {url!r}: udpm needs a multicast address (224.0.0.0-239.255.255.255) "
-                "and a port, e.g. udpm://239.255.76.67:7667"
-            )
-    return url
 
 
 def _confirm(yes: bool):
@@ -68,7 +37,7 @@ def run_hardware_command(args: argparse.Namespace, scenario: Scenario) -> int:
         raise ConfigError(
             "--meshcat and --realtime do not apply to --hardware (it runs on the arm)"
         )
-    url = check_lcm_url(args.lcm_url)
+    url = resolve_lcm_url(args.lcm_url)  # a second process: not memq
     out = args.out or Path("doorlab_out") / f"{scenario.controller}_{scenario.doors}_hardware"
     check_out_dir(out, force=args.force)
     link = DriverLink(url=url)

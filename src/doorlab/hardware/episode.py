@@ -39,8 +39,9 @@ from doorlab.config import Scenario
 from doorlab.episode import EpisodeLogger, EpisodeResult, schedule_fields, wire_commands
 from doorlab.errors import NoDriver
 from doorlab.hardware.estimates import door_angle_estimate, hardware_plant_positions
-from doorlab.hardware.interface import STATUS_PERIOD, HardwareCell, build_hardware_cell
+from doorlab.hardware.interface import HardwareCell, build_hardware_cell
 from doorlab.hardware.link import DriverLink, Status
+from doorlab.hardware.protocol import IIWA_STATUS_PERIOD as STATUS_PERIOD
 from doorlab.plans import Plan
 from doorlab.safety import SafetyLimits, Violation, check_command
 from doorlab.schedule import ScheduledPlan, make_schedule
@@ -417,6 +418,7 @@ def describe_latency(record: LinkRecord) -> dict[str, float]:
     """Link statistics for metrics.json [ms]: the round trip (a command to the first status
     that reflects it), the interval between commands, the answer time (a status's arrival to
     its command) and how late statuses came against the earliest (the driver's pacing)."""
+
     def stat(x: np.ndarray, f) -> float:
         return float(f(x)) if len(x) else math.nan
 

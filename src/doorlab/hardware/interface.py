@@ -15,7 +15,8 @@ station. Inside, Drake's LCM systems and the drivers' message converters:
   which publishes only when forced: the episode (:mod:`doorlab.hardware.episode`) sends one
   command per status, after checking it, with the status's ``utime``;
 - ``wsg_position``, ``wsg_force_limit`` -> ``SchunkWsgCommandSender`` -> ``SCHUNK_WSG_COMMAND``
-  every 50 ms (20 Hz); ``SCHUNK_WSG_STATUS`` -> ``SchunkWsgStatusReceiver``:
+  every 50 ms (20 Hz, the gripper driver's period); ``SCHUNK_WSG_STATUS`` ->
+  ``SchunkWsgStatusReceiver``:
   ``wsg_state_measured`` (separation [m], its rate [m/s]) and ``wsg_force_measured`` [N];
 - an ``LcmInterfaceSystem``, so that the cell also runs in a plain Simulator.
 """
@@ -37,23 +38,19 @@ from pydrake.manipulation import (
     IiwaStatusReceiver,
     SchunkWsgCommandSender,
     SchunkWsgStatusReceiver,
-    kIiwaLcmStatusPeriod,
 )
 from pydrake.systems.framework import Diagram, DiagramBuilder, TriggerType
 from pydrake.systems.lcm import LcmInterfaceSystem, LcmPublisherSystem, LcmSubscriberSystem
 from pydrake.systems.primitives import Multiplexer
 
 from doorlab.constants import NUM_JOINTS
-
-IIWA_STATUS = "IIWA_STATUS"
-IIWA_COMMAND = "IIWA_COMMAND"
-WSG_STATUS = "SCHUNK_WSG_STATUS"
-WSG_COMMAND = "SCHUNK_WSG_COMMAND"
-
-STATUS_PERIOD = kIiwaLcmStatusPeriod
-"""The iiwa driver's status period [s] (5 ms: drake-iiwa-driver's default, KUKA FRI's)."""
-WSG_COMMAND_PERIOD = 0.05
-"""The WSG's command period [s] (20 Hz, the WSG driver's status rate)."""
+from doorlab.hardware.protocol import (
+    IIWA_COMMAND_CHANNEL,
+    IIWA_STATUS_CHANNEL,
+    WSG_COMMAND_CHANNEL,
+    WSG_STATUS_CHANNEL,
+    WSG_STATUS_PERIOD,
+)
 
 
 @dataclass(frozen=True)
@@ -82,7 +79,9 @@ def build_hardware_cell(lcm: DrakeLcmInterface) -> HardwareCell:
 
     add(LcmInterfaceSystem(lcm), "lcm")
     status = add(
-        LcmSubscriberSystem.Make(IIWA_STATUS, lcmt_iiwa_status, lcm, use_cpp_serializer=True),
+        LcmSubscriberSystem.Make(
+            IIWA_STATUS_CHANNEL, lcmt_iiwa_status, lcm, use_cpp_serializer=True
+        ),
         "iiwa_status_subscriber",
     )
     receiver = add(IiwaStatusReceiver(NUM_JOINTS), "iiwa_status_receiver")
@@ -108,7 +107,7 @@ def build_hardware_cell(lcm: DrakeLcmInterface) -> HardwareCell:
     builder.ExportInput(sender.get_torque_input_port(), "iiwa_feedforward_torque")
     command = add(
         LcmPublisherSystem.Make(
-            IIWA_COMMAND,
+            IIWA_COMMAND_CHANNEL,
             lcmt_iiwa_command,
             lcm,
             use_cpp_serializer=True,
@@ -123,17 +122,19 @@ def build_hardware_cell(lcm: DrakeLcmInterface) -> HardwareCell:
     builder.ExportInput(wsg_sender.get_force_limit_input_port(), "wsg_force_limit")
     wsg_command = add(
         LcmPublisherSystem.Make(
-            WSG_COMMAND,
+            WSG_COMMAND_CHANNEL,
             lcmt_schunk_wsg_command,
             lcm,
-            publish_period=WSG_COMMAND_PERIOD,
+            publish_period=WSG_STATUS_PERIOD,
             use_cpp_serializer=True,
         ),
         "wsg_command_publisher",
     )
     builder.Connect(wsg_sender.get_command_output_port(), wsg_command.get_input_port())
     wsg_status = add(
-        LcmSubscriberSystem.Make(WSG_STATUS, lcmt_schunk_wsg_status, lcm, use_cpp_serializer=True),
+        LcmSubscriberSystem.Make(
+            WSG_STATUS_CHANNEL, lcmt_schunk_wsg_status, lcm, use_cpp_serializer=True
+        ),
         "wsg_status_subscriber",
     )
     wsg_receiver = add(SchunkWsgStatusReceiver(), "wsg_status_receiver")

@@ -19,12 +19,8 @@ from drake import lcmt_iiwa_status
 from pydrake.lcm import DrakeLcm, DrakeLcmInterface
 
 from doorlab.errors import NoDriver
-from doorlab.hardware.interface import IIWA_STATUS
-
-MULTICAST_HINT = (
-    "a udpm URL needs a multicast route (one machine: ip route add 224.0.0.0/4 dev lo; "
-    "to the arm: ... dev <its interface>)"
-)
+from doorlab.hardware.protocol import IIWA_STATUS_CHANNEL as IIWA_STATUS
+from doorlab.hardware.protocol import MULTICAST_ROUTE_HINT, resolve_lcm_url
 
 
 @dataclass(frozen=True)
@@ -62,7 +58,8 @@ class DriverLink:
 
     Args:
         lcm: The LCM instance (default: a ``DrakeLcm`` on ``url``).
-        url: The LCM URL (None: Drake's default, which honours ``LCM_DEFAULT_URL``).
+        url: The LCM URL (None: ``LCM_DEFAULT_URL``, else LCM's default,
+            :func:`doorlab.hardware.protocol.resolve_lcm_url`).
         clock: The time [s] statuses are stamped with and deadlines are read on
             (``time.monotonic``; an in-process test passes its driver's clock).
         pump: ``pump(timeout)`` handles LCM messages for at most ``timeout`` [s] (default: the
@@ -77,7 +74,7 @@ class DriverLink:
         clock: Callable[[], float] = time.monotonic,
         pump: Callable[[float], None] | None = None,
     ):
-        self.lcm = lcm if lcm is not None else (DrakeLcm(url) if url else DrakeLcm())
+        self.lcm = lcm if lcm is not None else DrakeLcm(resolve_lcm_url(url, allow_memq=True))
         self.url = self.lcm.get_lcm_url()
         self.clock = clock
         self._pump = pump or _handle(self.lcm)
@@ -137,5 +134,5 @@ class DriverLink:
             )
         raise NoDriver(
             f"no {IIWA_STATUS} on {self.url} within {wait:g} s: is the driver running "
-            f"(doorlab sim-driver, or drake-iiwa-driver on the arm)? {MULTICAST_HINT}"
+            f"(doorlab sim-driver, or drake-iiwa-driver on the arm)? {MULTICAST_ROUTE_HINT}"
         )
