@@ -57,6 +57,8 @@ STATUS_WINDOW = 0.5 * STATUS_PERIOD
 """For a status at t the diagram advances to t + this [s]: its tick, not the next one's."""
 
 STOP_STATUSES = ("driver_lost", "safety_stop", "interrupted")
+_ROUND_TRIP_SEARCH = 20
+"""A command is looked for in the next this many statuses (100 ms) after it went out."""
 
 
 @dataclass
@@ -90,18 +92,20 @@ class LinkRecord:
         the command's q_ref), for each command that differs from the one before [s]."""
         arrivals = np.asarray(self.status_arrival)
         echoed = np.asarray(self.status_q_commanded).reshape(-1, 7)
-        out = []
-        previous = None
-        for sent, q in zip(self.command_sent, self.command_q, strict=True):
-            new = previous is None or np.max(np.abs(q - previous)) > tolerance
-            previous = q
-            if not new:
-                continue
-            later = np.flatnonzero(arrivals > sent)
-            match = later[np.max(np.abs(echoed[later] - q), axis=1) <= tolerance]
-            if len(match):
-                out.append(arrivals[match[0]] - sent)
-        return np.asarray(out)
+        sent = np.asarray(self.command_sent)
+        q = np.asarray(self.command_q).reshape(-1, 7)
+        changed = np.ones(len(q), dtype=bool)
+        changed[1:] = np.max(np.abs(np.diff(q, axis=0)), axis=1) > tolerance
+        sent, q = sent[changed], q[changed]
+        first = np.searchsorted(arrivals, sent, side="right")  # statuses arrive in order
+        trip = np.full(len(sent), np.nan)
+        for k in range(_ROUND_TRIP_SEARCH):  # the k-th status after each command
+            index = first + k
+            inside = (index < len(arrivals)) & np.isnan(trip)
+            rows = np.flatnonzero(inside)
+            hit = np.max(np.abs(echoed[index[rows]] - q[rows]), axis=1) <= tolerance
+            trip[rows[hit]] = arrivals[index[rows[hit]]] - sent[rows[hit]]
+        return trip[np.isfinite(trip)]
 
     def command_intervals(self) -> np.ndarray:
         """Time between consecutive commands [s]."""
@@ -350,6 +354,9 @@ def run_hardware_episode(
         plans, gripper_widths, q_initial=q_initial, q_start=q_start, scenario=scenario
     )
     limits = SafetyLimits.from_config(scenario.station.safety, q_initial)
+    # Now what a stop needs (after one, the folder is written while every millisecond counts).
+    scenario_yaml = yaml_dump_typed(scenario)
+    np.percentile(np.arange(3.0), [50, 99])  # numpy imports its helpers on first use
     episode = _build(scenario, schedule, link, q_initial)
     runner = _Runner(scenario, episode, link, limits)
     # Statuses that came while the diagram was built reached the link but not the cell's new
@@ -370,7 +377,7 @@ def run_hardware_episode(
     stopped = link.clock()
     wall = time.perf_counter() - wall_start
     arc_index = (len(plans) - 1 if arc_plan_index is None else arc_plan_index) + 2
-    result = _result(runner, scenario, wall, arc_index)
+    result = _result(runner, scenario, scenario_yaml, wall, arc_index)
     return HardwareOutcome(
         result=result,
         status=status,
@@ -384,7 +391,9 @@ def run_hardware_episode(
     )
 
 
-def _result(runner: _Runner, scenario: Scenario, wall: float, arc_index: int) -> EpisodeResult:
+def _result(
+    runner: _Runner, scenario: Scenario, scenario_yaml: str, wall: float, arc_index: int
+) -> EpisodeResult:
     """The logs as they stand, with what the real cell cannot measure left out (the hinges)
     or estimated and named so (``door_angle_estimated``)."""
     episode = runner.episode
@@ -406,7 +415,7 @@ def _result(runner: _Runner, scenario: Scenario, wall: float, arc_index: int) ->
         wsg_width=width,
         plant_positions=hardware_plant_positions(data["q_measured"], width, estimate, scenario),
         wall_time_s=wall,
-        scenario_yaml=yaml_dump_typed(scenario),
+        scenario_yaml=scenario_yaml,
         door_angle_estimated=estimate,
         status_time=data["status_time"][:, 0],
         cell="hardware",

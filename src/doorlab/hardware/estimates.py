@@ -16,6 +16,8 @@ From the arc's start until the first sample the fingers are not held apart; nan 
 
 from __future__ import annotations
 
+from functools import cache
+
 import numpy as np
 from pydrake.multibody.plant import MultibodyPlant
 
@@ -70,6 +72,20 @@ def door_angle_estimate(
     return estimate
 
 
+@cache
+def _cell_layout(arm_collision: bool) -> tuple[int, np.ndarray, list[int], int, int]:
+    """The cell plant's positions: (nq, the arm's 7 columns, the fingers', left, right hinge)."""
+    plant = MultibodyPlant(0.0)
+    iiwa, wsg, cupboard = add_cell(plant, arm_collision=arm_collision)
+    plant.Finalize()
+    index = np.arange(plant.num_positions())
+    arm = plant.GetPositionsFromArray(iiwa, index).astype(int)
+    fingers = [plant.GetJointByName(name, wsg).position_start() for name in FINGER_JOINTS]
+    left = plant.GetJointByName(LEFT_HINGE, cupboard).position_start()
+    right = plant.GetJointByName(RIGHT_HINGE, cupboard).position_start()
+    return plant.num_positions(), arm, fingers, left, right
+
+
 def hardware_plant_positions(
     q_measured: np.ndarray,
     wsg_width: np.ndarray,
@@ -80,16 +96,9 @@ def hardware_plant_positions(
     left door at ``door_angle`` where it is finite, else where it was last estimated (at first
     its believed start angle), the right door at its believed start angle. The doors are not
     measured: the replay draws the estimate."""
-    plant = MultibodyPlant(0.0)
-    iiwa, wsg, cupboard = add_cell(plant, arm_collision=scenario.station.arm_collision)
-    plant.Finalize()
-    index = np.arange(plant.num_positions())
-    arm = plant.GetPositionsFromArray(iiwa, index).astype(int)
-    fingers = [plant.GetJointByName(name, wsg).position_start() for name in FINGER_JOINTS]
-    left = plant.GetJointByName(LEFT_HINGE, cupboard).position_start()
-    right = plant.GetJointByName(RIGHT_HINGE, cupboard).position_start()
+    nq, arm, fingers, left, right = _cell_layout(scenario.station.arm_collision)
     n = len(q_measured)
-    positions = np.zeros((n, plant.num_positions()))
+    positions = np.zeros((n, nq))
     positions[:, arm] = q_measured
     positions[:, fingers[0]] = -0.5 * wsg_width
     positions[:, fingers[1]] = 0.5 * wsg_width
