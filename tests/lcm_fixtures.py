@@ -58,7 +58,7 @@ def multicast_route() -> None:
     if lcm_delivers(url, timeout=2.0):
         return
     message = f"LCM multicast delivers nothing on this host ({url}): {MULTICAST_ROUTE_HINT}"
-    if os.environ.get("CI"):
+    if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
         pytest.fail(f"{message}; .ci/run should have added the route")
     pytest.skip(message)
 

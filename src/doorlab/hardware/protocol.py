@@ -52,10 +52,13 @@ it LCM only warns and delivers nothing. ``memq://`` is an in-process queue (one 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import secrets
+import sys
 import time
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -151,20 +154,37 @@ def resolve_lcm_url(url: str | None, *, allow_memq: bool = False) -> str:
 
 
 def lcm_delivers(url: str, *, timeout: float = 1.0) -> bool:
-    """Whether a message published on ``url`` comes back to this process within ``timeout`` [s].
+    """Whether a message published on ``url`` reaches another socket of this host within
+    ``timeout`` [s].
 
-    It is LCM's own loopback: true on a host with a multicast route, false in a network
-    namespace without one (where LCM only warns and delivers nothing). It uses its own
-    ``DrakeLcm`` and a channel of its own, so it disturbs no one on the bus.
+    True on a host with a multicast route, false in a network namespace without one (where
+    LCM only warns and delivers nothing between processes). It publishes from one
+    ``DrakeLcm`` and listens on a second: one instance hears its own messages even without a
+    route. The channel is its own, so it disturbs no one on the bus.
     """
     from pydrake.lcm import DrakeLcm
 
-    lcm = DrakeLcm(url)
-    channel = f"DOORLAB_LOOPBACK_{os.getpid()}_{secrets.token_hex(4)}"
-    received = []
-    lcm.Subscribe(channel, received.append)
-    deadline = time.monotonic() + timeout
-    while not received and time.monotonic() < deadline:
-        lcm.Publish(channel, b"doorlab")
-        lcm.HandleSubscriptions(50)
+    with _quiet_stderr():  # without a route LCM prints a page of advice per instance
+        sender, receiver = DrakeLcm(url), DrakeLcm(url)
+        channel = f"DOORLAB_LOOPBACK_{os.getpid()}_{secrets.token_hex(4)}"
+        received = []
+        receiver.Subscribe(channel, received.append)
+        deadline = time.monotonic() + timeout
+        while not received and time.monotonic() < deadline:
+            sender.Publish(channel, b"doorlab")
+            receiver.HandleSubscriptions(50)
     return bool(received)
+
+
+@contextlib.contextmanager
+def _quiet_stderr() -> Iterator[None]:
+    """Sends what C code writes to file descriptor 2 to /dev/null for the block."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
