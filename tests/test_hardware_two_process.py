@@ -140,6 +140,15 @@ def test_two_processes_open_the_door_as_one(lcm_url, tmp_path, controller):  # n
     first_command = commands[0][1].utime * 1e-6  # the utime of the status it answers
     assert first_command >= START_COMMAND_GUARD + 0.05  # doorlab waits 0.3 s
     assert commands[0][0] - statuses[0][0] >= START_COMMAND_GUARD
+    # The protocol, as an independent listener sees it: every command decoded, 7 joints and
+    # 7 torques, answering a status that was sent; 200 Hz within 2 % over the run (counted
+    # from utimes: a listener may miss messages, the driver's subscription only keeps one).
+    status_utimes = {m.utime for _, m in statuses}
+    assert all(m.num_joints == 7 and m.num_torques == 7 for _, m in commands)
+    assert {m.utime for _, m in commands} <= status_utimes
+    answered = metrics["link"]["commands"] / (log.t[-1] - log.t[0])
+    assert abs(answered - 200.0) <= 4.0, answered
+    assert abs(len(commands) / (commands[-1][0] - commands[0][0]) - 200.0) <= 4.0
 
     # The handle is held (the driver's truth: Q at the handle at the end, fingers apart).
     assert metrics["status"] == "ok" and metrics["fingers_on_handle"]
