@@ -141,16 +141,18 @@ def test_two_processes_open_the_door_as_one(lcm_url, tmp_path, controller):  # n
     assert first_command >= START_COMMAND_GUARD + 0.05  # doorlab waits 0.3 s
     assert commands[0][0] - statuses[0][0] >= START_COMMAND_GUARD
     # The protocol, as an independent listener sees it: every command decoded, 7 joints and
-    # 7 torques, answering a status that was sent; 200 Hz within 2 % over the run (counted
-    # from utimes: a listener may miss messages, the driver's subscription only keeps one).
-    status_utimes = {m.utime for _, m in statuses}
+    # 7 torques, answering a status the driver sent (utime k x 5000 us, up to its last; the
+    # listener, whose subscription keeps one message, may itself miss some on a busy host);
+    # 200 Hz within 2 % over the run, from the client's count.
     assert all(m.num_joints == 7 and m.num_torques == 7 for _, m in commands)
-    assert {m.utime for _, m in commands} <= status_utimes
+    utimes = np.array([m.utime for _, m in commands])
+    sent = json.loads((gt_dir / "driver.json").read_text())["iiwa_statuses_sent"]
+    assert np.all(utimes % 5000 == 0) and utimes.max() < 5000 * sent
+    assert np.all(np.diff(utimes) > 0)
+    seen = {m.utime for _, m in statuses}
+    assert np.mean([u in seen for u in utimes]) > 0.9
     answered = metrics["link"]["commands"] / (log.t[-1] - log.t[0])
     assert abs(answered - 200.0) <= 4.0, answered
-    utimes = np.array([m.utime for _, m in commands])
-    assert np.all(np.diff(utimes) % 5000 == 0) and np.all(np.diff(utimes) > 0)
-    assert len(commands) >= 0.9 * metrics["link"]["commands"]  # what the listener caught
 
     # The handle is held (the driver's truth: Q at the handle at the end, fingers apart).
     assert metrics["status"] == "ok" and metrics["fingers_on_handle"]
