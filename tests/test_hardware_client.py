@@ -178,3 +178,32 @@ def test_ctrl_c_and_sigterm_stop_commanding_and_write_the_folder(tmp_path, signu
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert metrics["status"] == "interrupted"
     assert EpisodeResult.load(tmp_path / "run" / "log.npz").t[-1] <= 2.0
+
+
+def test_a_command_ready_too_late_is_dropped(tmp_path):
+    """A client descheduled between a status and its answer (here: its clock jumps 8 ms while
+    it computes the 500th answer) does not send that stale command; the next status gets one."""
+    from doorlab.hardware import episode
+
+    driver = FakeDriver(Q0)
+    link = DriverLink(driver.lcm, clock=driver.clock, pump=driver.pump)
+    original = episode.check_command
+    calls = []
+
+    def slow_check(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 500:
+            driver.t += 0.008  # the answer's clock passes the next status's time
+        return original(*args, **kwargs)
+
+    episode.check_command = slow_check
+    try:
+        outcome = run_hardware_to_folder(
+            short(), tmp_path / "run", link=link, wait=1.0, confirm=lambda plan: True
+        )
+    finally:
+        episode.check_command = original
+    assert outcome.status == "ok"
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert metrics["link"]["stale_commands_dropped"] == 1
+    assert metrics["link"]["commands"] == len(calls) - 1 == len(driver.commands)

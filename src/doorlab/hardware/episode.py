@@ -16,7 +16,9 @@ Safety, in the order it acts (the values are the module's constants):
 - the watchdog: no fresh status for ``WATCHDOG_TIMEOUT`` (10 periods, 50 ms) stops
   commanding (status ``driver_lost``);
 - every command is checked (:mod:`doorlab.safety`); one that breaks a limit is not sent and
-  the run stops (status ``safety_stop``);
+  the run stops (status ``safety_stop``); one that is ready more than ``STALE_ANSWER`` (5 ms)
+  after its status arrived is dropped (the arm holds the previous one; the next status gets a
+  fresh answer);
 - Ctrl-C or SIGTERM stops commanding at once (status ``interrupted``).
 
 When commanding stops, for whatever reason, the driver holds the last command it received
@@ -55,6 +57,9 @@ TICK_LAG = 1e-4
 """The plan runner ticks this long after each status slot [s]: after the status is in."""
 STATUS_WINDOW = 0.5 * STATUS_PERIOD
 """For a status at t the diagram advances to t + this [s]: its tick, not the next one's."""
+STALE_ANSWER = STATUS_PERIOD
+"""A command not ready within this of its status's arrival [s] is dropped, not sent: the next
+status is due and gets a fresh answer (a descheduled client on a busy host)."""
 
 STOP_STATUSES = ("driver_lost", "safety_stop", "interrupted")
 _ROUND_TRIP_SEARCH = 20
@@ -71,6 +76,7 @@ class LinkRecord:
         command_sent: When each command was published [s]. command_t: Its episode time [s].
         command_q: Its q_ref (7,) [rad]. command_utime: The utime it echoed [us].
         skipped: Statuses with a negative utime (skipped, never answered).
+        stale: Commands dropped because they were ready too late (``STALE_ANSWER``).
     """
 
     status_arrival: list[float] = field(default_factory=list)
@@ -81,6 +87,7 @@ class LinkRecord:
     command_q: list[np.ndarray] = field(default_factory=list)
     command_utime: list[int] = field(default_factory=list)
     skipped: int = 0
+    stale: int = 0
 
     def add_status(self, status: Status) -> None:
         self.status_arrival.append(status.arrival)
@@ -256,6 +263,9 @@ class _Runner:
         )
         if violation is not None:
             return violation
+        if self.link.clock() - status.arrival > STALE_ANSWER:
+            self.record.stale += 1  # the driver holds the last command; the next is fresh
+            return None
         # Echo the status's utime exactly (the sender truncates seconds x 1e6).
         sender = self.episode.cell.command_sender
         sender.get_time_input_port().FixValue(self._sender_context, [(status.utime + 0.5) * 1e-6])
@@ -435,6 +445,7 @@ def describe_latency(record: LinkRecord) -> dict[str, float]:
         "commands": len(record.command_sent),
         "statuses": len(record.status_arrival),
         "skipped_statuses": record.skipped,
+        "stale_commands_dropped": record.stale,
     }
     for name, values in (
         ("round_trip", record.round_trips()),
