@@ -187,7 +187,7 @@ def _write(
 
 def hardware_summary(outcome: HardwareRunOutcome) -> str:
     """The one-screen summary ``doorlab run --hardware`` prints."""
-    lines = [f"doorlab run --hardware: {outcome.out_dir}", f"  status {outcome.status:>22}"]
+    lines = [f"doorlab run --hardware: {outcome.out_dir}", f"  {'status':<29}{outcome.status}"]
     m = outcome.metrics
     if m is None:
         return "\n".join([*lines, f"  {outcome.message}"])
