@@ -60,12 +60,17 @@ Use it as a process (``doorlab sim-driver``, :class:`SimDriver`) or add it to a 
     builder.AddSystem(LcmInterfaceSystem(lcm))  # once per DrakeLcm, before any subscriber
     driver = add_sim_driver(builder, lcm, scenario, add_lcm_interface=False, record=True)
     ...  # the client's LcmSubscriberSystem(IIWA_STATUS), its publisher of IIWA_COMMAND
-    diagram = builder.Build()
-    simulator = Simulator(diagram)
+    simulator = Simulator(builder.Build())  # realtime rate 0: as fast as it computes
+    ResetIntegratorFromFlags(simulator, "explicit_euler", scenario.station.time_step)
     driver.initialize(simulator.get_mutable_context())  # q_home, gripper, doors
-    simulator.set_monitor(driver.start_guard_monitor())  # optional: the 0.25 s abort
+    simulator.set_monitor(driver.start_guard_monitor())  # optional: the 0.25 s abort,
+    simulator.AdvanceTo(0.25)                             # Python per step while it is set
+    simulator.clear_monitor()
     simulator.AdvanceTo(24.0)
     truth = driver.ground_truth(simulator.get_context())
+
+(``tests/test_sim_driver.py`` runs this with a client of Drake's C++ LCM systems.) On memq a
+message is delivered at the bus's next read, the simulator step after it was published.
 """
 
 from __future__ import annotations
@@ -110,7 +115,7 @@ from pydrake.trajectories import PiecewisePolynomial
 
 from doorlab.config import Scenario, validate
 from doorlab.constants import NUM_JOINTS, Q_HOME
-from doorlab.errors import SimulationError
+from doorlab.errors import ConfigError, SimulationError
 from doorlab.hardware.ground_truth import (
     DRIVER_FILE,
     GROUND_TRUTH_FILE,
@@ -239,7 +244,7 @@ class SimDriverSystems:
     def ground_truth(self, root_context: Context) -> GroundTruth:
         """The logged ground truth up to the context's time (needs ``record=True``)."""
         if self.logger is None:
-            raise ValueError("the driver was built without record=True: no ground truth")
+            raise ConfigError("the driver was built without record=True: no ground truth")
         log = self.logger.FindLog(root_context)
         t = log.sample_times()
         samples = log.data().T
@@ -375,17 +380,24 @@ def _add_statuses(builder: DiagramBuilder, lcm: DrakeLcm, station_system, utime_
         )
     utime = add("status_utime", TrajectorySource(_utime_source(utime_warmup)))
     builder.Connect(utime.get_output_port(), iiwa_status.GetInputPort("time_measured"))
-    iiwa_pub = add(
+
+    def publisher(name: str, channel: str, lcm_type: type, period: float, sender):
+        system = add(
+            name,
+            LcmPublisherSystem.Make(
+                channel, lcm_type, lcm, publish_period=period, use_cpp_serializer=True
+            ),
+        )
+        builder.Connect(sender.get_output_port(), system.get_input_port())
+        return system
+
+    iiwa_pub = publisher(
         "iiwa_status_publisher",
-        LcmPublisherSystem.Make(
-            IIWA_STATUS_CHANNEL,
-            lcmt_iiwa_status,
-            lcm,
-            publish_period=IIWA_STATUS_PERIOD,
-            use_cpp_serializer=True,
-        ),
+        IIWA_STATUS_CHANNEL,
+        lcmt_iiwa_status,
+        IIWA_STATUS_PERIOD,
+        iiwa_status,
     )
-    builder.Connect(iiwa_status.get_output_port(), iiwa_pub.get_input_port())
     wsg_status = add("wsg_status", SchunkWsgStatusSender())
     builder.Connect(
         station_system.GetOutputPort("wsg_state_measured"), wsg_status.get_state_input_port()
@@ -393,17 +405,13 @@ def _add_statuses(builder: DiagramBuilder, lcm: DrakeLcm, station_system, utime_
     builder.Connect(
         station_system.GetOutputPort("wsg_force_measured"), wsg_status.get_force_input_port()
     )
-    wsg_pub = add(
+    wsg_pub = publisher(
         "wsg_status_publisher",
-        LcmPublisherSystem.Make(
-            WSG_STATUS_CHANNEL,
-            lcmt_schunk_wsg_status,
-            lcm,
-            publish_period=WSG_STATUS_PERIOD,
-            use_cpp_serializer=True,
-        ),
+        WSG_STATUS_CHANNEL,
+        lcmt_schunk_wsg_status,
+        WSG_STATUS_PERIOD,
+        wsg_status,
     )
-    builder.Connect(wsg_status.get_output_port(), wsg_pub.get_input_port())
 
     # Real-time pacing: a simulator step starting just before each status (C++, no output
     # used), so the simulator's sleep at a step's start ends when the status is due.
@@ -574,7 +582,12 @@ class SimDriver:
 
         Returns:
             How it ended (also kept in :attr:`outcome`).
+
+        Raises:
+            ConfigError: It ran before (a driver serves once).
         """
+        if self.outcome is not None:
+            raise ConfigError("SimDriver.run serves once; build a new SimDriver")
         simulator = self.simulator
         simulator.set_target_realtime_rate(realtime_rate)
         paced = realtime_rate > 0
