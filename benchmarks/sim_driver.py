@@ -12,9 +12,11 @@ own (``udpm://239.255.76.67:PORT?ttl=0``, a random port):
 ``paced``
     ``doorlab sim-driver --duration D`` (as a user runs it) with the client below answering
     every status.
+``paced_idle``
+    The same driver, the client listening only (no commands): what commands cost.
 ``no_tick``
-    The same driver without its pacing tick (the C++ ZeroOrderHold that starts a simulator
-    step 1 us before each status): what the tick buys in status timing.
+    The paced driver and client, the driver without its pacing tick (the C++ ZeroOrderHold
+    that starts a simulator step 1 us before each status): what the tick buys in timing.
 ``unpaced``
     ``SimDriver.run(duration=D, realtime_rate=0)`` with no client: the simulation's own cost
     of D seconds of the cell, the floor the paced CPU share is compared with.
@@ -72,6 +74,7 @@ cpu = time.process_time()
 outcome = driver.run(duration=float(sys.argv[2]), realtime_rate=0.0)
 print("CPU", time.process_time() - cpu, "WALL", outcome.wall_time_s, flush=True)
 """
+VARIANTS = ("paced", "paced_idle", "no_tick", "unpaced")
 STEP = 1e-5
 """The client's joint-1 offset per command [rad]."""
 
@@ -112,7 +115,7 @@ def run_client(variant: str, duration: float) -> dict:
     sent: list[float] = []  # send time of command k (index k - 1)
     q = Q_HOME.copy()
     q[3] = -2.07  # inside the driver's 1 deg clamp: commands are applied as sent
-    state = {"answer_from": None}
+    state = {"answer_from": None, "answer": variant != "paced_idle"}
     message = lcmt_iiwa_command()
     message.num_joints = 7
     message.num_torques = 7
@@ -124,7 +127,7 @@ def run_client(variant: str, duration: float) -> dict:
         statuses.append((received, status.utime, status.joint_position_commanded[0]))
         if state["answer_from"] is None:
             state["answer_from"] = received + 0.3
-        if received >= state["answer_from"]:
+        if state["answer"] and received >= state["answer_from"]:
             q[0] = STEP * (len(sent) + 1)
             message.utime = status.utime
             message.joint_position = list(q)
@@ -133,7 +136,7 @@ def run_client(variant: str, duration: float) -> dict:
 
     lcm.Subscribe("IIWA_STATUS", handle)
     env = subprocess_env()
-    if variant == "paced":
+    if variant in ("paced", "paced_idle"):
         command = [sys.executable, "-m", "doorlab.cli", "sim-driver", "--lcm-url", url]
         command += ["--duration", str(duration)]
     else:
@@ -182,8 +185,8 @@ def run_client(variant: str, duration: float) -> dict:
             if cpu_first is not None and cpu_last is not None
             else None
         ),
-        "round_trip_ms": _stats_ms(round_trips),
-        "command_interval_ms": _stats_ms(np.diff(sent_t)),
+        "round_trip_ms": _stats_ms(round_trips) if round_trips else None,
+        "command_interval_ms": _stats_ms(np.diff(sent_t)) if len(sent_t) > 1 else None,
         "status_interval_ms": _stats_ms(np.diff(received)),
         "other_cores": other,
         "loadavg": os.getloadavg()[0],
@@ -216,8 +219,8 @@ def _median(runs: list[dict], *keys: str) -> float:
     for run in runs:
         value = run
         for key in keys:
-            value = value[key]
-        values.append(value)
+            value = value[key] if value is not None else None
+        values.append(np.nan if value is None else value)
     return float(np.median(values))
 
 
@@ -229,13 +232,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     runs: list[dict] = []
     for repeat in range(args.repeats):
-        for variant in ("paced", "no_tick", "unpaced"):
+        for variant in VARIANTS:
             run = run_unpaced(args.duration) if variant == "unpaced" else None
             run = run or run_client(variant, args.duration)
             run["repeat"] = repeat
             runs.append(run)
             print(json.dumps(run), flush=True)
-    by = {v: [r for r in runs if r["variant"] == v] for v in ("paced", "no_tick", "unpaced")}
+    by = {v: [r for r in runs if r["variant"] == v] for v in VARIANTS}
     busy = ", ".join(f"{r['other_cores']:.2f}" for r in runs if r["other_cores"] is not None)
     print(f"\n{args.repeats} repeats of {args.duration:g} s, medians (other cores busy: {busy})")
     print(
@@ -244,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
         "(same) [ms] |"
     )
     print("|---|---|---|---|---|---|---|")
-    for variant in ("paced", "no_tick"):
+    for variant in ("paced", "paced_idle", "no_tick"):
         group = by[variant]
         rt = [_median(group, "round_trip_ms", k) for k in ("median", "p99", "max")]
         ci = [

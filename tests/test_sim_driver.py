@@ -354,3 +354,47 @@ def test_one_process_with_a_drake_client_is_deterministic():
     # it carries the plant's state at that instant.
     np.testing.assert_array_equal(measured, first.q_measured[np.isclose(first.t, 1.995)][0])
     assert np.abs(first.q_measured[-1] - q_target).max() < 0.02  # settling (zeta 0.12)
+
+
+def test_a_malformed_command_ends_the_run():
+    """A command with 3 joints stops the driver (status failed, exit 1) with the reason."""
+    driver = SimDriver(Scenario(), lcm_url="memq://")
+
+    def handle(data: bytes) -> None:
+        if lcmt_iiwa_status.decode(data).utime == 300_000:
+            message = lcmt_iiwa_command()
+            message.num_joints = 3
+            message.joint_position = [0.0, 0.0, 0.0]
+            driver.lcm.Publish(IIWA_COMMAND_CHANNEL, message.encode())
+
+    driver.lcm.Subscribe(IIWA_STATUS_CHANNEL, handle)
+    outcome = driver.run(duration=0.5, realtime_rate=0.0)
+    assert (outcome.status, outcome.exit_code) == ("failed", 1)
+    assert "num_joints = 7" in outcome.message and outcome.sim_time_s < 0.31
+
+
+def test_a_command_with_utime_minus_one_means_no_command():
+    """kuka_driver treats a command whose utime is -1 as none: the arm holds its start pose
+    with zero feed-forward torque, until a valid command comes again."""
+    cell = InProcessCell()
+    cell.advance(0.3)
+    q = Q_HOME.copy()
+    q[[0, 3]] = [0.1, -2.0]
+    tau = np.full(7, 0.3)
+    cell.command(q, tau, utime=300_000)
+    cell.advance(0.4)
+    cell.command(q, tau, utime=-1)
+    cell.advance(0.5)
+    cell.command(q, tau, utime=500_000)
+    cell.advance(0.6)
+    truth = cell.truth()
+
+    def at(t: float) -> int:
+        return int(np.argmin(np.abs(truth.t - t)))
+
+    np.testing.assert_array_equal(truth.q_commanded[at(0.35)], q)
+    np.testing.assert_array_equal(truth.tau_feedforward[at(0.35)], tau)
+    assert np.abs(truth.q_commanded[at(0.45)] - Q_HOME).max() < 1e-12  # unclamped start pose
+    np.testing.assert_array_equal(truth.tau_feedforward[at(0.45)], np.zeros(7))
+    np.testing.assert_array_equal(truth.q_commanded[at(0.55)], q)
+    np.testing.assert_array_equal(truth.tau_feedforward[at(0.55)], tau)

@@ -29,15 +29,17 @@ drivers behave:
 - **Start guard**: a command within 0.25 s of the first status aborts the driver before the
   command reaches the plant, as kuka_driver throws and exits.
 
+- A command whose utime is negative (kuka_driver: -1) means "no command": the arm holds its
+  start pose with zero feed-forward torque until a valid command comes.
+
 Not modelled: the real driver's external-torque stop (doorlab's contact torques stay far below
-its limits, :data:`~doorlab.hardware.protocol.EXTERNAL_TORQUE_LIMITS`), a command with utime
--1 meaning "no command" (here it is applied like any other; doorlab's client never sends one),
-KUKA's own joint impedance (the station's inner loop with the scenario's Kq, Dq tracks the
-commands), and ``joint_position_ipo``.
+its limits, :data:`~doorlab.hardware.protocol.EXTERNAL_TORQUE_LIMITS`), KUKA's own joint
+impedance (the station's inner loop with the scenario's Kq, Dq tracks the commands), and
+``joint_position_ipo``.
 
 How it runs. Only Drake's C++ systems act per plant step:
 
-    LcmSubscriberSystem(IIWA_COMMAND) -> IiwaCommandReceiver -> clamp / hold -> station
+    LcmSubscriberSystem(IIWA_COMMAND) -> IiwaCommandReceiver -> gate (clamp, hold) -> station
     LcmSubscriberSystem(SCHUNK_WSG_COMMAND) -> SchunkWsgCommandReceiver -> station
     station -> IiwaStatusSender -> LcmPublisherSystem(IIWA_STATUS, 5 ms)
     station -> SchunkWsgStatusSender -> LcmPublisherSystem(SCHUNK_WSG_STATUS, 50 ms)
@@ -60,12 +62,17 @@ Use it as a process (``doorlab sim-driver``, :class:`SimDriver`) or add it to a 
     builder.AddSystem(LcmInterfaceSystem(lcm))  # once per DrakeLcm, before any subscriber
     driver = add_sim_driver(builder, lcm, scenario, add_lcm_interface=False, record=True)
     ...  # the client's LcmSubscriberSystem(IIWA_STATUS), its publisher of IIWA_COMMAND
-    diagram = builder.Build()
-    simulator = Simulator(diagram)
+    simulator = Simulator(builder.Build())  # realtime rate 0: as fast as it computes
+    ResetIntegratorFromFlags(simulator, "explicit_euler", scenario.station.time_step)
     driver.initialize(simulator.get_mutable_context())  # q_home, gripper, doors
-    simulator.set_monitor(driver.start_guard_monitor())  # optional: the 0.25 s abort
+    simulator.set_monitor(driver.start_guard_monitor())  # optional: the 0.25 s abort,
+    simulator.AdvanceTo(0.25)                             # Python per step while it is set
+    simulator.clear_monitor()
     simulator.AdvanceTo(24.0)
     truth = driver.ground_truth(simulator.get_context())
+
+(``tests/test_sim_driver.py`` runs this with a client of Drake's C++ LCM systems.) On memq a
+message is delivered at the bus's next read, the simulator step after it was published.
 """
 
 from __future__ import annotations
@@ -78,6 +85,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pydrake.symbolic as sym
 from drake import (
     lcmt_iiwa_command,
     lcmt_iiwa_status,
@@ -97,11 +105,10 @@ from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 from pydrake.systems.framework import Context, DiagramBuilder, EventStatus
 from pydrake.systems.lcm import LcmInterfaceSystem, LcmPublisherSystem, LcmSubscriberSystem
 from pydrake.systems.primitives import (
-    Adder,
     ConstantVectorSource,
-    MatrixGain,
+    Demultiplexer,
     Multiplexer,
-    Saturation,
+    SymbolicVectorSystem,
     TrajectorySource,
     VectorLogSink,
     ZeroOrderHold,
@@ -110,7 +117,7 @@ from pydrake.trajectories import PiecewisePolynomial
 
 from doorlab.config import Scenario, validate
 from doorlab.constants import NUM_JOINTS, Q_HOME
-from doorlab.errors import SimulationError
+from doorlab.errors import ConfigError, SimulationError
 from doorlab.hardware.ground_truth import (
     DRIVER_FILE,
     GROUND_TRUTH_FILE,
@@ -160,7 +167,7 @@ def _utime_source(utime_warmup: bool) -> PiecewisePolynomial:
 _LOG_PORTS = (
     ("plant_state", "station", "plant_state"),
     ("q_commanded", "station", "iiwa_position_commanded"),
-    ("tau_feedforward", "iiwa_command", "torque"),
+    ("tau_feedforward", "iiwa_command_applied", "y1"),
     ("tau_commanded", "station", "iiwa_torque_commanded"),
     ("tau_external", "station", "iiwa_torque_external"),
     ("wsg_state", "station", "wsg_state_measured"),
@@ -239,7 +246,7 @@ class SimDriverSystems:
     def ground_truth(self, root_context: Context) -> GroundTruth:
         """The logged ground truth up to the context's time (needs ``record=True``)."""
         if self.logger is None:
-            raise ValueError("the driver was built without record=True: no ground truth")
+            raise ConfigError("the driver was built without record=True: no ground truth")
         log = self.logger.FindLog(root_context)
         t = log.sample_times()
         samples = log.data().T
@@ -266,25 +273,43 @@ def start_guard_message(guard: float = START_COMMAND_GUARD, after: float | None 
 
 _NO_MESSAGE_POSITION = 1e6
 """The command receiver's "measured position" input [rad]: its position output before the
-first message, far outside any joint's range, marks "no command yet" (see
-:func:`_add_iiwa_command`)."""
+first message, far outside any joint's range, marks "no command yet"."""
 _NO_MESSAGE_THRESHOLD = 100.0
 """A receiver position above this [rad] is the no-message marker."""
+
+
+def _command_gate(q_initial: np.ndarray) -> SymbolicVectorSystem:
+    """u = [p (7), tau (7), t_cmd (1)] -> [q_ref (7), tau_ff (7)], as kuka_driver applies a
+    command: p clamped to the joint limits less 1 deg, tau as sent; while there is no command
+    (p is the receiver's no-message marker, or the command's utime is negative: -1 means
+    "no command") the start pose ``q_initial``, unclamped, and zero torque.
+
+    A ``SymbolicVectorSystem``: its expressions are evaluated in C++.
+    """
+    u = sym.MakeVectorVariable(2 * NUM_JOINTS + 1, "u")
+    p, tau, t_cmd = u[:NUM_JOINTS], u[NUM_JOINTS : 2 * NUM_JOINTS], u[-1]
+    limit = DRIVER_JOINT_LIMITS - JOINT_LIMIT_MARGIN
+    none = sym.logical_or(p[0] > _NO_MESSAGE_THRESHOLD, t_cmd < 0)
+    q_ref = [
+        sym.if_then_else(none, float(q0), sym.min(sym.max(p_i, -float(lim)), float(lim)))
+        for p_i, q0, lim in zip(p, q_initial, limit, strict=True)
+    ]
+    tau_ff = [sym.if_then_else(none, 0.0, tau_i) for tau_i in tau]
+    return SymbolicVectorSystem(input=u, output=np.array(q_ref + tau_ff))
 
 
 def _add_iiwa_command(builder: DiagramBuilder, lcm: DrakeLcm, station_system, q_initial):
     """IIWA_COMMAND -> the station's q_ref and tau_ff, as kuka_driver applies commands.
 
-    The newest message, decoded in C++ (IiwaCommandReceiver, position and torque). A command's
-    joint_position is clamped to the joint limits less 1 deg; until the first command the arm
-    holds ``q_initial`` unclamped (kuka_driver clamps only what it answers LCM with, and
-    q_home's joint 4, -2.094 rad, is inside that degree). Without Python: the receiver's
-    position before any message is its "measured position" input, here
-    :data:`_NO_MESSAGE_POSITION`, so w = sat_[0,1](p - 100) is 1 until a message arrives and
-    0 after, and q_ref = clamp(p) + w (q_initial - L) (clamp(p) = L while p is the marker).
+    The newest message, decoded in C++ (IiwaCommandReceiver, position and torque), then
+    :func:`_command_gate`. kuka_driver clamps only what it answers LCM with: until the first
+    command the arm holds ``q_initial`` unclamped (q_home's joint 4, -2.094 rad, lies within
+    1 deg of its limit). The receiver's position before any message is its "measured
+    position" input, here :data:`_NO_MESSAGE_POSITION`: that is how the gate tells "no
+    command yet" from a command.
 
     Returns:
-        (the subscriber, the receiver).
+        (the subscriber, the applied command: a Demultiplexer, outputs q_ref and tau_ff).
     """
 
     def add(name: str, system):
@@ -304,29 +329,19 @@ def _add_iiwa_command(builder: DiagramBuilder, lcm: DrakeLcm, station_system, q_
         "no_command_marker", ConstantVectorSource(np.full(NUM_JOINTS, _NO_MESSAGE_POSITION))
     )
     builder.Connect(marker.get_output_port(), receiver.get_position_measured_input_port())
-    position = receiver.get_commanded_position_output_port()
-    limit = DRIVER_JOINT_LIMITS - JOINT_LIMIT_MARGIN
-    clamp = add("joint_limit_clamp", Saturation(-limit, limit))
-    builder.Connect(position, clamp.get_input_port())
-    shift = add(
-        "no_command_shift", ConstantVectorSource(np.full(NUM_JOINTS, -_NO_MESSAGE_THRESHOLD))
-    )
-    shifted = add("no_command_test", Adder(2, NUM_JOINTS))
-    builder.Connect(position, shifted.get_input_port(0))
-    builder.Connect(shift.get_output_port(), shifted.get_input_port(1))
-    no_command = add("no_command", Saturation(np.zeros(NUM_JOINTS), np.ones(NUM_JOINTS)))
-    builder.Connect(shifted.get_output_port(), no_command.get_input_port())
-    hold = add("hold_start_pose", MatrixGain(np.diag(np.asarray(q_initial, float) - limit)))
-    builder.Connect(no_command.get_output_port(), hold.get_input_port())
-    q_ref = add("commanded_position", Adder(2, NUM_JOINTS))
-    builder.Connect(clamp.get_output_port(), q_ref.get_input_port(0))
-    builder.Connect(hold.get_output_port(), q_ref.get_input_port(1))
-    builder.Connect(q_ref.get_output_port(), station_system.GetInputPort("iiwa_position"))
+    inputs = add("iiwa_command_gate_input", Multiplexer([NUM_JOINTS, NUM_JOINTS, 1]))
+    builder.Connect(receiver.get_commanded_position_output_port(), inputs.get_input_port(0))
+    builder.Connect(receiver.get_commanded_torque_output_port(), inputs.get_input_port(1))
+    builder.Connect(receiver.GetOutputPort("time"), inputs.get_input_port(2))
+    gate = add("iiwa_command_gate", _command_gate(np.asarray(q_initial, float)))
+    builder.Connect(inputs.get_output_port(), gate.get_input_port())
+    applied = add("iiwa_command_applied", Demultiplexer([NUM_JOINTS, NUM_JOINTS]))
+    builder.Connect(gate.get_output_port(), applied.get_input_port())
+    builder.Connect(applied.get_output_port(0), station_system.GetInputPort("iiwa_position"))
     builder.Connect(
-        receiver.get_commanded_torque_output_port(),
-        station_system.GetInputPort("iiwa_feedforward_torque"),
+        applied.get_output_port(1), station_system.GetInputPort("iiwa_feedforward_torque")
     )
-    return subscriber, receiver
+    return subscriber, applied
 
 
 def _add_wsg_command(builder: DiagramBuilder, lcm: DrakeLcm, station_system, gripper):
@@ -375,17 +390,24 @@ def _add_statuses(builder: DiagramBuilder, lcm: DrakeLcm, station_system, utime_
         )
     utime = add("status_utime", TrajectorySource(_utime_source(utime_warmup)))
     builder.Connect(utime.get_output_port(), iiwa_status.GetInputPort("time_measured"))
-    iiwa_pub = add(
+
+    def publisher(name: str, channel: str, lcm_type: type, period: float, sender):
+        system = add(
+            name,
+            LcmPublisherSystem.Make(
+                channel, lcm_type, lcm, publish_period=period, use_cpp_serializer=True
+            ),
+        )
+        builder.Connect(sender.get_output_port(), system.get_input_port())
+        return system
+
+    iiwa_pub = publisher(
         "iiwa_status_publisher",
-        LcmPublisherSystem.Make(
-            IIWA_STATUS_CHANNEL,
-            lcmt_iiwa_status,
-            lcm,
-            publish_period=IIWA_STATUS_PERIOD,
-            use_cpp_serializer=True,
-        ),
+        IIWA_STATUS_CHANNEL,
+        lcmt_iiwa_status,
+        IIWA_STATUS_PERIOD,
+        iiwa_status,
     )
-    builder.Connect(iiwa_status.get_output_port(), iiwa_pub.get_input_port())
     wsg_status = add("wsg_status", SchunkWsgStatusSender())
     builder.Connect(
         station_system.GetOutputPort("wsg_state_measured"), wsg_status.get_state_input_port()
@@ -393,17 +415,13 @@ def _add_statuses(builder: DiagramBuilder, lcm: DrakeLcm, station_system, utime_
     builder.Connect(
         station_system.GetOutputPort("wsg_force_measured"), wsg_status.get_force_input_port()
     )
-    wsg_pub = add(
+    wsg_pub = publisher(
         "wsg_status_publisher",
-        LcmPublisherSystem.Make(
-            WSG_STATUS_CHANNEL,
-            lcmt_schunk_wsg_status,
-            lcm,
-            publish_period=WSG_STATUS_PERIOD,
-            use_cpp_serializer=True,
-        ),
+        WSG_STATUS_CHANNEL,
+        lcmt_schunk_wsg_status,
+        WSG_STATUS_PERIOD,
+        wsg_status,
     )
-    builder.Connect(wsg_status.get_output_port(), wsg_pub.get_input_port())
 
     # Real-time pacing: a simulator step starting just before each status (C++, no output
     # used), so the simulator's sleep at a step's start ends when the status is due.
@@ -458,7 +476,7 @@ def add_sim_driver(
     if record:
         systems = {
             "station": station_system,
-            "iiwa_command": iiwa_command,
+            "iiwa_command_applied": iiwa_command,
             "wsg_command": wsg_command,
         }
         ports = [systems[system].GetOutputPort(port) for _, system, port in _LOG_PORTS]
@@ -574,7 +592,12 @@ class SimDriver:
 
         Returns:
             How it ended (also kept in :attr:`outcome`).
+
+        Raises:
+            ConfigError: It ran before (a driver serves once).
         """
+        if self.outcome is not None:
+            raise ConfigError("SimDriver.run serves once; build a new SimDriver")
         simulator = self.simulator
         simulator.set_target_realtime_rate(realtime_rate)
         paced = realtime_rate > 0
