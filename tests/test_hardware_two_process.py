@@ -31,7 +31,10 @@ the bus just before each plant step and reports the plant after its update (both
 gone): the impedance door 0.2-0.65 deg from the one-process run's.
 
 The timelines are shortened before the arc (hold 0.5 s, move 3 s) where a property does not
-need the whole episode; the arc keeps its 10 s.
+need the whole episode; the arc keeps its 10 s. These are real-time runs of three processes on
+2 cores: a run that the host could not keep in real time (the client's watchdog stopped it,
+statuses missing for 50 ms, which a driver on its own machine does not do) is repeated once; a
+second such run fails.
 """
 
 from __future__ import annotations
@@ -121,16 +124,19 @@ def test_two_processes_open_the_door_as_one(lcm_url, tmp_path, controller):  # n
     tolerances derived from the measured latency (module docstring); no command within
     0.25 s of the driver's first status (a listener's view)."""
     reference, ref_metrics = in_process(controller)
-    bus = listener(lcm_url)
-    gt_dir, out = tmp_path / "gt", tmp_path / "run"
-    with sim_driver_process(lcm_url, "--doors", "closed", out=gt_dir) as driver:
-        bus.wait_for("IIWA_STATUS", timeout=60)
-        run = client(lcm_url, out, controller)
-        follow(run, bus)
-        stdout, stderr = run.communicate()
-        assert run.returncode == 0, stderr
-        code, _, driver_err = stop(driver)
-        assert code == 143, driver_err
+    for attempt in (1, 2):
+        bus = listener(lcm_url)
+        gt_dir, out = tmp_path / f"gt{attempt}", tmp_path / f"run{attempt}"
+        with sim_driver_process(lcm_url, "--doors", "closed", out=gt_dir) as driver:
+            bus.wait_for("IIWA_STATUS", timeout=60)
+            run = client(lcm_url, out, controller)
+            follow(run, bus)
+            stdout, stderr = run.communicate()
+            code, _, driver_err = stop(driver)
+            assert code == 143, driver_err
+        if run.returncode != 7 or attempt == 2:  # 7: the host did not keep real time
+            break
+    assert run.returncode == 0, (stdout, stderr)
     metrics = json.loads((out / "metrics.json").read_text())
     log = EpisodeResult.load(out / "log.npz")
     gt = GroundTruth.load(gt_dir / GROUND_TRUTH_FILE)
@@ -183,24 +189,30 @@ def test_two_processes_open_the_door_as_one(lcm_url, tmp_path, controller):  # n
 def test_the_driver_killed_mid_arc_stops_the_client_within_0_2_s(lcm_url, tmp_path):  # noqa: F811
     """SIGKILL the driver in the arc: the client exits 7 within 0.2 s of the last status, with
     the folder written (status driver_lost) and no command after that status."""
-    bus = listener(lcm_url)
-    out = tmp_path / "run"
-    with sim_driver_process(lcm_url, "--doors", "closed") as driver:
-        bus.wait_for("IIWA_STATUS", timeout=60)
-        run = client(lcm_url, out, "velocity")
-        kill_at = None
-        while run.poll() is None:
-            bus.lcm.HandleSubscriptions(1)
-            commands = bus.messages["IIWA_COMMAND"]
-            if kill_at is None and commands:
-                kill_at = commands[0][1].utime + round(1e6 * (0.5 + 1 + 3 + 1 + 1 + 1 + 3))
-            statuses = bus.messages["IIWA_STATUS"]
-            if kill_at is not None and statuses and statuses[-1][1].utime >= kill_at:
-                driver.send_signal(signal.SIGKILL)
-                break
-        last_status = bus.messages["IIWA_STATUS"][-1][0]
-        exited = follow(run, bus)
-    _, stderr = run.communicate()
+    for attempt in (1, 2):
+        bus = listener(lcm_url)
+        out = tmp_path / f"run{attempt}"
+        killed = False
+        with sim_driver_process(lcm_url, "--doors", "closed") as driver:
+            bus.wait_for("IIWA_STATUS", timeout=60)
+            run = client(lcm_url, out, "velocity")
+            kill_at = None
+            while run.poll() is None:
+                bus.lcm.HandleSubscriptions(1)
+                commands = bus.messages["IIWA_COMMAND"]
+                if kill_at is None and commands:
+                    kill_at = commands[0][1].utime + round(1e6 * (0.5 + 1 + 3 + 1 + 1 + 1 + 3))
+                statuses = bus.messages["IIWA_STATUS"]
+                if kill_at is not None and statuses and statuses[-1][1].utime >= kill_at:
+                    driver.send_signal(signal.SIGKILL)
+                    killed = True
+                    break
+            last_status = bus.messages["IIWA_STATUS"][-1][0]
+            exited = follow(run, bus)
+        _, stderr = run.communicate()
+        if killed or attempt == 2:  # else the host did not keep real time before the kill
+            break
+    assert killed, stderr
     assert run.returncode == 7, stderr
     assert exited - last_status <= 0.2, exited - last_status
     metrics = json.loads((out / "metrics.json").read_text())

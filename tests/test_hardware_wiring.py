@@ -137,3 +137,17 @@ def test_the_door_opens_as_in_one_process(memq_runs, controller):
         tolerance = abs(getattr(damped, key) - getattr(ref, key)) + 2e-6  # + 2 um of round-off
         assert abs(getattr(metrics, key) - getattr(ref, key)) <= tolerance, key
     assert metrics.fingers_on_handle and truth.wsg_width[-1] > 0.0075
+
+
+@pytest.mark.parametrize("controller", ["ik", "adaptive"])
+def test_every_controller_runs_on_the_real_cells_path(controller):
+    """The other two controllers of the registry (velocity and impedance above) run through
+    the same path to their end and open the door (the driver's truth), the handle held."""
+    scenario = pre_arc_short(controller)
+    outcome, stepped = run_on_memq(scenario)
+    assert outcome.status == "ok", outcome.message
+    truth = stepped.driver.ground_truth()
+    opening = truth.door_angles[0, 0] - truth.door_angles[-1, 0]
+    assert math.degrees(opening) > 35.0  # the seed's sweep is 41.2 deg
+    assert truth.wsg_width[-1] > 0.0075
+    assert outcome.result.plan_names[-1] == controller

@@ -296,11 +296,16 @@ class _Runner:
                 status = self.next_fresh_status()
                 if status is None:
                     lost = self.link.clock() - self.last_fresh
+                    why = (
+                        "statuses were waiting: this process did not run (an overloaded host)"
+                        if self.link.waiting()
+                        else "none came"
+                    )
                     return (
                         "driver_lost",
                         f"no fresh status for {1e3 * lost:.0f} ms after t = {self.t:.3f} s "
-                        f"(watchdog: {WATCHDOG_PERIODS} periods): commanding stopped, the "
-                        "driver holds the last command",
+                        f"(watchdog: {WATCHDOG_PERIODS} periods; {why}): commanding stopped, "
+                        "the driver holds the last command",
                         None,
                     )
                 if self.slot(status) > t:

@@ -107,6 +107,11 @@ class DriverLink:
             self._pump(remaining)
         return self._pending.popleft()
 
+    def waiting(self) -> int:
+        """How many statuses are waiting to be read (after a non-blocking look)."""
+        self._pump(0.0)
+        return len(self._pending)
+
     def drain(self) -> None:
         """Handles what is waiting and forgets it (a stale status after a pause)."""
         self._pump(0.0)
