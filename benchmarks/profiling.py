@@ -74,7 +74,7 @@ def bench_profile(settings: Settings, ctx: Context) -> tuple[list[Metric], dict]
     def cumulative(match: Callable[[tuple], bool]) -> float:
         return sum(v[3] for k, v in stats.stats.items() if match(k))
 
-    cp_ticks = cumulative(lambda k: k[2] == "_tick" and k[0].endswith("simulation.py"))
+    cp_ticks = cumulative(lambda k: k[2] == "_tick" and k[0].endswith("plan_runner.py"))
     cp_sim = cumulative(lambda k: k[0] == "~" and k[2].endswith(("AdvanceTo>", "Initialize>")))
     cp_named = {
         label: cumulative(lambda k, f=func: k[2] == f)

@@ -1,5 +1,6 @@
-"""The ``doorlab`` command: ``doorlab run`` (one controller), ``doorlab report`` (all) and
-``doorlab sweep`` (scenario fields over a grid or random samples).
+"""The ``doorlab`` command: ``doorlab run`` (one controller), ``doorlab report`` (all),
+``doorlab sweep`` (scenario fields over a grid or random samples) and ``doorlab sim-driver``
+(the simulated cell behind the real drivers' LCM protocol).
 
 Bad input prints one line naming the valid choices and exits with code 2; a run's status
 sets the exit code otherwise (see :data:`doorlab.runs.EXIT_CODES`).
@@ -96,7 +97,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(
-        dest="command", metavar="{run,report,sweep,pset}", parser_class=OneLineParser
+        dest="command", metavar="{run,report,sweep,pset,sim-driver}", parser_class=OneLineParser
     )
 
     run = sub.add_parser("run", help="run one controller and write its metrics, logs and plots")
@@ -137,6 +138,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="real-time rate (0: as fast as possible; default 0, 1 with --meshcat)",
     )
     run.add_argument("--no-replay", action="store_true", help="skip replay.html (faster)")
+    add_hardware_options(run)
 
     report = sub.add_parser("report", help="run the seed's experiment set and write index.html")
     report.add_argument(
@@ -203,7 +205,36 @@ def build_parser() -> argparse.ArgumentParser:
         "--force", action="store_true", help="start over in an existing output folder"
     )
     add_pset_parser(sub)
+    add_sim_driver_parser(sub)
     return parser
+
+
+def add_hardware_options(run: argparse.ArgumentParser) -> None:
+    """``doorlab run --hardware [--lcm-url URL] [--wait S] [--yes]`` (README, "On the real arm")."""
+    group = run.add_argument_group("the real arm (README: On the real arm)")
+    group.add_argument(
+        "--hardware",
+        action="store_true",
+        help="run on the real iiwa + WSG over LCM (drake-iiwa-driver, drake-schunk-driver, "
+        "or doorlab sim-driver)",
+    )
+    group.add_argument(
+        "--lcm-url",
+        default=None,
+        metavar="URL",
+        help="the drivers' LCM URL (default: Drake's, $LCM_DEFAULT_URL or "
+        "udpm://239.255.76.67:7667?ttl=0)",
+    )
+    group.add_argument(
+        "--wait",
+        type=_seconds(0.01, 3600.0),
+        default=5.0,
+        metavar="S",
+        help="seconds to wait for the driver's first status (default 5)",
+    )
+    group.add_argument(
+        "--yes", action="store_true", help="do not ask before the arm moves (the plan is printed)"
+    )
 
 
 def _scheduler(parser: argparse.ArgumentParser) -> None:
@@ -343,6 +374,61 @@ def _check_writable(out: Path) -> None:
         raise OutputError(f"cannot write {out}: {e.strerror or e}") from None
 
 
+def add_sim_driver_parser(sub) -> None:
+    """``doorlab sim-driver``: the simulated cell behind the real drivers' LCM protocol."""
+    driver = sub.add_parser(
+        "sim-driver",
+        help="serve the simulated cell over LCM as the iiwa and WSG drivers do (until Ctrl-C)",
+    )
+    driver.add_argument(
+        "--lcm-url",
+        default=None,
+        metavar="URL",
+        help="udpm://GROUP:PORT?ttl=N (default: $LCM_DEFAULT_URL, else "
+        "udpm://239.255.76.67:7667?ttl=0)",
+    )
+    driver.add_argument(
+        "--doors",
+        choices=DOOR_STATES,
+        default=None,
+        help="start with the doors open or closed (default: closed, or the config's)",
+    )
+    driver.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="on exit write the ground truth here (ground_truth.npz, driver.json, scenario.yaml)",
+    )
+    driver.add_argument(
+        "--utime-warmup",
+        action="store_true",
+        help="send utime -1 in the first 200 statuses, as the real driver does",
+    )
+    driver.add_argument(
+        "--duration",
+        type=_seconds(0.01, 7 * 86400.0),
+        default=None,
+        metavar="S",
+        help="stop after S seconds (default: run until Ctrl-C or SIGTERM)",
+    )
+    _common(driver)
+
+
+def _sim_driver(args: argparse.Namespace) -> int:
+    from doorlab.hardware.protocol import resolve_lcm_url
+    from doorlab.hardware.serve import serve
+
+    scenario = _scenario(args)
+    return serve(
+        scenario,
+        lcm_url=resolve_lcm_url(args.lcm_url),
+        out=args.out,
+        force=args.force,
+        utime_warmup=args.utime_warmup,
+        duration=args.duration if args.duration is not None else math.inf,
+    )
+
+
 def _common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--config",
@@ -477,6 +563,13 @@ def _summary(outcome) -> str:
 def _run(args: argparse.Namespace) -> int:
     from doorlab.runs import run_to_folder
 
+    if args.hardware:
+        from doorlab.hardware.cli import run_hardware_command
+
+        return run_hardware_command(args, _scenario(args))
+    for option, given in (("--lcm-url", args.lcm_url), ("--yes", args.yes)):
+        if given:
+            raise ConfigError(f"{option} applies to --hardware only")
     scenario = _scenario(args)
     out = args.out or Path("doorlab_out") / f"{scenario.controller}_{scenario.doors}"
     meshcat = None
@@ -620,7 +713,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return e.code if isinstance(e.code, int) else USAGE_ERROR
     try:
         install_signal_handlers()
-        commands = {"run": _run, "report": _report, "sweep": _sweep, "pset": _pset}
+        commands = {
+            "run": _run,
+            "report": _report,
+            "sweep": _sweep,
+            "pset": _pset,
+            "sim-driver": _sim_driver,
+        }
         return commands[args.command](args)
     except DoorlabError as e:
         print(f"doorlab {args.command}: error: {e}", file=sys.stderr)

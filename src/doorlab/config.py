@@ -109,6 +109,21 @@ class GripperConfig:
 
 
 @dataclass
+class SafetyConfig:
+    """Limits every arm command is checked against before it goes out (:mod:`doorlab.safety`).
+
+    Always on for ``doorlab run --hardware``; in simulation only when ``enabled``, to rehearse a
+    plan under the real run's limits.
+    """
+
+    enabled: bool = False  # check the commands in simulation too
+    joint_limit_margin: float = 0.0873  # [rad] (5 deg) q_ref stays this far inside the limits
+    gap_time: float = 0.02  # [s] |q_ref - q| <= data-sheet speed x this
+    speed_fraction: float = 0.5  # [-] implied joint speed <= this x the data-sheet speed
+    torque_fraction: float = 0.25  # [-] |tau_ff| <= this x the data-sheet torque
+
+
+@dataclass
 class StationConfig:
     """Physics of the cell."""
 
@@ -131,6 +146,7 @@ class StationConfig:
     friction: float = 1.0  # Coulomb friction of fingers and handle [-]
     inner_loop: InnerLoopConfig = field(default_factory=InnerLoopConfig)
     gripper: GripperConfig = field(default_factory=GripperConfig)
+    safety: SafetyConfig = field(default_factory=SafetyConfig)
 
 
 @dataclass
@@ -407,6 +423,23 @@ def _validate_timeline(scenario: Scenario) -> None:
     )
 
 
+def _validate_safety(safety: SafetyConfig) -> None:
+    _check(isinstance(safety.enabled, bool), "station.safety.enabled must be true or false")
+    _check(
+        isinstance(safety.joint_limit_margin, (int, float))
+        and 0.0 <= safety.joint_limit_margin <= 0.5,
+        f"station.safety.joint_limit_margin must be in [0, 0.5] rad, got "
+        f"{quote(safety.joint_limit_margin)}",
+    )
+    _positive("station.safety.gap_time", safety.gap_time)
+    for name in ("speed_fraction", "torque_fraction"):
+        value = getattr(safety, name)
+        _check(
+            isinstance(value, (int, float)) and 0.0 < value <= 1.0,
+            f"station.safety.{name} must be in (0, 1], got {quote(value)}",
+        )
+
+
 def validate(scenario: Scenario) -> Scenario:
     """Checks every field's type and range.
 
@@ -476,6 +509,8 @@ def validate(scenario: Scenario) -> Scenario:
             isinstance(value, (int, float)) and 0.0 <= value <= 0.11,
             f"station.gripper.{name} must be in [0, 0.11] m (finger travel), got {quote(value)}",
         )
+
+    _validate_safety(station.safety)
 
     _check(
         station.time_step >= MIN_TIME_STEP,

@@ -181,18 +181,26 @@ def run_controller(
         ConfigError: Invalid scenario. IkError: No IK solution. SimulationError: Physics failed.
     """
     validate(scenario)
-    controller = get_controller(scenario.controller)
-    geometry = scenario_door_geometry(scenario)
-    plant = make_controller_plant()
-    arc = controller.build(scenario, geometry, plant)
-    grasp = JointSpacePlan.hold(arc.q_start, scenario.timeline.grasp_duration, name="grasp")
-    width = scenario.station.gripper.grasp_width
+    plans, widths, arc = episode_plans(scenario)
     result = run_episode(
-        scenario,
-        [grasp, arc.plan],
-        [width, width],
-        q_start=arc.q_start,
-        meshcat=meshcat,
-        realtime_rate=realtime_rate,
+        scenario, plans, widths, q_start=arc.q_start, meshcat=meshcat, realtime_rate=realtime_rate
     )
     return result, arc
+
+
+def episode_plans(scenario: Scenario) -> tuple[list[Plan], list[float], ArcPlan]:
+    """The seed's task cell as plans, for either cell: close the gripper on the handle at the
+    arc plan's start configuration, then the arc plan.
+
+    Returns:
+        The plans, their gripper setpoints [m] and the arc plan.
+
+    Raises:
+        ConfigError: Unknown controller. IkError: No IK solution.
+    """
+    controller = get_controller(scenario.controller)
+    geometry = scenario_door_geometry(scenario)
+    arc = controller.build(scenario, geometry, make_controller_plant())
+    grasp = JointSpacePlan.hold(arc.q_start, scenario.timeline.grasp_duration, name="grasp")
+    width = scenario.station.gripper.grasp_width
+    return [grasp, arc.plan], [width, width], arc

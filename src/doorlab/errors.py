@@ -61,3 +61,43 @@ class Interrupted(KeyboardInterrupt):
 def interrupt_exit_code(error: KeyboardInterrupt) -> int:
     """The exit code of an interruption: 128 + the signal (130 for a plain Ctrl-C)."""
     return error.exit_code if isinstance(error, Interrupted) else 130
+
+
+class RunStopped(DoorlabError):
+    """A run stopped before its end for a reason that is a result, not a bug: its status
+    (``safety_stop``, ``driver_lost``) sets the exit code (:data:`doorlab.runs.EXIT_CODES`).
+
+    Attributes:
+        status: The run's status.
+        result: The logs up to the stop (an :class:`doorlab.episode.EpisodeResult`), or None.
+    """
+
+    status = "stopped"
+
+    def __init__(self, message: str, *, result=None):
+        super().__init__(message)
+        self.result = result
+
+
+class SafetyStop(RunStopped):
+    """A command broke a safety limit; it was not sent (:mod:`doorlab.safety`).
+
+    Attributes:
+        violation: The :class:`doorlab.safety.Violation` (limit, joint, value, bound, time).
+    """
+
+    status = "safety_stop"
+
+    def __init__(self, violation, *, result=None):
+        super().__init__(f"safety stop: {violation.message()}", result=result)
+        self.violation = violation
+
+
+class DriverLost(RunStopped):
+    """The arm's driver stopped sending statuses during the run; commanding stopped."""
+
+    status = "driver_lost"
+
+
+class NoDriver(DoorlabError):
+    """No driver answered before the run started (nothing moved, nothing was written)."""

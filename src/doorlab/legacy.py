@@ -15,7 +15,7 @@ import contextlib
 import copy
 from collections.abc import Iterator
 
-from doorlab import simulation
+from doorlab import episode, simulation
 from doorlab.config import Scenario, validate
 
 
@@ -31,13 +31,13 @@ def legacy_scenario(scenario: Scenario) -> Scenario:
 def python_joint_space_plans() -> Iterator[None]:
     """Within the block, episodes run every plan in the Python plan runner from t = 0 and log
     every channel with its own logger."""
-    original = simulation.joint_space_prefix
-    simulation.joint_space_prefix = lambda schedule: 0
+    original = episode.joint_space_prefix
+    episode.joint_space_prefix = lambda schedule: 0
     simulation._SEPARATE_LOGGERS = True
     try:
         yield
     finally:
-        simulation.joint_space_prefix = original
+        episode.joint_space_prefix = original
         simulation._SEPARATE_LOGGERS = False
 
 

@@ -348,12 +348,11 @@ def plot_door_angle(
     ax = fig.subplots()
     _shade_arc(ax, [r.arc_window for r in results.values()])
     for label, result in results.items():
-        ax.plot(
-            result.t,
-            np.degrees(result.door_angles[:, 0]),
-            label=label,
-            **_style(styles, label, lw=1.4),
-        )
+        if result.door_angles is None:  # the real cell: no hinge sensor, Q's estimate
+            angle, label = result.door_angle_estimated, f"{label} (estimated from Q)"
+        else:
+            angle = result.door_angles[:, 0]
+        ax.plot(result.t, np.degrees(angle), label=label, **_style(styles, label, lw=1.4))
     if geometry is not None and results:
         windows = {tuple(np.round(r.arc_window, 6)) for r in results.values()}
         for i, (t0, t1) in enumerate(sorted(windows)):

@@ -25,7 +25,7 @@ from pathlib import Path
 from pydrake.geometry import Meshcat
 
 from doorlab.config import Scenario, validate
-from doorlab.errors import IkError, OutputError, SimulationError
+from doorlab.errors import IkError, OutputError, RunStopped, SafetyStop, SimulationError
 from doorlab.geometry import true_door_geometry
 from doorlab.interrupts import (
     deferred_signals,
@@ -36,8 +36,19 @@ from doorlab.interrupts import (
 )
 from doorlab.metrics import DoorMetrics, Kinematics, compute_metrics
 
-EXIT_CODES = {"ok": 0, "usage": 2, "slipped": 3, "speed_limit": 4, "diverged": 5, "ik_failed": 6}
-"""Exit codes of ``doorlab run`` by status (``usage``: bad input)."""
+EXIT_CODES = {
+    "ok": 0,
+    "usage": 2,
+    "slipped": 3,
+    "speed_limit": 4,
+    "diverged": 5,
+    "ik_failed": 6,
+    "driver_lost": 7,
+    "safety_stop": 8,
+}
+"""Exit codes of ``doorlab run`` by status (``usage``: bad input; ``driver_lost``: no status
+from the arm's driver, ``doorlab run --hardware``; ``safety_stop``: a command broke a limit of
+:mod:`doorlab.safety`). A signal exits with 128 + its number (130 for Ctrl-C)."""
 
 
 @dataclass(frozen=True)
@@ -511,9 +522,12 @@ def _run_into(
     base = {"controller": scenario.controller, "doors": scenario.doors}
     try:
         result, _ = run_controller(scenario, meshcat=meshcat, realtime_rate=realtime_rate)
-    except (IkError, SimulationError) as e:
-        status = "ik_failed" if isinstance(e, IkError) else "diverged"
-        write_json(staging / "metrics.json", {**base, "status": status, "error": str(e)})
+    except (IkError, SimulationError, RunStopped) as e:
+        status = "ik_failed" if isinstance(e, IkError) else getattr(e, "status", "diverged")
+        stop = {"violation": e.violation.to_dict()} if isinstance(e, SafetyStop) else {}
+        if getattr(e, "result", None) is not None:  # the logs up to a stop
+            e.result.save(staging / "log.npz")
+        write_json(staging / "metrics.json", {**base, "status": status, "error": str(e), **stop})
         return RunOutcome(status, None, str(e), staging)
     plotted = None
     if worker is not None:

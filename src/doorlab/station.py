@@ -12,6 +12,7 @@ outputs
     after saturation plus, for ``stiffness``, the joints' damping -(Dq + h Kq) qdot),
     ``iiwa_torque_external`` (7) [N m] (generalized contact forces on the arm joints),
     ``wsg_state_measured`` (2) separation [m] and its rate [m/s],
+    ``wsg_force_measured`` (1) the fingers' grip force [N] (the gripper controller's),
     ``plant_state`` (the whole plant's [q; v]), ``door_angles`` (2) left/right hinge [rad].
 
 The inner loop is built from Drake's C++ systems only (no Python per simulation step):
@@ -82,6 +83,7 @@ from doorlab.constants import JOINT_TORQUE_LIMITS, NUM_JOINTS
 from doorlab.frames import (
     ARM_JOINTS,
     CUPBOARD_MODEL,
+    FINGER_JOINTS,
     GRIPPER_BODY,
     L7_FRAME,
     LEFT_HANDLE_FRAME,
@@ -465,6 +467,7 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
     wsg_state = add(MakeMultibodyStateToWsgStateSystem(), "wsg_state")
     builder.Connect(plant.get_state_output_port(wsg), wsg_state.get_input_port())
     builder.ExportOutput(wsg_state.get_output_port(), "wsg_state_measured")
+    builder.ExportOutput(wsg_controller.get_grip_force_output_port(), "wsg_force_measured")
 
     # Whole-plant state and the door hinge angles.
     builder.ExportOutput(plant.get_state_output_port(), "plant_state")
@@ -481,3 +484,35 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
     diagram = builder.Build()
     diagram.set_name("doorlab_station")
     return Station(diagram, plant, scene_graph, iiwa, wsg, cupboard, interpolator, controller_plant)
+
+
+def initialize_cell(
+    station: Station,
+    root_context,
+    *,
+    q_initial: np.ndarray,
+    gripper_width: float,
+    door_angles: tuple[float, float],
+) -> None:
+    """Sets the station's initial state in ``root_context``, as an episode starts.
+
+    Args:
+        station: The built station (its diagram may be a subsystem of the context's root).
+        root_context: The root Context that holds the station's.
+        q_initial: Arm configuration (7,) [rad]; also the ``inverse_dynamics`` loop's
+            differentiator state.
+        gripper_width: Finger separation [m], the fingers symmetric about G.
+        door_angles: (left, right) hinge angles [rad].
+    """
+    plant = station.plant
+    plant_context = plant.GetMyMutableContextFromRoot(root_context)
+    plant.SetPositions(plant_context, station.iiwa, q_initial)
+    for joint_name, q in zip(FINGER_JOINTS, (-gripper_width / 2, gripper_width / 2), strict=True):
+        plant.GetJointByName(joint_name, station.wsg).set_translation(plant_context, q)
+    left, right = door_angles
+    plant.GetJointByName(LEFT_HINGE, station.cupboard).set_angle(plant_context, left)
+    plant.GetJointByName(RIGHT_HINGE, station.cupboard).set_angle(plant_context, right)
+    if station.interpolator is not None:
+        station.interpolator.set_initial_position(
+            station.interpolator.GetMyMutableContextFromRoot(root_context), q_initial
+        )

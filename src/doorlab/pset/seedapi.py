@@ -313,6 +313,79 @@ class StationRun:
         t_plan = np.append(result.plan_starts, schedule_end)
         return (*logs, t_plan)
 
+    def run_real_robot(
+        self,
+        plan_list: Sequence,
+        gripper_setpoint_list: Sequence[float],
+        *,
+        extra_time: float,
+        lcm_url: str | None = None,
+        wait: float = 5.0,
+        yes: bool = False,
+        link=None,
+    ) -> tuple:
+        """The seed's ``RunRealRobot``: the same plans on the real arm over LCM, through the
+        path of ``doorlab run --hardware`` (:mod:`doorlab.hardware`), from where the arm is.
+
+        It waits ``wait`` [s] for the driver on ``lcm_url`` (default: Drake's), prints the plan
+        and asks before the arm moves (``yes`` skips the question), then answers every status
+        with a checked command (``station.safety``'s limits, the 50 ms watchdog).
+
+        Returns:
+            The 2019 API's five outputs: (iiwa_position_command_log,
+            iiwa_position_measured_log, iiwa_velocity_estimated_log,
+            iiwa_external_torque_log, t_plan), logs like :meth:`run`'s. (The real cell has
+            no plant state to log; ``self.result`` holds every channel.)
+
+        Raises:
+            NoDriver: No status within ``wait``. SafetyStop, DriverLost: The run stopped
+                (``self.result`` holds the logs up to the stop). KeyboardInterrupt: Ctrl-C
+                stopped it (the same). ConfigError: Not confirmed, or bad plans.
+        """
+        from doorlab.errors import DriverLost, SafetyStop
+        from doorlab.hardware.episode import run_hardware_episode
+        from doorlab.hardware.link import DriverLink
+        from doorlab.hardware.run import describe_plan
+
+        if not plan_list or getattr(plan_list[0], "traj", None) is None:
+            raise ConfigError(
+                "the first plan must be a JointSpacePlan (the arm moves to its start)"
+            )
+        scenario = replace(
+            self.scenario, timeline=replace(self.scenario.timeline, extra_time=float(extra_time))
+        )
+        validate(scenario)
+        self.last_scenario = scenario
+        link = link or DriverLink(url=lcm_url)
+        first = link.wait_first_status(wait)
+        first_plan = plan_list[0]
+        q_start = first_plan.traj.value(first_plan.traj.start_time()).ravel()
+        print(describe_plan(scenario, q_start, first, link.url), flush=True)
+        if not yes and input("Move the arm? [y/N] ").strip().lower() not in ("y", "yes"):
+            raise ConfigError("not confirmed: nothing moved")
+        period = scenario.timeline.control_period
+        plans = [SeedPlanAdapter(p, period) for p in plan_list]
+        widths = [float(w) for w in gripper_setpoint_list]
+        outcome = run_hardware_episode(
+            scenario, plans, widths, q_start=q_start, link=link, wait=wait
+        )
+        self.result = result = outcome.result
+        if outcome.interrupt is not None:
+            raise outcome.interrupt
+        if outcome.violation is not None:
+            raise SafetyStop(outcome.violation, result=result)
+        if outcome.status != "ok":
+            raise DriverLost(outcome.message, result=result)
+        t = result.t
+        schedule_end = result.plan_starts[-1] + plans[-1].duration + 1.0
+        return (
+            VectorLogView(t, result.q_commanded.T),
+            VectorLogView(t, result.q_measured.T),
+            VectorLogView(t, result.v_measured.T),
+            VectorLogView(t, result.tau_external.T),
+            np.append(result.plan_starts, schedule_end),
+        )
+
 
 _MESHCAT: Meshcat | None = None
 

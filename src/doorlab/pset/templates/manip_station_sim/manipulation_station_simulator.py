@@ -49,6 +49,29 @@ class ManipulationStationSimulator:
         self.result = self._run.result
         return logs
 
+    def RunRealRobot(
+        self, plan_list, gripper_setpoint_list, extra_time=2.0, lcm_url=None, wait=5.0, yes=False
+    ):
+        """Runs the plans on the real arm over LCM, from where it stands (``doorlab run
+        --hardware``'s path: it prints the plan and asks first; every command is checked).
+
+        ``lcm_url``: the drivers' LCM URL (default Drake's); ``wait``: seconds to wait for the
+        driver; ``yes``: do not ask. Returns (iiwa_position_command_log,
+        iiwa_position_measured_log, iiwa_velocity_estimated_log, iiwa_external_torque_log,
+        t_plan), as in 2019.
+        """
+        try:
+            return self._run.run_real_robot(
+                list(plan_list),
+                list(gripper_setpoint_list),
+                extra_time=extra_time,
+                lcm_url=lcm_url,
+                wait=wait,
+                yes=yes,
+            )
+        finally:
+            self.result = self._run.result
+
 
 def StartMeshcat():
     """Drake's Meshcat for this kernel (started once; prints its URL). Replaces the 2019

@@ -1,0 +1,326 @@
+"""One episode over either cell: the wiring, the logger and the logs, whatever the cell is.
+
+A *cell* is a Diagram with the simulated station's port names (the original
+ManipulationStation's): inputs ``iiwa_position``, ``iiwa_feedforward_torque``,
+``wsg_position``, ``wsg_force_limit``; outputs ``iiwa_state``, ``iiwa_position_measured``,
+``iiwa_velocity_estimated``, ``iiwa_position_commanded``, ``iiwa_torque_commanded``,
+``iiwa_torque_external``, ``wsg_state_measured``. :mod:`doorlab.simulation` runs an episode on
+the simulated station (:mod:`doorlab.station`), :mod:`doorlab.hardware` on the real cell over
+LCM; both use what is here:
+
+- :func:`wire_commands`: the joint-space prefix of the schedule (hold, move, grasp: C++
+  trajectory sources), the plan runner after it, the gripper setpoint and force limit;
+- :class:`EpisodeLogger`: one logger of named channels;
+- :func:`schedule_fields`: the schedule's part of an :class:`EpisodeResult`.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Mapping, Sequence
+from dataclasses import MISSING, dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+from pydrake.systems.framework import Diagram, DiagramBuilder, OutputPort
+from pydrake.systems.primitives import (
+    Adder,
+    ConstantVectorSource,
+    LogVectorOutput,
+    Multiplexer,
+    TrajectorySource,
+    VectorLogSink,
+)
+from pydrake.trajectories import PiecewisePolynomial
+
+from doorlab.config import Scenario
+from doorlab.constants import NUM_JOINTS
+from doorlab.plan_runner import PlanRunner
+from doorlab.schedule import ScheduledPlan, first_tick, joint_space_prefix, prefix_trajectory
+
+CELL_INPUTS = ("iiwa_position", "iiwa_feedforward_torque", "wsg_position", "wsg_force_limit")
+"""Input ports every cell has: q_ref (7) [rad], tau_ff (7) [N m], the finger separation
+setpoint (1) [m] and the grip force limit (1) [N]."""
+CELL_OUTPUTS = (
+    "iiwa_state",
+    "iiwa_position_measured",
+    "iiwa_velocity_estimated",
+    "iiwa_position_commanded",
+    "iiwa_torque_commanded",
+    "iiwa_torque_external",
+    "wsg_state_measured",
+)
+"""Output ports every cell has (see :mod:`doorlab.station` for their units)."""
+
+_PLAN_LOG_PREFIX = "plan_log."
+"""Keys of EpisodeResult.plan_log's columns in a saved ``.npz``."""
+
+
+@dataclass(frozen=True)
+class EpisodeResult:
+    """Named, time-stamped logs of one episode (all sampled every log period).
+
+    Attributes:
+        t: Sample times (n,) [s].
+        q_commanded, q_measured: (n, 7) [rad]. v_measured: (n, 7) [rad/s].
+        tau_external: Contact torques on the arm joints (n, 7) [N m].
+        tau_feedforward: tau_ff sent by the plans (n, 7) [N m].
+        tau_commanded: Torque the joints receive (n, 7) [N m]: the actuators' after
+            saturation plus, for the stiffness loop, the joints' damping -(Dq + h Kq) qdot.
+        door_angles: Hinge angles (n, 2) [rad], columns (left, right); None on the real
+            cell, which has no hinge sensor.
+        wsg_width: Finger separation (n,) [m].
+        plant_positions: Positions of the whole plant (n, nq), for replays.
+        plan_names: Names of the scheduled plans. plan_starts: Their start times (k,) [s].
+        arc_window: [t_start, t_end] of the door-opening arc [s], shape (2,).
+        wall_time_s: Wall-clock time of the simulation [s].
+        scenario_yaml: The scenario that produced the logs.
+        plan_log: The arc plan's own per-tick table {channel: (m,)} (empty for plans that
+            record nothing); its ``t`` column is the episode's time [s]. The adaptive plan's
+            channels are listed in :data:`doorlab.adaptive.LOG_CHANNELS`.
+        door_angle_estimated: The real cell's estimate of the left hinge angle (n,) [rad]:
+            Q's angle about the believed hinge while the handle is held, nan elsewhere
+            (:func:`doorlab.hardware.estimates.door_angle_estimate`); None in simulation.
+        status_time: The real cell's ``utime`` of the status each sample shows, as seconds
+            (n,) [s]; None in simulation.
+        cell: ``simulation`` or ``hardware`` (the real cell over LCM).
+    """
+
+    t: np.ndarray
+    q_commanded: np.ndarray
+    q_measured: np.ndarray
+    v_measured: np.ndarray
+    tau_external: np.ndarray
+    tau_feedforward: np.ndarray
+    tau_commanded: np.ndarray
+    door_angles: np.ndarray | None
+    wsg_width: np.ndarray
+    plant_positions: np.ndarray
+    plan_names: tuple[str, ...]
+    plan_starts: np.ndarray
+    arc_window: np.ndarray
+    wall_time_s: float = 0.0
+    scenario_yaml: str = field(default="", compare=False)
+    plan_log: dict[str, np.ndarray] = field(default_factory=dict, compare=False)
+    door_angle_estimated: np.ndarray | None = None
+    status_time: np.ndarray | None = None
+    cell: str = "simulation"
+
+    @property
+    def sim_time_s(self) -> float:
+        """Simulated duration [s]."""
+        return float(self.t[-1]) if len(self.t) else 0.0
+
+    def window(self, t_start: float, t_end: float) -> np.ndarray:
+        """Boolean mask of the samples with t_start <= t <= t_end (tolerates float noise)."""
+        eps = 1e-9
+        return (self.t >= t_start - eps) & (self.t <= t_end + eps)
+
+    def save(self, path: str | Path) -> None:
+        """Writes every channel to an ``.npz`` file (see :meth:`load`)."""
+        arrays = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name == "plan_log" or value is None:  # None: not measured on this cell
+                continue
+            arrays[f.name] = np.asarray(value)
+        for name, column in self.plan_log.items():
+            arrays[f"{_PLAN_LOG_PREFIX}{name}"] = np.asarray(column)
+        buffer = io.BytesIO()
+        np.savez_compressed(buffer, **arrays)
+        Path(path).write_bytes(buffer.getvalue())
+
+    @classmethod
+    def load(cls, path: str | Path) -> EpisodeResult:
+        """Reads a file written by :meth:`save`."""
+        with np.load(path, allow_pickle=False) as data:
+            values = {}
+            for f in fields(cls):
+                if f.name == "plan_log":
+                    values[f.name] = {
+                        key[len(_PLAN_LOG_PREFIX) :]: data[key]
+                        for key in data.files
+                        if key.startswith(_PLAN_LOG_PREFIX)
+                    }
+                    continue
+                if f.name not in data.files:  # a channel the cell did not measure
+                    values[f.name] = None if f.default is MISSING else f.default
+                    continue
+                value = data[f.name]
+                if f.name == "plan_names":
+                    value = tuple(str(s) for s in value)
+                elif f.name in ("wall_time_s",):
+                    value = float(value)
+                elif f.name in ("scenario_yaml", "cell"):
+                    value = str(value)
+                values[f.name] = value
+        return cls(**values)
+
+
+@dataclass(frozen=True)
+class CommandWiring:
+    """What :func:`wire_commands` added.
+
+    Attributes:
+        runner: The plan runner (None when every plan is a joint-space plan).
+        q_ref: The q_ref the cell receives (7) [rad]. tau_ff: The tau_ff it receives (7).
+        wsg_position: The finger separation setpoint (1) [m].
+    """
+
+    runner: PlanRunner | None
+    q_ref: OutputPort
+    tau_ff: OutputPort
+    wsg_position: OutputPort
+
+
+def wire_commands(
+    builder: DiagramBuilder,
+    cell: Diagram,
+    schedule: Sequence[ScheduledPlan],
+    *,
+    scenario: Scenario,
+    q_initial: np.ndarray,
+    t_final: float,
+    lag: float,
+) -> CommandWiring:
+    """Adds the systems that command ``cell`` through ``schedule`` and connects its inputs.
+
+    q_ref: the joint-space plans at the start (hold, move, grasp; all of an IK episode) come
+    from C++ trajectory sources; the Python plan runner takes over at the first plan that
+    needs feedback (its first tick), with no Python before it. The sources then keep sending
+    their last value q_handoff, and the runner sends q_ref - q_handoff: the sum is q_ref.
+    They send exactly what the runner would have: the plans sampled at its ticks t_k, each
+    sample switched on ``lag`` after t_k, as the runner's update event is.
+
+    Args:
+        builder: The episode's builder, which holds ``cell``.
+        cell: A Diagram with the ports :data:`CELL_INPUTS` and :data:`CELL_OUTPUTS`.
+        schedule: The episode's schedule (:func:`doorlab.schedule.make_schedule`).
+        scenario: The control period, the gripper's force limit.
+        q_initial: Where the arm starts (7,) [rad] (held when no plan needs the runner).
+        t_final: The episode's end [s].
+        lag: How long after each tick its command switches on [s]
+            (:func:`doorlab.schedule.tick_lag` in simulation).
+    """
+
+    def add(system, name: str):
+        system.set_name(name)
+        return builder.AddSystem(system)
+
+    period = scenario.timeline.control_period
+    k = joint_space_prefix(schedule)
+    t_first = first_tick(schedule[k].t_start, period) if k < len(schedule) else t_final
+    q_ref_sum = add(Adder(2, NUM_JOINTS), "q_ref")
+    if k > 0:
+        prefix = prefix_trajectory(schedule, k, t_final + 1.0)
+        ticks = np.arange(int(np.floor(t_first / period - 1e-9)) + 1) * period
+        ticks = ticks[ticks < t_first - 1e-9] if k < len(schedule) else ticks
+        samples = np.column_stack([prefix.value(t).ravel() for t in ticks])
+        q_handoff = samples[:, -1]
+        held = np.column_stack([samples, q_handoff])
+        end = t_final + 1.0
+        applied = PiecewisePolynomial.ZeroOrderHold([0.0, *(ticks[1:] + lag), end], held)
+        joint_source = add(TrajectorySource(applied), "joint_space_plans")
+    else:
+        q_handoff = np.asarray(q_initial, float)
+        joint_source = add(ConstantVectorSource(q_handoff), "joint_space_plans")
+    builder.Connect(joint_source.get_output_port(), q_ref_sum.get_input_port(0))
+    runner = None
+    if k < len(schedule):
+        runner = add(
+            PlanRunner(
+                schedule[k:],
+                control_period=period,
+                t_first=t_first,
+                lag=lag,
+                q_offset=q_handoff,
+            ),
+            "plan_runner",
+        )
+        for name in ("iiwa_state", "iiwa_torque_external"):
+            builder.Connect(cell.GetOutputPort(name), runner.GetInputPort(name))
+        q_ref_runner = runner.GetOutputPort("iiwa_position")
+        tau_ff_port = runner.GetOutputPort("iiwa_feedforward_torque")
+    else:
+        zero = np.zeros(NUM_JOINTS)
+        q_ref_runner = add(ConstantVectorSource(zero), "no_runner").get_output_port()
+        tau_ff_port = add(ConstantVectorSource(zero), "no_feedforward").get_output_port()
+    builder.Connect(q_ref_runner, q_ref_sum.get_input_port(1))
+    builder.Connect(q_ref_sum.get_output_port(), cell.GetInputPort("iiwa_position"))
+    builder.Connect(tau_ff_port, cell.GetInputPort("iiwa_feedforward_torque"))
+    wsg = _wire_gripper(builder, cell, schedule, scenario, t_final=t_final, lag=lag)
+    return CommandWiring(runner, q_ref_sum.get_output_port(), tau_ff_port, wsg)
+
+
+def _wire_gripper(
+    builder: DiagramBuilder,
+    cell: Diagram,
+    schedule: Sequence[ScheduledPlan],
+    scenario: Scenario,
+    *,
+    t_final: float,
+    lag: float,
+) -> OutputPort:
+    """The gripper's setpoint: a C++ zero-order hold switching ``lag`` after the tick that
+    starts each plan (as the runner's state did); the force limit a constant."""
+    period = scenario.timeline.control_period
+    widths = [s.gripper_width for s in schedule]
+    switches = [first_tick(s.t_start, period) + lag for s in schedule[1:]]
+    wsg = builder.AddSystem(
+        TrajectorySource(
+            PiecewisePolynomial.ZeroOrderHold(
+                [0.0, *switches, t_final + 1.0], np.array([[*widths, widths[-1]]])
+            )
+        )
+    )
+    wsg.set_name("wsg_position")
+    builder.Connect(wsg.get_output_port(), cell.GetInputPort("wsg_position"))
+    force_limit = builder.AddSystem(ConstantVectorSource([scenario.station.gripper.force_limit]))
+    force_limit.set_name("wsg_force_limit")
+    builder.Connect(force_limit.get_output_port(), cell.GetInputPort("wsg_force_limit"))
+    return wsg.get_output_port()
+
+
+class EpisodeLogger:
+    """One logger of named channels: one C++ Multiplexer, one publish per sample (not one
+    per channel), every ``period`` [s]."""
+
+    def __init__(self, builder: DiagramBuilder, channels: Mapping[str, OutputPort], period: float):
+        self.names = tuple(channels)
+        self._sizes = [port.size() for port in channels.values()]
+        mux = builder.AddSystem(Multiplexer(self._sizes))
+        mux.set_name("log_channels")
+        for i, port in enumerate(channels.values()):
+            builder.Connect(port, mux.get_input_port(i))
+        self.sink: VectorLogSink = LogVectorOutput(mux.get_output_port(), builder, period)
+
+    def read(self, context) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """The sample times (n,) [s] and each channel's samples (n, size), from the root
+        ``context`` of the built diagram."""
+        log = self.sink.FindLog(context)
+        columns = np.cumsum([0, *self._sizes])
+        samples = log.data().T
+        data = {
+            name: samples[:, start:end]
+            for name, start, end in zip(self.names, columns[:-1], columns[1:], strict=True)
+        }
+        return log.sample_times(), data
+
+
+def schedule_fields(schedule: Sequence[ScheduledPlan], arc_index: int) -> dict[str, object]:
+    """The fields of an :class:`EpisodeResult` that come from the schedule: ``plan_names``,
+    ``plan_starts``, ``arc_window`` (of ``schedule[arc_index]``) and the arc plan's own
+    ``plan_log`` (its ``t`` column moved to episode time)."""
+    arc = schedule[arc_index]
+    plan_log = {}
+    log_table = getattr(arc.plan, "log_table", None)
+    if callable(log_table):
+        plan_log = dict(log_table())
+        if "t" in plan_log:
+            plan_log["t"] = plan_log["t"] + arc.t_start
+    return {
+        "plan_names": tuple(s.plan.name for s in schedule),
+        "plan_starts": np.array([s.t_start for s in schedule]),
+        "arc_window": np.array([arc.t_start, arc.t_start + arc.plan.duration]),
+        "plan_log": plan_log,
+    }

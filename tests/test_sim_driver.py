@@ -1,0 +1,405 @@
+"""The simulated driver in one process on ``memq://`` (deterministic, no real-time pacing):
+command timing, hold, clamp, start guard, status contents, utime; and its CLI's errors.
+
+The two-process tests on loopback multicast are in ``test_sim_driver_bus.py``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from drake import (
+    lcmt_iiwa_command,
+    lcmt_iiwa_status,
+    lcmt_schunk_wsg_command,
+    lcmt_schunk_wsg_status,
+)
+from pydrake.lcm import DrakeLcm
+from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
+from pydrake.systems.framework import DiagramBuilder
+
+from doorlab.cli import main
+from doorlab.config import Scenario
+from doorlab.constants import DOOR_ANGLES, Q_HOME
+from doorlab.hardware import protocol
+from doorlab.hardware.protocol import (
+    IIWA_COMMAND_CHANNEL,
+    IIWA_STATUS_CHANNEL,
+    WSG_COMMAND_CHANNEL,
+    WSG_STATUS_CHANNEL,
+    resolve_lcm_url,
+)
+from doorlab.hardware.sim_driver import SimDriver, add_sim_driver
+from doorlab.runs import write_manifest
+
+H = 0.002
+"""The plant's time step of the default scenario [s]."""
+
+
+class InProcessCell:
+    """The driver on memq:// in its own diagram, stepped by hand, with a bus listener."""
+
+    def __init__(self, scenario: Scenario | None = None, *, utime_warmup: bool = False):
+        self.scenario = scenario or Scenario()
+        self.lcm = DrakeLcm("memq://")
+        builder = DiagramBuilder()
+        self.driver = add_sim_driver(
+            builder, self.lcm, self.scenario, record=True, utime_warmup=utime_warmup
+        )
+        self.simulator = Simulator(builder.Build())
+        ResetIntegratorFromFlags(self.simulator, "explicit_euler", self.scenario.station.time_step)
+        self.driver.initialize(self.simulator.get_mutable_context())
+        self.statuses: list[lcmt_iiwa_status] = []
+        self.wsg_statuses: list[lcmt_schunk_wsg_status] = []
+        self.lcm.Subscribe(IIWA_STATUS_CHANNEL, self._keep(self.statuses, lcmt_iiwa_status))
+        self.lcm.Subscribe(
+            WSG_STATUS_CHANNEL, self._keep(self.wsg_statuses, lcmt_schunk_wsg_status)
+        )
+        self.simulator.Initialize()
+
+    @staticmethod
+    def _keep(messages, lcm_type):
+        return lambda data: messages.append(lcm_type.decode(data))
+
+    def advance(self, t: float):
+        """Advances to t [s] and delivers what the driver published at t (memq delivers a
+        message at the next poll)."""
+        status = self.simulator.AdvanceTo(t)
+        self.lcm.HandleSubscriptions(0)
+        return status
+
+    def command(self, q, tau=None, utime: int = 0) -> None:
+        message = lcmt_iiwa_command()
+        message.utime = utime
+        message.num_joints = 7
+        message.joint_position = list(np.asarray(q, float))
+        message.num_torques = 7
+        message.joint_torque = list(np.zeros(7) if tau is None else np.asarray(tau, float))
+        self.lcm.Publish(IIWA_COMMAND_CHANNEL, message.encode())
+
+    def truth(self):
+        return self.driver.ground_truth(self.simulator.get_context())
+
+    def status_at(self, utime: int) -> lcmt_iiwa_status:
+        return next(s for s in self.statuses if s.utime == utime)
+
+
+def fine_log() -> Scenario:
+    scenario = Scenario()
+    scenario.timeline.log_period = 0.001
+    return scenario
+
+
+def test_command_acts_from_the_next_plant_step_and_is_held():
+    """A command read between plant steps shows as commanded at once, moves the arm from the
+    next plant step, is reported by the next status, and is held when commands stop."""
+    cell = InProcessCell(fine_log())
+    t_read = 0.0203  # the command is on the bus when the simulator continues from here
+    cell.advance(t_read)
+    q = Q_HOME.copy()
+    q[0] = 0.1
+    tau = np.array([0, 0, 0, 0, 0, 0, 0.5])
+    cell.command(q, tau, utime=20000)
+    cell.advance(3.5)
+    truth = cell.truth()
+    before, after = truth.t < t_read, truth.t > t_read
+    assert np.abs(truth.q_commanded[before] - Q_HOME).max() < 1e-12
+    assert np.all(truth.q_commanded[after, 0] == 0.1)
+    assert np.all(truth.tau_feedforward[before] == 0)
+    assert np.all(truth.tau_feedforward[after] == tau)
+    # The plant steps at 0.020 and 0.022: the first that sees the command is 0.022, whose
+    # result is the state from 0.022 on (the log sample at a step's time precedes the step).
+    first_step = math.ceil(t_read / H) * H
+    unmoved = truth.t <= first_step + 1e-9
+    assert np.abs(truth.q_measured[unmoved, 0]).max() < 1e-15  # at rest: round-off only
+    assert truth.q_measured[np.searchsorted(truth.t, first_step + 0.001), 0] > 1e-5
+    # The status at 20 ms (before the read) reports the old command, the next one the new.
+    assert cell.status_at(20000).joint_position_commanded[0] == 0.0
+    assert cell.status_at(25000).joint_position_commanded[0] == 0.1
+    # Held: no command after t_read, and every later status still reports it.
+    assert all(s.joint_position_commanded[0] == 0.1 for s in cell.statuses if s.utime > 20000)
+    # The arm settles on it: the loop's damping ratio is about 0.12 at wn = 20 rad/s, so
+    # 3.5 s leave exp(-0.12 * 20 * 3.5) = 2e-4 of the 0.1 rad step (2e-5 rad); 1e-4 allows
+    # for the coupling of the other joints.
+    assert abs(truth.q_measured[-1, 0] - 0.1) < 1e-4
+
+
+def test_start_pose_held_unclamped_and_commands_clamped():
+    """Before any command the arm holds q_home exactly (joint 4 is within 1 deg of its
+    limit); a command of q_home is clamped to the limit less 1 deg, as kuka_driver does."""
+    cell = InProcessCell()
+    cell.advance(0.3)
+    truth = cell.truth()
+    np.testing.assert_allclose(truth.q_commanded, np.tile(Q_HOME, (len(truth.t), 1)), atol=1e-12)
+    assert Q_HOME[3] < -(np.deg2rad(120) - np.deg2rad(1))  # the premise
+    q = Q_HOME.copy()
+    q[6] = 4.0  # beyond joint 7's 175 deg
+    cell.command(q)
+    cell.advance(0.4)
+    commanded = cell.truth().q_commanded[-1]
+    expected = q.copy()
+    expected[3] = -(np.deg2rad(120) - np.deg2rad(1))
+    expected[6] = np.deg2rad(175) - np.deg2rad(1)
+    np.testing.assert_array_equal(commanded, expected)
+
+
+def test_start_guard_monitor_stops_before_the_command_acts():
+    """A command within 0.25 s of the first status ends the simulation before it acts."""
+    cell = InProcessCell()
+    cell.simulator.set_monitor(cell.driver.start_guard_monitor())
+    cell.advance(0.1)
+    q = Q_HOME.copy()
+    q[0] = 0.3
+    cell.command(q)
+    status = cell.advance(1.0)
+    assert status.reason() == status.ReturnReason.kReachedTerminationCondition
+    assert status.FormatMessage().count("start guard")
+    assert cell.simulator.get_context().get_time() < 0.1 + H
+    truth = cell.truth()
+    np.testing.assert_allclose(truth.q_commanded, np.tile(Q_HOME, (len(truth.t), 1)), atol=1e-12)
+    assert all(s.joint_position_commanded[0] == 0.0 for s in cell.statuses)
+
+
+def _answer_at(driver: SimDriver, utime: int) -> None:
+    """Makes a client (a handler on the driver's memq bus) send one command when it sees the
+    status with this utime."""
+
+    def handle(data: bytes) -> None:
+        if lcmt_iiwa_status.decode(data).utime == utime:
+            message = lcmt_iiwa_command()
+            message.utime = utime
+            message.num_joints = 7
+            message.joint_position = list(Q_HOME)
+            driver.lcm.Publish(IIWA_COMMAND_CHANNEL, message.encode())
+
+    driver.lcm.Subscribe(IIWA_STATUS_CHANNEL, handle)
+
+
+@pytest.mark.parametrize(("utime", "status"), [(100_000, "aborted"), (300_000, "stopped")])
+def test_sim_driver_run_start_guard(utime, status):
+    """SimDriver.run aborts (exit 1) on a command answering the status at 0.1 s, not 0.3 s."""
+    driver = SimDriver(Scenario(), lcm_url="memq://", record=True)
+    _answer_at(driver, utime)
+    outcome = driver.run(duration=0.5, realtime_rate=0.0)
+    assert outcome.status == status
+    if status == "aborted":
+        assert outcome.exit_code == 1 and outcome.message.startswith("start guard")
+        assert outcome.sim_time_s < 0.1 + 2 * H
+        np.testing.assert_allclose(driver.ground_truth().q_commanded[:, 0], 0.0, atol=1e-12)
+    else:
+        assert outcome.exit_code == 0 and outcome.sim_time_s == 0.5
+        assert driver.summary()["iiwa_commands_received"] == 1
+
+
+def test_statuses_carry_the_plant_state():
+    """Every status field has 7 entries, taken from the plant at the status's time (the
+    ground truth at the same instant); utime is the time in us; the WSG status every 50 ms."""
+    cell = InProcessCell(fine_log())
+    cell.advance(0.3)
+    q = Q_HOME.copy()
+    q[1] += 0.2
+    cell.command(q, [0.0, 2.0, 0, 0, 0, 0, 0])
+    wsg = lcmt_schunk_wsg_command()
+    wsg.target_position_mm = 10.0
+    wsg.force = 12.0
+    cell.lcm.Publish(WSG_COMMAND_CHANNEL, wsg.encode())
+    cell.advance(1.0)
+    truth = cell.truth()
+    assert [s.utime for s in cell.statuses] == [5000 * k for k in range(201)]
+    for status in cell.statuses[::7]:
+        i = int(np.searchsorted(truth.t, status.utime * 1e-6 - 1e-9))
+        assert abs(truth.t[i] - status.utime * 1e-6) < 1e-9
+        assert status.num_joints == 7
+        fields = {
+            "joint_position_measured": truth.q_measured[i],
+            "joint_position_commanded": truth.q_commanded[i],
+            "joint_velocity_estimated": truth.v_measured[i],
+            "joint_torque_commanded": truth.tau_commanded[i],
+            "joint_torque_measured": truth.tau_commanded[i],
+            "joint_torque_external": truth.tau_external[i],
+        }
+        for name, expected in fields.items():
+            np.testing.assert_array_equal(getattr(status, name), expected, err_msg=name)
+    assert np.all(np.abs(np.array(cell.statuses[-1].joint_torque_commanded)[[1, 3]]) > 1.0)
+    assert [s.utime for s in cell.wsg_statuses] == [50000 * k for k in range(21)]
+    assert cell.wsg_statuses[0].actual_position_mm == pytest.approx(30.0, abs=1e-6)
+    # The fingers closed towards 10 mm at up to 12 N; nothing is in between them.
+    assert cell.wsg_statuses[-1].actual_position_mm < 15.0
+    assert np.all(truth.wsg_force_limit[truth.t > 0.31] == 12.0)
+    np.testing.assert_allclose(truth.door_angles[-1], DOOR_ANGLES["closed"], atol=1e-9)
+
+
+def test_utime_warmup():
+    """With the warm-up the first 200 statuses carry utime -1, then the time in us."""
+    cell = InProcessCell(utime_warmup=True)
+    cell.advance(1.1)
+    utimes = [s.utime for s in cell.statuses]
+    assert utimes[:200] == [-1] * 200
+    assert utimes[200:] == [5000 * k for k in range(200, 221)]
+    assert np.all(cell.truth().utime[:100] == -1) and cell.truth().utime[100] == 1_000_000
+
+
+def test_lcm_url_checks():
+    """Bad URLs are one-line ConfigErrors naming the valid form; the default resolves."""
+    from doorlab.errors import ConfigError
+
+    assert resolve_lcm_url("udpm://239.255.76.67:7667?ttl=0")
+    for bad in (
+        "bogus",
+        "udpm://10.0.0.1:7667",
+        "udpm://239.255.76.67:0",
+        "udpm://239.1.1.1:7?x=1",
+    ):
+        with pytest.raises(ConfigError, match="udpm|port|option"):
+            resolve_lcm_url(bad)
+    with pytest.raises(ConfigError, match="one process"):
+        resolve_lcm_url("memq://")
+    assert resolve_lcm_url("memq://", allow_memq=True) == "memq://"
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--lcm-url", "udpm://1.2.3.4:5"], "not a multicast group"),
+        (["--lcm-url", "memq://"], "one process"),
+        (["--doors", "ajar"], "invalid choice: 'ajar'"),
+        (["--duration", "0"], "number of seconds in [0.01, 604800]"),
+        (["--set", "station.time_step=-1"], "station.time_step"),
+    ],
+)
+def test_cli_bad_input(args, message, capsys, tmp_path):
+    """Bad input: exit 2, one line naming the problem, nothing written."""
+    out = tmp_path / "gt"
+    assert main(["sim-driver", *args, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and "\n" not in err and "Traceback" not in err
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_cli_existing_out_and_dead_bus(capsys, tmp_path, monkeypatch):
+    """An existing --out needs --force (exit 2); a bus that delivers nothing is exit 1 with
+    the multicast-route hint, and the old folder is left as it was (no staging folder)."""
+    out = tmp_path / "gt"
+    out.mkdir()
+    (out / "ground_truth.npz").write_bytes(b"an earlier run's")
+    write_manifest(out)  # a folder doorlab wrote (an empty one is written without --force)
+    before = sorted(p.name for p in out.iterdir())
+    assert main(["sim-driver", "--out", str(out)]) == 2
+    assert "--force" in capsys.readouterr().err
+    monkeypatch.setattr(protocol, "lcm_delivers", lambda url, timeout=1.0: False)
+    monkeypatch.setattr("doorlab.hardware.serve.lcm_delivers", protocol.lcm_delivers)
+    assert main(["sim-driver", "--out", str(out), "--force"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "delivers nothing" in err and "ip route add 224.0.0.0/4 dev lo" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["gt"]
+    assert sorted(p.name for p in out.iterdir()) == before
+
+
+def _one_process_episode(q_target: np.ndarray, t_final: float):
+    """The module docstring's recipe: the driver and a client made of Drake's C++ LCM systems
+    (status receiver, command sender publishing every 5 ms from 0.3 s) on one memq bus."""
+    from pydrake.manipulation import IiwaCommandSender, IiwaControlMode, IiwaStatusReceiver
+    from pydrake.systems.lcm import LcmInterfaceSystem, LcmPublisherSystem, LcmSubscriberSystem
+    from pydrake.systems.primitives import ConstantVectorSource
+
+    lcm = DrakeLcm("memq://")
+    builder = DiagramBuilder()
+    builder.AddSystem(LcmInterfaceSystem(lcm))
+    scenario = Scenario()
+    scenario.timeline.log_period = 0.005  # a ground-truth sample at every status
+    driver = add_sim_driver(builder, lcm, scenario, add_lcm_interface=False, record=True)
+    status_sub = builder.AddSystem(
+        LcmSubscriberSystem.Make(
+            IIWA_STATUS_CHANNEL, lcmt_iiwa_status, lcm, use_cpp_serializer=True
+        )
+    )
+    status = builder.AddSystem(IiwaStatusReceiver(7))
+    builder.Connect(status_sub.get_output_port(), status.get_input_port())
+    sender = builder.AddSystem(IiwaCommandSender(7, IiwaControlMode.kPositionAndTorque))
+    target = builder.AddSystem(ConstantVectorSource(q_target))
+    zero = builder.AddSystem(ConstantVectorSource(np.zeros(7)))
+    builder.Connect(target.get_output_port(), sender.get_position_input_port())
+    builder.Connect(zero.get_output_port(), sender.get_torque_input_port())
+    publisher = builder.AddSystem(
+        LcmPublisherSystem.Make(
+            IIWA_COMMAND_CHANNEL,
+            lcmt_iiwa_command,
+            lcm,
+            publish_period=0.005,
+            publish_offset=0.3,
+            use_cpp_serializer=True,
+        )
+    )
+    builder.Connect(sender.get_output_port(), publisher.get_input_port())
+    simulator = Simulator(builder.Build())
+    ResetIntegratorFromFlags(simulator, "explicit_euler", scenario.station.time_step)
+    context = simulator.get_mutable_context()
+    driver.initialize(context)
+    simulator.set_monitor(driver.start_guard_monitor())
+    simulator.AdvanceTo(0.3)
+    simulator.clear_monitor()
+    simulator.AdvanceTo(t_final)
+    measured = status.get_position_measured_output_port().Eval(status.GetMyContextFromRoot(context))
+    return driver.ground_truth(context), measured
+
+
+def test_one_process_with_a_drake_client_is_deterministic():
+    """Driver and client in one diagram on memq:// repeat bit for bit; the client's commands
+    act (after the guard) and its status receiver reads the plant's state."""
+    q_target = Q_HOME.copy()
+    q_target[[0, 3]] = [0.2, -2.0]
+    first, measured = _one_process_episode(q_target, 2.0)
+    second, _ = _one_process_episode(q_target, 2.0)
+    np.testing.assert_array_equal(first.plant_state, second.plant_state)
+    assert np.abs(first.q_commanded[first.t < 0.3] - Q_HOME).max() < 1e-12
+    assert np.all(first.q_commanded[first.t > 0.3 + 1e-9] == q_target)
+    # The client has read the status of 1.995 s (the one of 2.0 s is read at the next step):
+    # it carries the plant's state at that instant.
+    np.testing.assert_array_equal(measured, first.q_measured[np.isclose(first.t, 1.995)][0])
+    assert np.abs(first.q_measured[-1] - q_target).max() < 0.02  # settling (zeta 0.12)
+
+
+def test_a_malformed_command_ends_the_run():
+    """A command with 3 joints stops the driver (status failed, exit 1) with the reason."""
+    driver = SimDriver(Scenario(), lcm_url="memq://")
+
+    def handle(data: bytes) -> None:
+        if lcmt_iiwa_status.decode(data).utime == 300_000:
+            message = lcmt_iiwa_command()
+            message.num_joints = 3
+            message.joint_position = [0.0, 0.0, 0.0]
+            driver.lcm.Publish(IIWA_COMMAND_CHANNEL, message.encode())
+
+    driver.lcm.Subscribe(IIWA_STATUS_CHANNEL, handle)
+    outcome = driver.run(duration=0.5, realtime_rate=0.0)
+    assert (outcome.status, outcome.exit_code) == ("failed", 1)
+    assert "num_joints = 7" in outcome.message and outcome.sim_time_s < 0.31
+
+
+def test_a_command_with_utime_minus_one_means_no_command():
+    """kuka_driver treats a command whose utime is -1 as none: the arm holds its start pose
+    with zero feed-forward torque, until a valid command comes again."""
+    cell = InProcessCell()
+    cell.advance(0.3)
+    q = Q_HOME.copy()
+    q[[0, 3]] = [0.1, -2.0]
+    tau = np.full(7, 0.3)
+    cell.command(q, tau, utime=300_000)
+    cell.advance(0.4)
+    cell.command(q, tau, utime=-1)
+    cell.advance(0.5)
+    cell.command(q, tau, utime=500_000)
+    cell.advance(0.6)
+    truth = cell.truth()
+
+    def at(t: float) -> int:
+        return int(np.argmin(np.abs(truth.t - t)))
+
+    np.testing.assert_array_equal(truth.q_commanded[at(0.35)], q)
+    np.testing.assert_array_equal(truth.tau_feedforward[at(0.35)], tau)
+    assert np.abs(truth.q_commanded[at(0.45)] - Q_HOME).max() < 1e-12  # unclamped start pose
+    np.testing.assert_array_equal(truth.tau_feedforward[at(0.45)], np.zeros(7))
+    np.testing.assert_array_equal(truth.q_commanded[at(0.55)], q)
+    np.testing.assert_array_equal(truth.tau_feedforward[at(0.55)], tau)
