@@ -46,10 +46,10 @@ QUICK_RUNS = (("velocity", "closed"), ("impedance", "closed"))
 
 
 def _scenario(controller: str, doors: str, scale: float, overrides: list[str]):
-    from doorlab.cli import _apply_overrides
+    from doorlab.commands import apply_overrides
     from doorlab.config import Scenario
 
-    scenario = _apply_overrides(Scenario(controller=controller, doors=doors), overrides)
+    scenario = apply_overrides(Scenario(controller=controller, doors=doors), overrides)
     scenario.station.inner_loop.dq_scale = scale
     return scenario
 

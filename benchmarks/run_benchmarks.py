@@ -347,7 +347,7 @@ def compare(new: dict, old: dict) -> tuple[str, list[str]]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from doorlab.cli import OneLineParser, bounded_int  # the CLI's one-line errors, exit 2
+    from doorlab.argtypes import OneLineParser, bounded_int  # the CLI's one-line errors, exit 2
 
     parser = OneLineParser(
         prog="run_benchmarks.py",

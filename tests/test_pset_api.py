@@ -16,7 +16,7 @@ from doorlab.constants import Q_HOME
 from doorlab.errors import ConfigError
 from doorlab.geometry import default_door_geometry
 from doorlab.plans import ArmState
-from doorlab.pset import grader, seedtools
+from doorlab.pset import grader, seedtools, verdicts
 from doorlab.pset.seedapi import (
     SeedJointSpacePlan,
     SeedPlanAdapter,
@@ -155,19 +155,21 @@ def _figures(**overrides) -> dict:
 def test_episode_judges_apply_their_margins_relative_to_the_reference():
     ref = {"reference:ik": {"figures": _figures(max_radial_error_m=0.0012)}}
     bound = 0.0012 + grader.IK_RADIAL_MARGIN
-    ok, _ = grader._judge_ik(ref | {"student:ik": {"figures": _figures(max_radial_error_m=bound)}})
+    ok, _ = verdicts._judge_ik(
+        ref | {"student:ik": {"figures": _figures(max_radial_error_m=bound)}}
+    )
     assert ok
-    ok, text = grader._judge_ik(
+    ok, text = verdicts._judge_ik(
         ref | {"student:ik": {"figures": _figures(max_radial_error_m=bound + 1e-4)}}
     )
     assert not ok and "FAILED max radial error" in text
     # Velocity must beat the reference IK's radial error.
     refs = ref | {"reference:velocity": {"figures": _figures(max_radial_error_m=0.0003)}}
-    ok, _ = grader._judge_velocity(
+    ok, _ = verdicts._judge_velocity(
         refs | {"student:velocity": {"figures": _figures(max_radial_error_m=0.0011)}}
     )
     assert ok
-    ok, text = grader._judge_velocity(
+    ok, text = verdicts._judge_velocity(
         refs | {"student:velocity": {"figures": _figures(max_radial_error_m=0.0013)}}
     )
     assert not ok and "below pointwise IK" in text
@@ -179,10 +181,10 @@ def test_episode_judges_apply_their_margins_relative_to_the_reference():
         (_figures(handle_held=False), False),
         (_figures(door_opening_at_arc_end_rad=late), False),
     ]:
-        ok, _ = grader._judge_impedance(refs | {"student:impedance": {"figures": student}})
+        ok, _ = verdicts._judge_impedance(refs | {"student:impedance": {"figures": student}})
         assert ok is passes
     # A job without figures fails the test and says whose it was.
-    ok, text = grader._judge_impedance(refs | {"student:impedance": {"error": "boom"}})
+    ok, text = verdicts._judge_impedance(refs | {"student:impedance": {"error": "boom"}})
     assert not ok and "your code" in text and "boom" in text
 
 
