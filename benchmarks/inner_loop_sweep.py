@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """The stiffness inner loop's damping trade-off, measured: one row per Dq scale.
 
-The seed's inner loop is tau = Kq (q_ref - q) - Dq qdot + g(q) + tau_ff. Its damping Dq pulls
+The problem set's inner loop is tau = Kq (q_ref - q) - Dq qdot + g(q) + tau_ff. Its damping Dq pulls
 two ways (README, "Inner loop gains"):
 
 - the position plans (IK, velocity) want a well damped joint loop (no ringing, a small lag

@@ -16,10 +16,10 @@ from doorlab.constants import Q_HOME
 from doorlab.errors import ConfigError
 from doorlab.geometry import default_door_geometry
 from doorlab.plans import ArmState
-from doorlab.pset import grader, seedtools, verdicts
-from doorlab.pset.seedapi import (
+from doorlab.pset import grader, task_helpers, verdicts
+from doorlab.pset.station_api import (
+    ProblemSetPlanAdapter,
     SeedJointSpacePlan,
-    SeedPlanAdapter,
     SeedTaskSpacePlanBase,
     StationRun,
     StudentCodeError,
@@ -45,7 +45,7 @@ class _Plan:
 
 def test_adapter_passes_the_last_command_as_q_cmd():
     plan = _Plan()
-    adapter = SeedPlanAdapter(plan, 0.005)
+    adapter = ProblemSetPlanAdapter(plan, 0.005)
     first = adapter.command(0.0, STATE)
     adapter.command(0.005, STATE)
     np.testing.assert_array_equal(plan.seen_q_cmd[0], Q_HOME)  # nothing sent yet: measured q
@@ -64,7 +64,7 @@ def test_adapter_passes_the_last_command_as_q_cmd():
 )
 def test_adapter_rejects_what_the_robot_cannot_take(q, tau, message):
     with pytest.raises(StudentCodeError, match=message.replace("(", r"\(").replace(")", r"\)")):
-        SeedPlanAdapter(_Plan(q, tau), 0.005).command(0.3, STATE)
+        ProblemSetPlanAdapter(_Plan(q, tau), 0.005).command(0.3, STATE)
 
 
 def test_joint_space_plan_replays_and_clamps_its_trajectory():
@@ -114,14 +114,15 @@ def test_task_space_base_errors_follow_the_seed_definitions():
 
 def test_seed_tools_agree_with_the_geometry():
     g = default_door_geometry()
-    arc = seedtools.handle_arc_points()
+    arc = task_helpers.handle_arc_points()
     assert arc.shape == (100, 3)
-    np.testing.assert_allclose(seedtools.radial_tracking_error(arc), 0.0, atol=1e-12)
-    # The seed's quarter circle: from the hinge's -y side (theta = 0) to its -x side (90 deg).
+    np.testing.assert_allclose(task_helpers.radial_tracking_error(arc), 0.0, atol=1e-12)
+    # The problem set's quarter circle: from the hinge's -y side (theta = 0) to its -x side
+    # (90 deg).
     np.testing.assert_allclose(arc[0], g.p_W_hinge - [0, g.r_handle, 0], atol=1e-12)
     np.testing.assert_allclose(arc[-1], g.p_W_hinge - [g.r_handle, 0, 0], atol=1e-12)
-    np.testing.assert_allclose(seedtools.interpolate_arc(0.0), g.p_W_handle, atol=1e-12)
-    constants = seedtools.door_constants()
+    np.testing.assert_allclose(task_helpers.interpolate_arc(0.0), g.p_W_handle, atol=1e-12)
+    constants = task_helpers.door_constants()
     assert constants["r_handle"] == pytest.approx(g.r_handle)
     assert constants["angle_end"] == pytest.approx(math.radians(50.0))
 
@@ -129,12 +130,12 @@ def test_seed_tools_agree_with_the_geometry():
 def test_l7_poses_slice_a_log_like_the_seed():
     t = np.arange(0.0, 0.1, 0.01)
     q = np.tile(Q_HOME, (len(t), 1)).T
-    poses, times = seedtools.l7_poses(VectorLogView(t, q), n_start=3, n_end=7)
+    poses, times = task_helpers.l7_poses(VectorLogView(t, q), n_start=3, n_end=7)
     np.testing.assert_array_equal(times, t[3:7])
     assert len(poses) == 4
-    p_WQ = seedtools.q_positions(poses, np.array([0, 0, 0.214]))
+    p_WQ = task_helpers.q_positions(poses, np.array([0, 0, 0.214]))
     assert p_WQ.shape == (4, 3)
-    angles = seedtools.orientation_tracking_error(poses, times, 10.0)
+    angles = task_helpers.orientation_tracking_error(poses, times, 10.0)
     assert angles.shape == (4,) and np.all(angles >= 0)
 
 

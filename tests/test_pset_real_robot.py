@@ -17,7 +17,7 @@ from doorlab.config import Scenario
 from doorlab.constants import Q_HOME
 from doorlab.errors import ConfigError, SafetyStop
 from doorlab.hardware.link import DriverLink
-from doorlab.pset.seedapi import SeedJointSpacePlan, StationRun
+from doorlab.pset.station_api import SeedJointSpacePlan, StationRun
 
 Q0 = Q_HOME + np.array([0.1, 0.1, 0.0, 0.2, 0.0, 0.0, 0.0])
 Q_START = Q0 + 0.1

@@ -29,7 +29,7 @@ def _section(page: str) -> str:
 
 
 def test_robustness_cases_cover_the_registry_and_reuse_identical_runs():
-    """Every registry controller on every acceptance yaw error, doors closed; the seed's
+    """Every registry controller on every acceptance yaw error, doors closed; the problem set's
     closed-door runs are reused at yaw 0 and nothing else is run twice."""
     experiments = make_experiments()
     cases, new = make_robustness_cases(None, experiments)

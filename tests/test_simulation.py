@@ -25,7 +25,8 @@ def seed_schedule(scenario: Scenario):
 
 
 def test_default_schedule_is_the_originals_timeline():
-    """Hold 0-2 s, move 2-9 s, grasp 9-11 s, arc 11-22 s (10 s + 1 s): the seed's t = 11 s."""
+    """Hold 0-2 s, move 2-9 s, grasp 9-11 s, arc 11-22 s (10 s + 1 s): the problem set's
+    t = 11 s."""
     schedule = seed_schedule(Scenario())
     assert [s.plan.name for s in schedule] == ["hold", "move_to_start", "grasp", "arc"]
     assert [s.t_start for s in schedule] == [0.0, 2.0, 9.0, 11.0]

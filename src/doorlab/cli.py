@@ -93,7 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--no-replay", action="store_true", help="skip replay.html (faster)")
     add_hardware_options(run)
 
-    report = sub.add_parser("report", help="run the seed's experiment set and write index.html")
+    report = sub.add_parser("report", help="run the problem set's experiments and write index.html")
     report.add_argument(
         "--out",
         type=Path,

@@ -85,7 +85,7 @@ def _angle_zero(*figures: dict) -> str:
     theta0 = next((f["theta0_rad"] for f in figures if "theta0_rad" in f), None)
     at = f" ({_deg(theta0)} at the closed door's handle)" if theta0 is not None else ""
     return (
-        f"Q's angle about the hinge is the seed's theta, measured from W's y axis{at}; the "
+        f"Q's angle about the hinge is the notebook's theta, measured from W's y axis{at}; the "
         "door's opening is measured from the closed door"
     )
 

@@ -1,4 +1,4 @@
-"""The seed's experiment set, run in parallel, and one self-contained HTML page answering it.
+"""The problem set's experiment set, run in parallel, and one self-contained HTML page answering it.
 
 - :mod:`doorlab.report.experiments`: the experiment set as data (:data:`EXPERIMENTS`, the
   robustness grid, :class:`RunRecord`);
@@ -6,7 +6,7 @@
   locally or on a Dask cluster, then the page);
 - :mod:`doorlab.report.folders`: reading run folders (metrics, logs, trackings);
 - :mod:`doorlab.report.context`, :mod:`doorlab.report.answers` and
-  :mod:`doorlab.report.closed_door`: the seed's six questions
+  :mod:`doorlab.report.closed_door`: the problem set's six questions
   and answers GENERATED from the measured metrics; :mod:`doorlab.report.robustness_page`:
   the robustness section (every controller against the cupboard's yaw error);
 - :mod:`doorlab.report.page`: ``index.html`` from the Jinja2 templates in

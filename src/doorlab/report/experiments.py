@@ -16,11 +16,11 @@ from pathlib import Path
 from doorlab.config import Scenario
 
 IK_KNOTS = (2, 5, 10)
-"""Knot counts of the seed's task 1 question 1."""
+"""Knot counts of the problem set's task 1 question 1."""
 
 
 def make_experiments(base: Scenario | None = None) -> tuple[tuple[str, Scenario], ...]:
-    """The seed's experiment set, each a copy of ``base`` with its controller and doors.
+    """The problem set's experiment set, each a copy of ``base`` with its controller and doors.
 
     ``door_angles`` is reset to None in every experiment so that ``doors`` decides the initial
     hinge angles; every other setting of ``base`` (physics, timeline, gains) is kept.
@@ -54,7 +54,7 @@ def make_experiments(base: Scenario | None = None) -> tuple[tuple[str, Scenario]
 
 
 EXPERIMENTS: tuple[tuple[str, Scenario], ...] = make_experiments()
-"""The seed's eight runs on the default scenario (see :func:`make_experiments`)."""
+"""The problem set's eight runs on the default scenario (see :func:`make_experiments`)."""
 
 
 @dataclass(frozen=True)
@@ -62,8 +62,9 @@ class RobustnessCase:
     """One cell of the report's robustness grid: a controller, doors closed, one yaw error.
 
     Attributes:
-        run: Name of the experiment (run folder) holding it: a seed experiment when its
-            scenario is the very same case, else ``robust_<controller>_yaw_<m|p><deg>``.
+        run: Name of the experiment (run folder) holding it: one of the problem set's
+            experiments when its scenario is the very same case, else
+            ``robust_<controller>_yaw_<m|p><deg>``.
         controller: Registry name.
         yaw_error_rad: ``station.cupboard_yaw_error`` [rad].
     """

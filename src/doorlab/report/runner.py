@@ -87,8 +87,8 @@ def _write_run(record: RunRecord, files: dict[str, bytes], run_dir: Path) -> Run
 
 class _Progress:
     """The report's progress bar (tqdm on stderr): runs done, how many of the experiments are
-    not ok (the robustness runs do not count: the seed's plans are expected to fail some), ETA.
-    """
+    not ok (the robustness runs do not count: the problem set's plans are expected to fail
+    some), ETA."""
 
     def __init__(self, total: int, *, experiments: set[str], enabled: bool) -> None:
         from tqdm import tqdm
@@ -149,7 +149,7 @@ def run_report(
 
     Returns:
         0 if every experiment's status is ``ok``, 1 otherwise (failed runs are on the page).
-        The robustness runs do not count: the seed's plans are expected to fail at some yaw
+        The robustness runs do not count: the problem set's plans are expected to fail at some yaw
         errors, and the section reports that.
 
     Raises:
@@ -180,7 +180,7 @@ def run_report(
         clash = sorted(set(names) & {name for name, _ in extra})
         if clash:
             raise ConfigError(f"experiment names clash with the robustness runs: {clash}")
-    seed_names = set(names)
+    experiment_names = set(names)
 
     with staged_output(Path(out_dir), force=force) as staging:
         runs_dir = staging / "runs"
@@ -196,7 +196,7 @@ def run_report(
                 timeout_s=scheduler_timeout_s or CONNECT_TIMEOUT_S,
             ) as pool:
                 # The bar once connected: a scheduler that cannot be reached is one line.
-                bar = _Progress(len(everything), experiments=seed_names, enabled=progress)
+                bar = _Progress(len(everything), experiments=experiment_names, enabled=progress)
                 work_dir = None
                 if scheduler is None:  # local workers: their temporary folders in ours
                     work_dir = staging / ".work"
@@ -206,7 +206,7 @@ def run_report(
                         _run_experiment,
                         name,
                         scenario,
-                        name in seed_names,
+                        name in experiment_names,
                         None if work_dir is None else str(work_dir),
                     ): (name, scenario)
                     for name, scenario in everything
@@ -224,7 +224,7 @@ def run_report(
             if (staging / ".work").is_dir():
                 shutil.rmtree(staging / ".work")  # empty: each worker removed its own folder
         if bar is None:
-            bar = _Progress(len(everything), experiments=seed_names, enabled=progress)
+            bar = _Progress(len(everything), experiments=experiment_names, enabled=progress)
         total = time.perf_counter() - start
         ordered = [records[name] for name in names]
         bar.close(f"runs done; {bar.failed} of {len(names)} experiments not ok; writing the page")
