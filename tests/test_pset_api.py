@@ -18,9 +18,9 @@ from doorlab.geometry import default_door_geometry
 from doorlab.plans import ArmState
 from doorlab.pset import grader, task_helpers, verdicts
 from doorlab.pset.station_api import (
+    ProblemSetJointSpacePlan,
     ProblemSetPlanAdapter,
-    SeedJointSpacePlan,
-    SeedTaskSpacePlanBase,
+    ProblemSetTaskSpacePlanBase,
     StationRun,
     StudentCodeError,
     VectorLogView,
@@ -69,7 +69,7 @@ def test_adapter_rejects_what_the_robot_cannot_take(q, tau, message):
 
 def test_joint_space_plan_replays_and_clamps_its_trajectory():
     knots = np.column_stack([Q_HOME, Q_HOME + 0.1])
-    plan = SeedJointSpacePlan(PiecewisePolynomial.FirstOrderHold([0.0, 2.0], knots))
+    plan = ProblemSetJointSpacePlan(PiecewisePolynomial.FirstOrderHold([0.0, 2.0], knots))
     assert plan.duration == 2.0
     args = (Q_HOME, Q_HOME, np.zeros(7), np.zeros(7))
     np.testing.assert_allclose(plan.CalcPositionCommand(*args, 1.0, 0.005), Q_HOME + 0.05)
@@ -79,7 +79,7 @@ def test_joint_space_plan_replays_and_clamps_its_trajectory():
 
 def test_run_simulation_needs_a_joint_space_first_plan():
     run = StationRun()
-    task = SeedTaskSpacePlanBase(lambda s: np.zeros(3), lambda s: None, 10.0, np.zeros(3))
+    task = ProblemSetTaskSpacePlanBase(lambda s: np.zeros(3), lambda s: None, 10.0, np.zeros(3))
     for plans in ([], [task]):
         with pytest.raises(ConfigError):
             run.run(
@@ -94,9 +94,9 @@ def test_run_simulation_needs_a_joint_space_first_plan():
             )
 
 
-def test_task_space_base_errors_follow_the_seed_definitions():
+def test_task_space_base_errors_follow_the_problem_sets_definitions():
     g = default_door_geometry()
-    plan = SeedTaskSpacePlanBase(
+    plan = ProblemSetTaskSpacePlanBase(
         lambda tau: g.p_WQ_ref(tau) - g.p_W_handle, g.R_WL7_ref, 10.0, np.array([0, 0, 0.214])
     )
     plan.CalcKinematics(Q_HOME, np.zeros(7))
@@ -112,7 +112,7 @@ def test_task_space_base_errors_follow_the_seed_definitions():
     assert plan.Jv_WL7q.shape == (6, 7)
 
 
-def test_seed_tools_agree_with_the_geometry():
+def test_task_helpers_agree_with_the_geometry():
     g = default_door_geometry()
     arc = task_helpers.handle_arc_points()
     assert arc.shape == (100, 3)

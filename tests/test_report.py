@@ -71,7 +71,7 @@ def printed_tolerance(text: str) -> float:
     return 0.5 * 10 ** max(digits - 3, 0)
 
 
-def test_experiments_are_the_seed_set():
+def test_experiments_are_the_problem_sets_set():
     """EXPERIMENTS holds the problem set's eight runs with the right controller, doors and knots."""
     expected = {
         "ik_2_open": ("ik", "open", 2),

@@ -114,7 +114,7 @@ class ProblemSetPlanAdapter:
         return Command(q_ref, tau_ff)
 
 
-class SeedPlanBase:
+class ProblemSetPlanBase:
     """The original's ``PlanBase``: a plan with ``duration`` [s] and the two command methods
     (hold the measured position, no feedforward torque unless overridden)."""
 
@@ -135,7 +135,7 @@ class SeedPlanBase:
         return _ZERO.copy()
 
 
-class SeedJointSpacePlan(SeedPlanBase):
+class ProblemSetJointSpacePlan(ProblemSetPlanBase):
     """q_ref = trajectory(t_plan), clamped to the trajectory's time span."""
 
     def __init__(self, trajectory: PiecewisePolynomial):
@@ -171,7 +171,7 @@ class ArmKinematics:
         )
 
 
-class SeedTaskSpacePlanBase(SeedPlanBase):
+class ProblemSetTaskSpacePlanBase(ProblemSetPlanBase):
     """The original's ``IiwaTaskSpacePlan``: kinematics and tracking errors of Q and L7.
 
     The reference of Q is relative to where Q is when the plan starts (``p_WQ_0``):
