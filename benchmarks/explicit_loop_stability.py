@@ -39,7 +39,7 @@ def spectral_radius(M: np.ndarray, K: np.ndarray, D: np.ndarray, h: float, impli
 
 def main() -> None:
     from doorlab import Scenario
-    from doorlab.cli import _apply_overrides
+    from doorlab.commands import apply_overrides
     from doorlab.constants import Q_HOME
     from doorlab.controllers import _grasp_configuration
     from doorlab.geometry import scenario_door_geometry
@@ -48,7 +48,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--set", dest="overrides", action="append", default=[])
     args = parser.parse_args()
-    scenario = _apply_overrides(Scenario(), args.overrides)
+    scenario = apply_overrides(Scenario(), args.overrides)
     config = scenario.station
     plant = make_controller_plant()
     context = plant.CreateDefaultContext()

@@ -3,7 +3,7 @@
 
 Reads the ``metrics.json`` of two ``doorlab report`` folders (no simulation is re-run):
 
-- doorlab with its default inner loop (the seed's stiffness law), and
+- doorlab with its default inner loop (the problem set's stiffness law), and
 - doorlab with ``station.inner_loop.kind=inverse_dynamics`` (the original's ID-PID: like for
   like with the reference),
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """The stiffness inner loop's damping trade-off, measured: one row per Dq scale.
 
-The seed's inner loop is tau = Kq (q_ref - q) - Dq qdot + g(q) + tau_ff. Its damping Dq pulls
+The problem set's inner loop is tau = Kq (q_ref - q) - Dq qdot + g(q) + tau_ff. Its damping Dq pulls
 two ways (README, "Inner loop gains"):
 
 - the position plans (IK, velocity) want a well damped joint loop (no ringing, a small lag
@@ -46,10 +46,10 @@ QUICK_RUNS = (("velocity", "closed"), ("impedance", "closed"))
 
 
 def _scenario(controller: str, doors: str, scale: float, overrides: list[str]):
-    from doorlab.cli import _apply_overrides
+    from doorlab.commands import apply_overrides
     from doorlab.config import Scenario
 
-    scenario = _apply_overrides(Scenario(controller=controller, doors=doors), overrides)
+    scenario = apply_overrides(Scenario(controller=controller, doors=doors), overrides)
     scenario.station.inner_loop.dq_scale = scale
     return scenario
 

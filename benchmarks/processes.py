@@ -26,7 +26,7 @@ from common import (
 
 def bench_runs(names: Sequence[str], settings: Settings, ctx: Context) -> list[Metric]:
     """``doorlab run --doors closed`` end to end, one subprocess per repeat and controller;
-    ``run/report``: ``doorlab report --jobs 2 --no-robustness`` (the seed's 8 runs and the
+    ``run/report``: ``doorlab report --jobs 2 --no-robustness`` (the problem set's 8 runs and the
     page, the issue's target); ``run/report_full``: ``doorlab report --jobs 2`` (the 8 runs,
     the 17 of the robustness section and the page)."""
     env = subprocess_env()

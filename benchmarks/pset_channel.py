@@ -5,7 +5,7 @@ control tick and per episode, side by side with the same plan called in the grad
 
 Per tick (``--ticks`` ticks at states near the arc, the solutions' velocity plan):
 
-- ``local``: the plan called in this process through ``SeedPlanAdapter`` (what the student's
+- ``local``: the plan called in this process through ``ProblemSetPlanAdapter`` (what the student's
   process did when it also ran the simulation, before issue 17);
 - ``remote``: the same plan in a sandboxed student process, through
   ``doorlab.pset.episodes.RemotePlan`` (one round trip of ``doorlab.pset.channel`` per tick:
@@ -13,7 +13,7 @@ Per tick (``--ticks`` ticks at states near the arc, the solutions' velocity plan
 - ``remote_trivial``: a plan that answers at once (q_ref = q, tau_ff = 0): the channel alone.
 
 Per episode (task 2's episode, doors open, as graded): ``local`` runs it in this process
-through ``seedapi.StationRun`` (the pre-issue-17 student episode), ``remote`` through
+through ``station_api.StationRun`` (the pre-issue-17 student episode), ``remote`` through
 ``doorlab.pset.episodes.student_episode`` (the simulation here, the plan in the student's
 process). Wall times and CPU times (``cpu``: this process plus the student's process);
 medians of the repeats, run alternately. ``other cpu``: the average number of cores other
@@ -108,13 +108,13 @@ def _remote_ticks(folder: Path, root: Path, name: str, states) -> tuple[float, f
 def _local_ticks(plans_module, states) -> tuple[float, float]:
     from doorlab.frames import p_L7Q
     from doorlab.plans import ArmState
-    from doorlab.pset.seedapi import SeedPlanAdapter
+    from doorlab.pset.station_api import ProblemSetPlanAdapter
 
     old = importlib.import_module("open_left_door")
-    seed_plan = plans_module.IiwaTaskSpaceVelocityPlan(
+    plan = plans_module.IiwaTaskSpaceVelocityPlan(
         calc_p_Q=old.calc_p_Q, calc_R_WL7_ref=old.calc_R_WL7_ref, duration=10.0, p_L7Q=p_L7Q
     )
-    plan = SeedPlanAdapter(seed_plan, 0.005)
+    plan = ProblemSetPlanAdapter(plan, 0.005)
     cpu0, t0 = time.process_time(), time.perf_counter()
     for t, q, v, tau in states:
         plan.command(t, ArmState(q, v, tau))
@@ -122,12 +122,12 @@ def _local_ticks(plans_module, states) -> tuple[float, float]:
 
 
 def _local_episode(plans_module) -> tuple[float, float]:
-    """The pre-issue-17 student episode: the seed's task cell, plan and simulation here."""
+    """The pre-issue-17 student episode: the problem set's task cell, plan and simulation here."""
     from pydrake.trajectories import PiecewisePolynomial
 
     from doorlab.constants import Q_HOME
     from doorlab.pset.episodes import DOOR_OPEN, grasp_configuration
-    from doorlab.pset.seedapi import StationRun
+    from doorlab.pset.station_api import StationRun
 
     old = importlib.import_module("open_left_door")
     cpu0, t0 = time.process_time(), time.perf_counter()

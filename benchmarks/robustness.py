@@ -24,7 +24,8 @@ import sys
 import time
 from pathlib import Path
 
-from doorlab.cli import OneLineParser, _apply_overrides, bounded_int
+from doorlab.argtypes import OneLineParser, bounded_int
+from doorlab.commands import apply_overrides
 from doorlab.config import CONTROLLERS, Scenario
 from doorlab.errors import DoorlabError
 from doorlab.robustness import (
@@ -65,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--set", dest="overrides", action="append", default=[])
     args = parser.parse_args(argv)
     try:
-        base = _apply_overrides(Scenario(), args.overrides)
+        base = apply_overrides(Scenario(), args.overrides)
     except DoorlabError as e:
         print(f"robustness: error: {e}", file=sys.stderr)
         return 2

@@ -22,7 +22,7 @@ Benchmarks (``--only`` takes names, groups such as ``episode``, or globs such as
 ``run/<controller>``, ``run/report``, ``run/report_full``
     ``python -m doorlab.cli run --controller C --doors closed`` end to end in a subprocess
     (interpreter start, imports, episode, metrics, PNG plots, replay.html; target for
-    velocity < 4 s), ``doorlab report --jobs 2 --no-robustness`` (the seed's 8 runs; target
+    velocity < 4 s), ``doorlab report --jobs 2 --no-robustness`` (the problem set's 8 runs; target
     < 15 s) and ``doorlab report --jobs 2`` (with the robustness section's 17 runs);
     ``info.cpu_s`` is the CPU time of the whole process tree.
 ``design/<controller>_closed``
@@ -347,7 +347,7 @@ def compare(new: dict, old: dict) -> tuple[str, list[str]]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from doorlab.cli import OneLineParser, bounded_int  # the CLI's one-line errors, exit 2
+    from doorlab.argtypes import OneLineParser, bounded_int  # the CLI's one-line errors, exit 2
 
     parser = OneLineParser(
         prog="run_benchmarks.py",

@@ -1,7 +1,7 @@
 """Shared, session-cached problem-set runs for the grader's tests (not a conftest: import
 the helpers explicitly, as with ``report_fixtures``).
 
-:func:`solutions_run` writes a ``--solutions`` folder and runs the seed notebook's code cells in
+:func:`solutions_run` writes a ``--solutions`` folder and runs the 2019 notebook's code cells in
 it (three episodes; the last cell runs the full grader, reference episodes included);
 :func:`reference` returns that grading's reference figures, which every other grading of the
 session reuses (``reference=``), so the reference episodes are simulated once per session.
@@ -24,16 +24,35 @@ import pytest
 
 from doorlab.pset.folder import init_folder
 
-SEED = Path(__file__).resolve().parents[2] / "shared" / "seed" / "000_f5f6c01857f13f46.txt"
-"""The seed notebook as text (read at test time; its code is not copied into the project)."""
-if not SEED.exists():
-    SEED = Path("/work/shared/seed/000_f5f6c01857f13f46.txt")
-SEED_CELLS_TIMEOUT_S = 900
-"""The seed's cells: three episodes and a full grading (~1-2 min on a busy 2-core machine)."""
+NOTEBOOK_ENV = "DOORLAB_PSET5_NOTEBOOK"
+"""The one setting the notebook tests need: the path of a copy of the 2019 notebook,
+``robot_control/pset5_open_cabinet_door.ipynb`` of github.com/pangtao22/6-881-examples (or of
+its text, with ``In [ ]:`` before each code cell). Its code is read at test time, never copied
+into the project; without it those tests skip and say how to run them."""
+NOTEBOOK_CELLS_TIMEOUT_S = 900
+"""The notebook's cells: three episodes and a full grading (~1-2 min on a busy 2-core machine)."""
+
+
+def notebook_path() -> Path | None:
+    """The notebook the environment names (None when ``$DOORLAB_PSET5_NOTEBOOK`` is unset)."""
+    value = os.environ.get(NOTEBOOK_ENV, "").strip()
+    return Path(value).expanduser() if value else None
+
+
+def _ipynb_code_cells(text: str) -> list[str]:
+    """The code cells of an ``.ipynb`` (nbformat 4 JSON), in order, empty ones left out."""
+    cells = []
+    for cell in json.loads(text).get("cells", []):
+        if cell.get("cell_type") == "code":
+            source = cell.get("source", "")
+            source = "".join(source) if isinstance(source, list) else source
+            if source.strip():
+                cells.append(source)
+    return cells
 
 
 def _code_cells(text: str) -> list[str]:
-    """The seed's code cells: after each ``In [ ]:`` marker, the longest run of lines that
+    """The notebook text's code cells: after each ``In [ ]:`` marker, the longest run of lines that
     parses as Python once IPython magics are removed (the prose that follows does not)."""
     cells = []
     for part in re.split(r"^In\s*\[\s*\]:\s*$", text, flags=re.M)[1:]:
@@ -76,7 +95,7 @@ namespace = {"__name__": "__main__"}
 for i, source in enumerate(cells):
     print(f"--- cell {i}", flush=True)
     try:
-        exec(compile(source, f"<seed cell {i}>", "exec"), namespace)
+        exec(compile(source, f"<notebook cell {i}>", "exec"), namespace)
     except BaseException:
         traceback.print_exc()
         sys.exit(10 + i)
@@ -96,11 +115,24 @@ def _root() -> Path:
     return root
 
 
-def seed_cells() -> list[str]:
-    """The seed notebook's code cells (skips the test if the seed is not there)."""
-    if not SEED.exists():
-        pytest.skip(f"the seed notebook is not at {SEED}")
-    return _code_cells(SEED.read_text())
+def notebook_cells() -> list[str]:
+    """The 2019 notebook's code cells; skips the test (saying how to run it) when
+    ``$DOORLAB_PSET5_NOTEBOOK`` is unset, fails it when it names no readable file."""
+    path = notebook_path()
+    if path is None:
+        pytest.skip(
+            f"needs the 2019 notebook: set {NOTEBOOK_ENV} to a copy of "
+            "pset5_open_cabinet_door.ipynb (github.com/pangtao22/6-881-examples, "
+            "robot_control/) or of its text (README: Tests and benchmarks)"
+        )
+    try:
+        text = path.read_text()
+    except OSError as e:
+        pytest.fail(f"{NOTEBOOK_ENV}={str(path)!r}: {e.strerror or e}")
+    cells = _ipynb_code_cells(text) if path.suffix == ".ipynb" else _code_cells(text)
+    if not cells:
+        pytest.fail(f"{NOTEBOOK_ENV}={str(path)!r} holds no code cells")
+    return cells
 
 
 @functools.cache
@@ -108,9 +140,9 @@ def _solutions_run() -> tuple[Path, subprocess.CompletedProcess]:
     folder = _root() / "solutions"
     init_folder(folder, solutions=True)
     cells_file = _root() / "cells.json"
-    cells_file.write_text(json.dumps([_adapt(c) for c in seed_cells()]))
+    cells_file.write_text(json.dumps([_adapt(c) for c in notebook_cells()]))
     env = dict(os.environ, MPLBACKEND="Agg")
-    # The seed's last cell runs `python3 ./test_pset_5a.py`: python3 must be this interpreter.
+    # The notebook's last cell runs `python3 ./test_pset_5a.py`: python3 must be this interpreter.
     env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
     env["PYTHONPATH"] = str(folder)
     proc = subprocess.run(
@@ -119,20 +151,20 @@ def _solutions_run() -> tuple[Path, subprocess.CompletedProcess]:
         env=env,
         capture_output=True,
         text=True,
-        timeout=SEED_CELLS_TIMEOUT_S,
+        timeout=NOTEBOOK_CELLS_TIMEOUT_S,
     )
     return folder, proc
 
 
 def solutions_run() -> tuple[Path, subprocess.CompletedProcess]:
-    """A fresh ``--solutions`` folder in which the seed's cells ran in order (once)."""
-    seed_cells()
+    """A fresh ``--solutions`` folder in which the notebook's cells ran in order (once)."""
+    notebook_cells()
     return _solutions_run()
 
 
 @functools.cache
 def _reference() -> str:
-    if SEED.exists():
+    if notebook_path() is not None:
         folder, _ = solutions_run()
         data = json.loads((folder / "test_results.json").read_text())
         return json.dumps(data["extra_data"]["reference"])
@@ -144,6 +176,6 @@ def _reference() -> str:
 
 
 def reference() -> dict:
-    """The reference episodes' figures (from the seed cells' full grading when the seed is
-    there; else from a grading of the episodes), a fresh copy each call."""
+    """The reference episodes' figures (from the notebook cells' full grading when the
+    notebook is given; else from a grading of the episodes), a fresh copy each call."""
     return json.loads(_reference())

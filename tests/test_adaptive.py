@@ -94,7 +94,7 @@ def test_running_estimates_are_logged_and_round_trip(tmp_path):
 
 
 def test_episodes_without_a_plan_log_load_with_an_empty_one(tmp_path, episode):
-    """The seed's plans record nothing: their plan_log is empty and stays so."""
+    """The problem set's plans record nothing: their plan_log is empty and stays so."""
     result = episode("velocity", "closed")[1]
     assert result.plan_log == {}
     result.save(tmp_path / "log.npz")

@@ -1,4 +1,4 @@
-"""Acceptance of the three controllers on the full episode (the seed's tasks 1-3).
+"""Acceptance of the three controllers on the full episode (the problem set's tasks 1-3).
 
 Each episode is simulated once per session (see conftest.episode) and reused here.
 """
@@ -41,7 +41,7 @@ def test_more_knots_give_smaller_radial_error_with_doors_open(episode):
 
 
 def test_velocity_plan_beats_ik_with_10_knots_and_is_more_uniform(episode):
-    """The seed's hint: the velocity plan's max radial error is below IK's (10 knots) and
+    """The problem set's hint: the velocity plan's max radial error is below IK's (10 knots) and
     its error is more uniform along the arc (lower RMS and lower spread)."""
     ik = episode("ik", "open", 10)
     velocity = episode("velocity", "open")
@@ -90,7 +90,7 @@ def test_impedance_plan_trails_the_arc_but_holds_the_handle(episode):
 
 @pytest.mark.parametrize("doors", ["open", "closed"])
 def test_impedance_plan_runs_under_the_original_inverse_dynamics_loop(episode, doors):
-    """With the motors' reflected inertia the original station's ID-PID loop runs the seed's
+    """With the motors' reflected inertia the original station's ID-PID loop runs the problem set's
     impedance plan: both door states end ok (without it: speed_limit open, slipped closed),
     and with the door closed it is open >= 38 deg at the arc's end (reference: 39.6 deg)."""
     m = episode("impedance", doors, None, "inverse_dynamics")[3]

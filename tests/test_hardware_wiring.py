@@ -148,6 +148,6 @@ def test_every_controller_runs_on_the_real_cells_path(controller):
     assert outcome.status == "ok", outcome.message
     truth = stepped.driver.ground_truth()
     opening = truth.door_angles[0, 0] - truth.door_angles[-1, 0]
-    assert math.degrees(opening) > 35.0  # the seed's sweep is 41.2 deg
+    assert math.degrees(opening) > 35.0  # the problem set's sweep is 41.2 deg
     assert truth.wsg_width[-1] > 0.0075
     assert outcome.result.plan_names[-1] == controller

@@ -12,8 +12,8 @@ from doorlab.geometry import default_door_geometry
 from doorlab.ik import pointwise_ik, solve_ik
 from doorlab.station import make_controller_plant
 
-POSITION_TOLERANCE = 0.001  # [m] the seed's box half-width
-THETA_BOUND = 0.005 * np.pi  # [rad] the seed's orientation bound
+POSITION_TOLERANCE = 0.001  # [m] the problem set's box half-width
+THETA_BOUND = 0.005 * np.pi  # [rad] the problem set's orientation bound
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +64,7 @@ def test_centered_ik_puts_q_on_the_handle(plant, geometry):
 
 @pytest.mark.parametrize("centered", [False, True])
 def test_pointwise_ik_knots_respect_the_tolerances(plant, geometry, centered):
-    """Every knot is within the seed's tolerances, and knots form one smooth branch."""
+    """Every knot is within the problem set's tolerances, and knots form one smooth branch."""
     result = pointwise_ik(
         plant,
         geometry.p_WQ_ref,

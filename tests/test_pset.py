@@ -1,7 +1,7 @@
-"""The problem set (``doorlab pset``): the folder, the seed notebook's own cells, the grader.
+"""The problem set (``doorlab pset``): the folder, the 2019 notebook's own cells, the grader.
 
 Expensive work is shared (``pset_fixtures``, cached per session): one solutions folder runs
-the seed's code cells (three episodes) and its last cell runs the full grader (with the
+the 2019 notebook's code cells (three episodes) and its last cell runs the full grader (with the
 reference episodes); the other gradings reuse those reference figures and run only the tests
 a case needs (``only=``), so this module simulates about a dozen episodes in all.
 """
@@ -30,13 +30,13 @@ EPISODE = {
 
 
 @pytest.fixture(scope="module")
-def seed_cells() -> list[str]:
-    return pset_fixtures.seed_cells()
+def notebook_cells() -> list[str]:
+    return pset_fixtures.notebook_cells()
 
 
 @pytest.fixture(scope="module")
-def solutions_run(seed_cells):
-    """A fresh ``--solutions`` folder in which the seed's cells ran in order (shared)."""
+def solutions_run(notebook_cells):
+    """A fresh ``--solutions`` folder in which the notebook's cells ran in order (shared)."""
     return pset_fixtures.solutions_run()
 
 
@@ -132,19 +132,19 @@ def test_init_refuses_a_bad_destination(tmp_path, capsys):
     assert "not a problem-set folder" in capsys.readouterr().err
 
 
-# The seed's own cells, and the solutions' full marks --------------------------------------
+# The 2019 notebook's own cells, and the solutions' full marks ------------------------------
 
 
-def test_seed_cells_run_unchanged_in_a_solutions_folder(seed_cells, solutions_run):
+def test_notebook_cells_run_unchanged_in_a_solutions_folder(notebook_cells, solutions_run):
     folder, proc = solutions_run
     # setup, 2 meshcat cells, 3 tasks x (simulate + 4 analysis cells), 3 plots, the grader
-    assert len(seed_cells) >= 18, len(seed_cells)
+    assert len(notebook_cells) >= 18, len(notebook_cells)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    assert proc.stdout.count("--- cell") == len(seed_cells)
+    assert proc.stdout.count("--- cell") == len(notebook_cells)
     assert "--- all cells ran" in proc.stdout
     # The last cell printed the grader's summary.
     assert "Total score:" in proc.stdout
-    # The seed slices its logs by index (t_start = 11 -> sample 1100): samples every 0.01 s
+    # The notebook slices its logs by index (t_start = 11 -> sample 1100): samples every 0.01 s
     # from t = 0, and the arc plan starts at 11 s (hold 2 s, move 7 s, grasp 1 + 1 s).
     facts = json.loads(proc.stdout.split("FACTS ", 1)[1].splitlines()[0])
     t = np.array(facts["t"])
@@ -404,7 +404,38 @@ def test_our_notebook_runs_in_the_solutions_folder(solutions_run):
         env=env,
         capture_output=True,
         text=True,
-        timeout=pset_fixtures.SEED_CELLS_TIMEOUT_S,
+        timeout=pset_fixtures.NOTEBOOK_CELLS_TIMEOUT_S,
     )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     assert "--- all cells ran" in proc.stdout
+
+
+def test_the_notebooks_code_cells_are_read_from_an_ipynb_or_its_text(tmp_path, monkeypatch):
+    """$DOORLAB_PSET5_NOTEBOOK may name the .ipynb or its text; unset, the tests skip and say
+    how to run them; naming a missing file fails them."""
+    ipynb = tmp_path / "pset5_open_cabinet_door.ipynb"
+    ipynb.write_text(
+        json.dumps(
+            {
+                "cells": [
+                    {"cell_type": "markdown", "source": ["# prose"]},
+                    {"cell_type": "code", "source": ["import math\n", "x = 1"]},
+                    {"cell_type": "code", "source": ""},
+                    {"cell_type": "code", "source": "%matplotlib inline\ny = 2"},
+                ],
+                "nbformat": 4,
+            }
+        )
+    )
+    text = tmp_path / "notebook.txt"
+    text.write_text("Some prose.\n\nIn [ ]:\n\nimport math\nx = 1\n\nMore prose here.\n")
+    monkeypatch.setenv(pset_fixtures.NOTEBOOK_ENV, str(ipynb))
+    assert pset_fixtures.notebook_cells() == ["import math\nx = 1", "%matplotlib inline\ny = 2"]
+    monkeypatch.setenv(pset_fixtures.NOTEBOOK_ENV, str(text))
+    assert pset_fixtures.notebook_cells() == ["import math\nx = 1\n"]
+    monkeypatch.delenv(pset_fixtures.NOTEBOOK_ENV)
+    with pytest.raises(pytest.skip.Exception, match="DOORLAB_PSET5_NOTEBOOK"):
+        pset_fixtures.notebook_cells()
+    monkeypatch.setenv(pset_fixtures.NOTEBOOK_ENV, str(tmp_path / "missing.ipynb"))
+    with pytest.raises(pytest.fail.Exception, match="missing.ipynb"):
+        pset_fixtures.notebook_cells()

@@ -16,11 +16,11 @@ from doorlab.constants import Q_HOME
 from doorlab.errors import ConfigError
 from doorlab.geometry import default_door_geometry
 from doorlab.plans import ArmState
-from doorlab.pset import grader, seedtools
-from doorlab.pset.seedapi import (
-    SeedJointSpacePlan,
-    SeedPlanAdapter,
-    SeedTaskSpacePlanBase,
+from doorlab.pset import grader, task_helpers, verdicts
+from doorlab.pset.station_api import (
+    ProblemSetJointSpacePlan,
+    ProblemSetPlanAdapter,
+    ProblemSetTaskSpacePlanBase,
     StationRun,
     StudentCodeError,
     VectorLogView,
@@ -45,7 +45,7 @@ class _Plan:
 
 def test_adapter_passes_the_last_command_as_q_cmd():
     plan = _Plan()
-    adapter = SeedPlanAdapter(plan, 0.005)
+    adapter = ProblemSetPlanAdapter(plan, 0.005)
     first = adapter.command(0.0, STATE)
     adapter.command(0.005, STATE)
     np.testing.assert_array_equal(plan.seen_q_cmd[0], Q_HOME)  # nothing sent yet: measured q
@@ -64,12 +64,12 @@ def test_adapter_passes_the_last_command_as_q_cmd():
 )
 def test_adapter_rejects_what_the_robot_cannot_take(q, tau, message):
     with pytest.raises(StudentCodeError, match=message.replace("(", r"\(").replace(")", r"\)")):
-        SeedPlanAdapter(_Plan(q, tau), 0.005).command(0.3, STATE)
+        ProblemSetPlanAdapter(_Plan(q, tau), 0.005).command(0.3, STATE)
 
 
 def test_joint_space_plan_replays_and_clamps_its_trajectory():
     knots = np.column_stack([Q_HOME, Q_HOME + 0.1])
-    plan = SeedJointSpacePlan(PiecewisePolynomial.FirstOrderHold([0.0, 2.0], knots))
+    plan = ProblemSetJointSpacePlan(PiecewisePolynomial.FirstOrderHold([0.0, 2.0], knots))
     assert plan.duration == 2.0
     args = (Q_HOME, Q_HOME, np.zeros(7), np.zeros(7))
     np.testing.assert_allclose(plan.CalcPositionCommand(*args, 1.0, 0.005), Q_HOME + 0.05)
@@ -79,7 +79,7 @@ def test_joint_space_plan_replays_and_clamps_its_trajectory():
 
 def test_run_simulation_needs_a_joint_space_first_plan():
     run = StationRun()
-    task = SeedTaskSpacePlanBase(lambda s: np.zeros(3), lambda s: None, 10.0, np.zeros(3))
+    task = ProblemSetTaskSpacePlanBase(lambda s: np.zeros(3), lambda s: None, 10.0, np.zeros(3))
     for plans in ([], [task]):
         with pytest.raises(ConfigError):
             run.run(
@@ -94,9 +94,9 @@ def test_run_simulation_needs_a_joint_space_first_plan():
             )
 
 
-def test_task_space_base_errors_follow_the_seed_definitions():
+def test_task_space_base_errors_follow_the_problem_sets_definitions():
     g = default_door_geometry()
-    plan = SeedTaskSpacePlanBase(
+    plan = ProblemSetTaskSpacePlanBase(
         lambda tau: g.p_WQ_ref(tau) - g.p_W_handle, g.R_WL7_ref, 10.0, np.array([0, 0, 0.214])
     )
     plan.CalcKinematics(Q_HOME, np.zeros(7))
@@ -112,16 +112,17 @@ def test_task_space_base_errors_follow_the_seed_definitions():
     assert plan.Jv_WL7q.shape == (6, 7)
 
 
-def test_seed_tools_agree_with_the_geometry():
+def test_task_helpers_agree_with_the_geometry():
     g = default_door_geometry()
-    arc = seedtools.handle_arc_points()
+    arc = task_helpers.handle_arc_points()
     assert arc.shape == (100, 3)
-    np.testing.assert_allclose(seedtools.radial_tracking_error(arc), 0.0, atol=1e-12)
-    # The seed's quarter circle: from the hinge's -y side (theta = 0) to its -x side (90 deg).
+    np.testing.assert_allclose(task_helpers.radial_tracking_error(arc), 0.0, atol=1e-12)
+    # The problem set's quarter circle: from the hinge's -y side (theta = 0) to its -x side
+    # (90 deg).
     np.testing.assert_allclose(arc[0], g.p_W_hinge - [0, g.r_handle, 0], atol=1e-12)
     np.testing.assert_allclose(arc[-1], g.p_W_hinge - [g.r_handle, 0, 0], atol=1e-12)
-    np.testing.assert_allclose(seedtools.interpolate_arc(0.0), g.p_W_handle, atol=1e-12)
-    constants = seedtools.door_constants()
+    np.testing.assert_allclose(task_helpers.interpolate_arc(0.0), g.p_W_handle, atol=1e-12)
+    constants = task_helpers.door_constants()
     assert constants["r_handle"] == pytest.approx(g.r_handle)
     assert constants["angle_end"] == pytest.approx(math.radians(50.0))
 
@@ -129,12 +130,12 @@ def test_seed_tools_agree_with_the_geometry():
 def test_l7_poses_slice_a_log_like_the_seed():
     t = np.arange(0.0, 0.1, 0.01)
     q = np.tile(Q_HOME, (len(t), 1)).T
-    poses, times = seedtools.l7_poses(VectorLogView(t, q), n_start=3, n_end=7)
+    poses, times = task_helpers.l7_poses(VectorLogView(t, q), n_start=3, n_end=7)
     np.testing.assert_array_equal(times, t[3:7])
     assert len(poses) == 4
-    p_WQ = seedtools.q_positions(poses, np.array([0, 0, 0.214]))
+    p_WQ = task_helpers.q_positions(poses, np.array([0, 0, 0.214]))
     assert p_WQ.shape == (4, 3)
-    angles = seedtools.orientation_tracking_error(poses, times, 10.0)
+    angles = task_helpers.orientation_tracking_error(poses, times, 10.0)
     assert angles.shape == (4,) and np.all(angles >= 0)
 
 
@@ -155,19 +156,21 @@ def _figures(**overrides) -> dict:
 def test_episode_judges_apply_their_margins_relative_to_the_reference():
     ref = {"reference:ik": {"figures": _figures(max_radial_error_m=0.0012)}}
     bound = 0.0012 + grader.IK_RADIAL_MARGIN
-    ok, _ = grader._judge_ik(ref | {"student:ik": {"figures": _figures(max_radial_error_m=bound)}})
+    ok, _ = verdicts._judge_ik(
+        ref | {"student:ik": {"figures": _figures(max_radial_error_m=bound)}}
+    )
     assert ok
-    ok, text = grader._judge_ik(
+    ok, text = verdicts._judge_ik(
         ref | {"student:ik": {"figures": _figures(max_radial_error_m=bound + 1e-4)}}
     )
     assert not ok and "FAILED max radial error" in text
     # Velocity must beat the reference IK's radial error.
     refs = ref | {"reference:velocity": {"figures": _figures(max_radial_error_m=0.0003)}}
-    ok, _ = grader._judge_velocity(
+    ok, _ = verdicts._judge_velocity(
         refs | {"student:velocity": {"figures": _figures(max_radial_error_m=0.0011)}}
     )
     assert ok
-    ok, text = grader._judge_velocity(
+    ok, text = verdicts._judge_velocity(
         refs | {"student:velocity": {"figures": _figures(max_radial_error_m=0.0013)}}
     )
     assert not ok and "below pointwise IK" in text
@@ -179,10 +182,10 @@ def test_episode_judges_apply_their_margins_relative_to_the_reference():
         (_figures(handle_held=False), False),
         (_figures(door_opening_at_arc_end_rad=late), False),
     ]:
-        ok, _ = grader._judge_impedance(refs | {"student:impedance": {"figures": student}})
+        ok, _ = verdicts._judge_impedance(refs | {"student:impedance": {"figures": student}})
         assert ok is passes
     # A job without figures fails the test and says whose it was.
-    ok, text = grader._judge_impedance(refs | {"student:impedance": {"error": "boom"}})
+    ok, text = verdicts._judge_impedance(refs | {"student:impedance": {"error": "boom"}})
     assert not ok and "your code" in text and "boom" in text
 
 

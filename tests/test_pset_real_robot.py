@@ -17,7 +17,7 @@ from doorlab.config import Scenario
 from doorlab.constants import Q_HOME
 from doorlab.errors import ConfigError, SafetyStop
 from doorlab.hardware.link import DriverLink
-from doorlab.pset.seedapi import SeedJointSpacePlan, StationRun
+from doorlab.pset.station_api import ProblemSetJointSpacePlan, StationRun
 
 Q0 = Q_HOME + np.array([0.1, 0.1, 0.0, 0.2, 0.0, 0.0, 0.0])
 Q_START = Q0 + 0.1
@@ -25,7 +25,7 @@ Q_START = Q0 + 0.1
 
 def plans():
     knots = np.column_stack([Q_START, Q_START + 0.05])
-    return [SeedJointSpacePlan(PiecewisePolynomial.FirstOrderHold([0.0, 1.0], knots))]
+    return [ProblemSetJointSpacePlan(PiecewisePolynomial.FirstOrderHold([0.0, 1.0], knots))]
 
 
 def station() -> StationRun:

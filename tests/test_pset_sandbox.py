@@ -193,7 +193,7 @@ os._exit(0)
     for rel in ("doorlab/__init__.py", "doorlab/pset/__init__.py"):
         (folder / rel).parent.mkdir(parents=True, exist_ok=True)
         (folder / rel).write_text(forge)
-    for name in ("worker", "jobs", "checks", "grader", "channel", "student", "seedapi"):
+    for name in ("worker", "jobs", "checks", "grader", "channel", "student", "station_api"):
         (folder / "doorlab" / "pset" / f"{name}.py").write_text(forge)
     results = grade(folder, only=ATTACKED, reference=reference)
     assert results["score"] == 0, _pretty(results)

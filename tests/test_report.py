@@ -71,8 +71,8 @@ def printed_tolerance(text: str) -> float:
     return 0.5 * 10 ** max(digits - 3, 0)
 
 
-def test_experiments_are_the_seed_set():
-    """EXPERIMENTS holds the seed's eight runs with the right controller, doors and knots."""
+def test_experiments_are_the_problem_sets_set():
+    """EXPERIMENTS holds the problem set's eight runs with the right controller, doors and knots."""
     expected = {
         "ik_2_open": ("ik", "open", 2),
         "ik_5_open": ("ik", "open", 5),
@@ -190,7 +190,7 @@ def test_answers_exist_for_the_questions_with_data(report):
     velocity, ik = (metrics[n]["max_radial_error_m"] for n in ("velocity_open", "ik_2_open"))
     # The comparison follows the numbers' actual order, and a contradiction is said plainly.
     assert ("times smaller than" in t2q1) == (velocity < ik)
-    assert ("contradicts the seed" in t2q1) == (velocity >= ik)
+    assert ("contradicts the problem set" in t2q1) == (velocity >= ik)
     t2q2 = answer(page, "t2q2")
     assert 'data-run="velocity_closed" data-key="door_opening_arc_end_rad"' in t2q2
     for qid in ("t3q1", "t3q2"):

@@ -29,7 +29,7 @@ def _section(page: str) -> str:
 
 
 def test_robustness_cases_cover_the_registry_and_reuse_identical_runs():
-    """Every registry controller on every acceptance yaw error, doors closed; the seed's
+    """Every registry controller on every acceptance yaw error, doors closed; the problem set's
     closed-door runs are reused at yaw 0 and nothing else is run twice."""
     experiments = make_experiments()
     cases, new = make_robustness_cases(None, experiments)
@@ -106,13 +106,13 @@ def test_section_prints_the_folders_metrics_and_embeds_its_figures():
 def test_failing_robustness_runs_do_not_fail_the_report(tmp_path: Path, monkeypatch):
     """A robustness run that fails (here: rejected by validate() in the worker) shows in the
     section and leaves the exit code at 0; robustness=False writes no section."""
-    from doorlab.report import RobustnessCase, experiments
+    from doorlab.report import RobustnessCase, runner
 
     broken = short_scenario()
     broken.controller = "teleport"
     case = RobustnessCase("robust_broken", "velocity", math.radians(5.0))
     monkeypatch.setattr(
-        experiments,
+        runner,
         "make_robustness_cases",
         lambda base, given: ((case,), (("robust_broken", broken),)),
     )

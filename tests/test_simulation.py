@@ -16,7 +16,7 @@ from doorlab.simulation import PLAN_SETTLE_TIME, EpisodeResult, PlanRunner, make
 Q_START = Q_HOME + 0.1
 
 
-def seed_schedule(scenario: Scenario):
+def problem_set_schedule(scenario: Scenario):
     grasp = JointSpacePlan.hold(Q_START, scenario.timeline.grasp_duration, name="grasp")
     arc = JointSpacePlan.hold(Q_START, scenario.timeline.arc_duration, name="arc")
     return make_schedule(
@@ -25,8 +25,9 @@ def seed_schedule(scenario: Scenario):
 
 
 def test_default_schedule_is_the_originals_timeline():
-    """Hold 0-2 s, move 2-9 s, grasp 9-11 s, arc 11-22 s (10 s + 1 s): the seed's t = 11 s."""
-    schedule = seed_schedule(Scenario())
+    """Hold 0-2 s, move 2-9 s, grasp 9-11 s, arc 11-22 s (10 s + 1 s): the problem set's
+    t = 11 s."""
+    schedule = problem_set_schedule(Scenario())
     assert [s.plan.name for s in schedule] == ["hold", "move_to_start", "grasp", "arc"]
     assert [s.t_start for s in schedule] == [0.0, 2.0, 9.0, 11.0]
     assert schedule[-1].t_end == 22.0
@@ -37,7 +38,7 @@ def test_default_schedule_is_the_originals_timeline():
 
 def test_move_plan_joins_the_initial_and_start_configurations_at_rest():
     """The cubic move starts at q_initial and ends at q_start with zero velocity at both."""
-    move = seed_schedule(Scenario())[1].plan
+    move = problem_set_schedule(Scenario())[1].plan
     traj = move.trajectory
     np.testing.assert_allclose(traj.value(traj.start_time()).ravel(), Q_HOME, atol=1e-12)
     np.testing.assert_allclose(traj.value(traj.end_time()).ravel(), Q_START, atol=1e-12)
@@ -48,7 +49,7 @@ def test_move_plan_joins_the_initial_and_start_configurations_at_rest():
 def test_plan_runner_picks_the_active_plan_in_any_order():
     """At each boundary the next plan takes over; after the schedule the last plan holds;
     asking for an earlier time (e.g. a re-initialized simulator) steps back."""
-    schedule = seed_schedule(Scenario())
+    schedule = problem_set_schedule(Scenario())
     runner = PlanRunner(schedule, control_period=0.005)
     names = [runner.active(t).plan.name for t in (0.0, 1.999, 2.0, 9.0, 10.99, 11.0, 30.0)]
     assert names == ["hold", "hold", "move_to_start", "grasp", "grasp", "arc", "arc"]

@@ -76,7 +76,7 @@ class AdaptivePlan:
         velocity_lead: Per-joint lead (7,) [s]: q_ref = q + q_dot * velocity_lead. The
             stiffness inner loop reaches a joint speed w in steady state only with
             q_ref - q = (Dq / Kq) w, and q_ref is held over a period while q moves on, so
-            the lead is Dq / Kq + dt / 2 there (:func:`velocity_lead`); the seed's velocity
+            the lead is Dq / Kq + dt / 2 there (:func:`velocity_lead`); the problem set's velocity
             plan uses dt and gets about half its commanded speed, which its position
             feedback hides, and this plan has none along the tangent.
     """

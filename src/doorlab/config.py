@@ -26,7 +26,7 @@ from doorlab.errors import ConfigError
 from doorlab.inputs import load_yaml, quote, quote_text, read_text_file, yaml_float_spelling
 
 CONTROLLERS = ("ik", "velocity", "impedance", "adaptive")
-"""Names of the door-opening controllers: the seed's tasks 1-3, then the adaptive plan."""
+"""Names of the door-opening controllers: the problem set's tasks 1-3, then the adaptive plan."""
 DOOR_STATES = tuple(DOOR_ANGLES)
 INNER_LOOPS = ("stiffness", "implicit_pd", "inverse_dynamics")
 IK_OBJECTIVES = ("feasible", "centered")
@@ -39,7 +39,7 @@ MAX_CUPBOARD_YAW_ERROR = math.pi / 4
 
 MAX_EPISODE_DURATION = 600.0
 """Longest timeline [s]: the sum of its durations (hold, approach, grasp, arc, extra_time; each
-plan also settles 1 s). 25x the seed's 24 s episode: the logs are kept in memory, and every
+plan also settles 1 s). 25x the problem set's 24 s episode: the logs are kept in memory, and every
 metric, plot and replay covers the whole episode; a longer one is surely a typo."""
 MIN_TIME_STEP = 1e-5
 """Finest ``station.time_step`` [s]: 200x finer than the original's 2 ms (the default episode
@@ -59,15 +59,15 @@ the fingers no longer close on it."""
 
 @dataclass
 class InnerLoopConfig:
-    """The robot's joint-level controller (the seed's "robot controller").
+    """The robot's joint-level controller (the problem set's "robot controller").
 
-    ``stiffness`` is the seed's law tau = Kq (q_ref - q) - Dq qdot + g(q) + tau_ff: the spring,
-    g(q) and tau_ff are one explicit torque per step (C++ systems), the damping is the joints'
-    own viscous damping, integrated implicitly by the plant. ``implicit_pd`` is the same law
+    ``stiffness`` is the problem set's law tau = Kq (q_ref - q) - Dq qdot + g(q) + tau_ff: the
+    spring, g(q) and tau_ff are one explicit torque per step (C++ systems), the damping is the
+    joints' own viscous damping, integrated implicitly by the plant. ``implicit_pd`` is the same law
     through the plant's PD actuators (the design before issue 9, kept for comparison: slower,
     same physics). ``inverse_dynamics`` is the original station's PID through M(q).
 
-    What ``dq`` means: the seed's (and the PD actuators') Dq. The damping that acts is
+    What ``dq`` means: the problem set's (and the PD actuators') Dq. The damping that acts is
     Dq dq_scale + h Kq, h = ``station.time_step``: SAP evaluates a PD actuator's spring at the
     step's end, q_{n+1} = q_n + h v_{n+1}, which adds h Kq of damping (0.02 to the damping
     ratio at the defaults' 20 rad/s and 2 ms); the ``stiffness`` loop keeps that term, now
@@ -140,7 +140,7 @@ class StationConfig:
     # [rad] The TRUE cupboard is the believed one (at cupboard_position) turned by this angle
     # about the left handle's vertical axis (positive: counter-clockwise seen from above). The
     # handle stays where the plans believe it is, the hinge does not (10 deg moves it 4.7 cm);
-    # the seed's plans follow the believed arc, metrics use the true one.
+    # the problem set's plans follow the believed arc, metrics use the true one.
     cupboard_yaw_error: float = 0.0
     hinge_damping: float = 1.0  # [N m s/rad]
     friction: float = 1.0  # Coulomb friction of fingers and handle [-]
@@ -174,7 +174,7 @@ class IkConfig:
     """Pointwise IK (task 1) and the one-shot IK to the handle."""
 
     knots: int = 10  # knot points along the arc, >= 2
-    # "feasible": the seed's IK, any pose within the tolerances; "centered": the exact pose
+    # "feasible": the problem set's IK, any pose within the tolerances; "centered": the exact pose
     # within them (knots then carry no error of their own).
     objective: str = "feasible"
     position_tolerance: float = 0.001  # [m] box half-width around each arc point
@@ -204,8 +204,9 @@ class ImpedancePlanConfig:
     torque_limit: float = 20.0  # [N m] clip on tau_ff (the original's)
 
 
-SEED_SWEEP_DEG = math.degrees(math.radians(50.0) - math.atan2(0.041, 0.264))
-"""The seed's door rotation over the arc, angle_end - theta0 = 41.17 deg (station facts §4)."""
+PLAN_SWEEP_DEG = math.degrees(math.radians(50.0) - math.atan2(0.041, 0.264))
+"""The problem set's door rotation over the arc, angle_end - theta0 = 41.17 deg (station facts
+§4)."""
 
 
 @dataclass
@@ -216,7 +217,7 @@ class AdaptivePlanConfig:
     its own estimate of the door angle reaches ``target_angle``.
     """
 
-    target_angle: float = SEED_SWEEP_DEG  # [deg] door rotation to open, estimated online
+    target_angle: float = PLAN_SWEEP_DEG  # [deg] door rotation to open, estimated online
     speed: float = 0.022  # [m/s] Q's planned speed along the estimated tangent
     ramp_time: float = 1.5  # [s] the speed ramps up from 0 over this time (smoothstep)
     approach_gain: float = 3.0  # [1/s] speed <= this x the estimated arc length left
@@ -392,8 +393,9 @@ def _validate_timeline(scenario: Scenario) -> None:
     _check(
         total <= MAX_EPISODE_DURATION,
         f"the timeline's durations ({', '.join(f'timeline.{n}' for n in durations)}) add up "
-        f"to {quote(total)} s; at most {MAX_EPISODE_DURATION:g} s (25x the seed's episode: the "
-        "logs are kept in memory and every metric, plot and replay covers the whole episode)",
+        f"to {quote(total)} s; at most {MAX_EPISODE_DURATION:g} s (25x the problem set's "
+        "episode: the logs are kept in memory and every metric, plot and replay covers the "
+        "whole episode)",
     )
     _check(
         time_step <= timeline.control_period,

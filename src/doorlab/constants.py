@@ -1,4 +1,4 @@
-"""Named constants with units and sources (station facts, KUKA data sheet, the seed)."""
+"""Named constants with units and sources (station facts, KUKA data sheet, the problem set)."""
 
 from __future__ import annotations
 

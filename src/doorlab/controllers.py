@@ -1,7 +1,7 @@
 """The registry of the door-opening controllers and the episode each one runs.
 
 Each controller turns a scenario into the arc plan and the configuration it starts from;
-:func:`run_controller` wraps it in the seed's episode: close the gripper on the handle at
+:func:`run_controller` wraps it in the problem set's episode: close the gripper on the handle at
 the start configuration, then follow the arc.
 """
 
@@ -41,7 +41,7 @@ class ArcPlan:
 
 @dataclass(frozen=True)
 class Controller:
-    """A registered controller: its CLI name, the seed's task number and a builder."""
+    """A registered controller: its CLI name, the problem set's task number and a builder."""
 
     name: str
     task: int
@@ -155,7 +155,7 @@ REGISTRY: dict[str, Controller] = {
         ),
     )
 }
-"""Controllers by CLI name, in the seed's task order, then the adaptive plan."""
+"""Controllers by CLI name, in the problem set's task order, then the adaptive plan."""
 
 
 def get_controller(name: str) -> Controller:
@@ -172,7 +172,7 @@ def get_controller(name: str) -> Controller:
 def run_controller(
     scenario: Scenario, *, meshcat: Meshcat | None = None, realtime_rate: float = 0.0
 ) -> tuple[EpisodeResult, ArcPlan]:
-    """Runs the scenario's controller through one episode (the seed's task cell).
+    """Runs the scenario's controller through one episode (the problem set's task cell).
 
     Returns:
         The episode logs and the arc plan that ran.
@@ -189,7 +189,7 @@ def run_controller(
 
 
 def episode_plans(scenario: Scenario) -> tuple[list[Plan], list[float], ArcPlan]:
-    """The seed's task cell as plans, for either cell: close the gripper on the handle at the
+    """The problem set's task cell as plans, for either cell: close the gripper on the handle at the
     arc plan's start configuration, then the arc plan.
 
     Returns:

@@ -20,8 +20,8 @@ def main() -> int:
 
     previous = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
     try:
-        from doorlab.cli import install_signal_handlers
         from doorlab.cli import main as cli_main
+        from doorlab.interrupts import install_signal_handlers
 
         install_signal_handlers()
     finally:

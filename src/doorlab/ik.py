@@ -4,11 +4,11 @@ Solver: SNOPT (shipped in the drake wheel), a sparse SQP that handles the nonlin
 and orientation constraints directly and converges in a few milliseconds from a warm start;
 IPOPT is the fallback if SNOPT is not available. Each knot is warm-started from the previous
 solution and a small quadratic cost keeps it near that solution, so the knots form a
-continuous branch of the arm's redundancy (no elbow flips between knots). The seed's
+continuous branch of the arm's redundancy (no elbow flips between knots). The problem set's
 tolerances are hard constraints. Optionally (``centered``) costs on the position and
 orientation error pick the exact pose inside them, so a knot's own error becomes negligible
-next to the interpolation between knots; the seed's problem (and the default along the arc)
-accepts any pose within the tolerances.
+next to the interpolation between knots; the problem set's formulation (and the default along
+the arc) accepts any pose within the tolerances.
 """
 
 from __future__ import annotations
@@ -89,7 +89,7 @@ def solve_ik(
         position_tolerance: Half-width of the position box [m].
         theta_bound: Orientation bound [rad].
         centered: Also minimize the pose error inside the tolerances. False solves the
-            seed's feasibility problem: any pose inside them (the solver stops near the
+            problem set's feasibility problem: any pose inside them (the solver stops near the
             guess, typically on the tolerance boundary).
         knot: Knot index, for the error message.
 
@@ -149,7 +149,7 @@ def pointwise_ik(
         num_knots: Number of knots (>= 2).
         q_guess: Initial guess of the first knot (7,) [rad].
         position_tolerance: [m]. theta_bound: [rad].
-        centered: See :func:`solve_ik`. The default (False) is the seed's problem.
+        centered: See :func:`solve_ik`. The default (False) is the problem set's formulation.
 
     Raises:
         IkError: A knot has no solution.

@@ -1,6 +1,6 @@
 """How doorlab's processes leave on a signal, so that every way out cleans up.
 
-In the ``doorlab`` process (:func:`doorlab.cli.install_signal_handlers`), Ctrl-C raises
+In the ``doorlab`` process (:func:`install_signal_handlers`), Ctrl-C raises
 KeyboardInterrupt and SIGTERM/SIGHUP raise :class:`doorlab.errors.Interrupted`, so one
 ``except``/``finally`` path removes staging folders and stops workers. Two places must not be
 cut short by that exception: :func:`deferred_signals` holds a signal back over a few steps
@@ -22,6 +22,8 @@ import signal
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
+
+from doorlab.errors import Interrupted
 
 INTERRUPTS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 """The signals doorlab turns into an exception (and its workers into a quiet exit)."""
@@ -138,3 +140,16 @@ def stop_processes(processes, *, grace_s: float = 2.0) -> None:
             except OSError:
                 pass
             process.join(timeout=grace_s)
+
+
+def _raise_interrupted(signum: int, frame) -> None:
+    raise Interrupted(signum)
+
+
+def install_signal_handlers() -> None:
+    """SIGTERM and SIGHUP raise :class:`doorlab.errors.Interrupted` (a KeyboardInterrupt), so
+    they leave through the same clean-up as Ctrl-C (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for signum in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(signum, _raise_interrupted)

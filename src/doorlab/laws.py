@@ -43,7 +43,7 @@ def orientation_error(R_WL7: RotationMatrix, R_WL7_ref: RotationMatrix) -> np.nd
 def pose_error(
     p_WQ: np.ndarray, R_WL7: RotationMatrix, p_WQ_ref: np.ndarray, R_WL7_ref: RotationMatrix
 ) -> PoseError:
-    """The seed's errors: e_xyz = p_WQ_ref - p_WQ and theta n of R_L7L7r, in W."""
+    """The problem set's errors: e_xyz = p_WQ_ref - p_WQ and theta n of R_L7L7r, in W."""
     return PoseError(
         theta_n_W=orientation_error(R_WL7, R_WL7_ref),
         e_xyz_W=np.asarray(p_WQ_ref, dtype=float) - np.asarray(p_WQ, dtype=float),

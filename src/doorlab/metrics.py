@@ -2,16 +2,16 @@
 
 Tracking errors are taken over the arc window (the 10 s of the arc in the episode timeline):
 
-- radial error of Q: horizontal distance from the hinge axis minus r_handle [m] (the seed's
+- radial error of Q: horizontal distance from the hinge axis minus r_handle [m] (the problem set's
   ``CalcRadialTrackingError``), signed, positive outside the arc;
 - orientation error of L7: the angle of R_WL7^T R_WL7_ref(tau) [rad], tau = (t - t0) / T;
 
-both from the MEASURED joint positions (what the robot did) and, as the seed's plots did, from
-the COMMANDED ones (q_ref). Forward kinematics uses the controllers' model of the arm.
+both from the MEASURED joint positions (what the robot did) and, as the problem set's plots did,
+from the COMMANDED ones (q_ref). Forward kinematics uses the controllers' model of the arm.
 
 Door metrics (left door, opening measured from its angle at the arc's start, positive):
 
-- at the arc's END, t = arc_window[1] (the primary figure: the seed's arc takes 10 s, and a
+- at the arc's END, t = arc_window[1] (the primary figure: the problem set's arc takes 10 s, and a
   plan that trails it may still creep open in the hold afterwards);
 - at the episode's end;
 - the largest LAG of the door behind the arc plan during the arc, max over the arc window of

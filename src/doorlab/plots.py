@@ -1,4 +1,4 @@
-"""Plots of an episode's logs: the seed's figures, one function per figure.
+"""Plots of an episode's logs: the problem set's figures, one function per figure.
 
 Every function takes result objects (:class:`~doorlab.simulation.EpisodeResult`,
 :class:`~doorlab.metrics.Tracking`) and RETURNS a :class:`matplotlib.figure.Figure`; none of
@@ -432,10 +432,10 @@ def save_run_plots(
     *,
     kinematics: Kinematics | None = None,
 ) -> list[Path]:
-    """Writes the seed's plots of one run as PNG files in ``out_dir``.
+    """Writes the problem set's plots of one run as PNG files in ``out_dir``.
 
     The error and path plots show both the forward kinematics of the measured joint
-    positions ("measured q") and of the commanded ones ("commanded q_ref", as the seed did).
+    positions ("measured q") and of the commanded ones ("commanded q_ref", as the problem set did).
 
     Args:
         result: The episode's logs.

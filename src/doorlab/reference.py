@@ -3,7 +3,7 @@
 Source: issue 12 of the doorlab tracker ("Fidelity: the iiwa's reflected motor inertia, the door
 at the arc's end, and the original station as the reference"). The 2019 problem-set code was run
 again offline on drake 1.42.0 (the last release with the C++ ``ManipulationStation``) with the
-official ``drake_models`` files, the seed's eight experiments, the seed's control laws, the
+official ``drake_models`` files, the problem set's eight experiments and control laws, the
 original inverse-dynamics PID inner loop and the 2 ms step. Radial and orientation errors are
 from the measured q over the arc, t = 11-21 s; the door angle is taken at t = 21 s (the arc's
 end); the contact torque is the peak over the arc.

@@ -1,7 +1,7 @@
 """Robustness to an unknown hinge: every controller against the cupboard's yaw error.
 
 The true cupboard is the believed one turned by ``station.cupboard_yaw_error`` about the
-left handle's vertical axis (:func:`doorlab.geometry.true_door_geometry`). The seed's plans
+left handle's vertical axis (:func:`doorlab.geometry.true_door_geometry`). The problem set's plans
 follow the believed arc; the adaptive plan estimates the hinge. This module
 
 - runs a controller on a yaw error and reduces the episode to one :class:`RobustnessRow`
@@ -12,7 +12,7 @@ follow the believed arc; the adaptive plan estimates the hinge. This module
   :func:`plot_robustness`, :func:`plot_hinge_convergence`) without re-running anything.
 
 "Opens" means: status ok, the door turned by at least :data:`OPEN_THRESHOLD_DEG` by the arc's
-end (t = 21 s of the seed's timeline), and the handle is still between the fingers at the
+end (t = 21 s of the problem set's timeline), and the handle is still between the fingers at the
 episode's end.
 """
 

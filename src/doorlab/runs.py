@@ -1,6 +1,6 @@
 """Run one scenario and write its output folder atomically.
 
-A run folder holds ``metrics.json``, ``log.npz``, the seed's plots as PNG and ``replay.html``
+A run folder holds ``metrics.json``, ``log.npz``, the problem set's plots as PNG and ``replay.html``
 (a self-contained 3-D replay). It is assembled in a hidden temporary folder beside the target
 and renamed into place at the end, so a folder either appears complete or not at all.
 """

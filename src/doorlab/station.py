@@ -17,7 +17,7 @@ outputs
 
 The inner loop is built from Drake's C++ systems only (no Python per simulation step):
 
-- ``stiffness`` (the seed's law) tau = Kq (q_ref - q) - Dq qdot + g(q) + tau_ff: the spring
+- ``stiffness`` (the problem set's law) tau = Kq (q_ref - q) - Dq qdot + g(q) + tau_ff: the spring
   and g(q) from a ``JointStiffnessController`` (kd = 0) on the controller plant, plus tau_ff,
   clamped at the effort limits (``Saturation``), one explicit torque per step; the damping
   -(Dq + h Kq) qdot is the arm joints' own viscous damping, which SAP integrates implicitly

@@ -1,4 +1,4 @@
-"""The 2019 problem set on doorlab: the seed notebook's API, the student folder, the grader.
+"""The 2019 problem set on doorlab: the 2019 notebook's API, the student folder, the grader.
 
 ``doorlab pset init DIR [--solutions]`` writes the folder (:func:`doorlab.pset.folder.init_folder`);
 ``doorlab pset grade DIR`` grades it (:func:`doorlab.pset.grader.grade`);

@@ -430,8 +430,9 @@ def run_autograder(root: Path, *, jobs: int | None = None) -> dict:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -I -m doorlab.pset.autograder [--root ROOT] [--jobs N] [--check]``."""
-    from doorlab.cli import OneLineParser, bounded_int, install_signal_handlers
+    from doorlab.argtypes import OneLineParser, bounded_int
     from doorlab.errors import interrupt_exit_code
+    from doorlab.interrupts import install_signal_handlers
 
     parser = OneLineParser(
         prog="run_autograder", description="Grade a Gradescope submission with doorlab."

@@ -1,6 +1,6 @@
 """The grader's unit tests, on the trusted side.
 
-Each test draws its inputs here (the seed is printed, so a result can be reproduced), asks
+Each test draws its inputs here (the random seed is printed, so a result can be reproduced), asks
 the student's process (:class:`~doorlab.pset.student.StudentProcess`) for the student's
 outputs, validates them (:mod:`doorlab.pset.channel`) and compares them with doorlab's
 reference, computed here. Nothing the student's process holds can see or change the
@@ -27,7 +27,7 @@ from doorlab.ik import pointwise_ik
 from doorlab.laws import orientation_error
 from doorlab.pset.channel import ProtocolError, as_array
 from doorlab.pset.episodes import trajectory_from_answer
-from doorlab.pset.seedapi import ArmKinematics
+from doorlab.pset.station_api import ArmKinematics
 from doorlab.pset.student import StudentProcess
 from doorlab.station import make_controller_plant
 
@@ -343,7 +343,7 @@ def _check_law(student: StudentProcess, kind: str) -> dict:
         lines.append(f"... and {len(wrong) - SHOWN_DRAWS} more draws wrong")
     ok = len(lines) == 1
     if ok:
-        lines.append(f"{cls}.{method} matches the seed's equation on every draw")
+        lines.append(f"{cls}.{method} matches the problem set's equation on every draw")
     return _result(ok, lines)
 
 
@@ -403,7 +403,7 @@ def _knot_problems(case: dict, q_knots: np.ndarray, kin: ArmKinematics) -> list[
             elif np.abs(X @ p_Q - position(i / n)).max() <= tol + IK_POSITION_SLACK:
                 hint = "; it is at tau = i / num_knot_points: use i / (num_knot_points - 1)"
             elif np.abs(X @ p_Q - g.p_WQ_ref(tau)).max() <= tol + IK_POSITION_SLACK:
-                hint = "; it follows the seed's arc: use the InterpolatePosition argument"
+                hint = "; it follows the problem set's arc: use the InterpolatePosition argument"
             elif err <= DEFAULT_POSITION_TOLERANCE + IK_POSITION_SLACK:
                 hint = "; within the default 5 mm: pass position_tolerance to the constraint"
             else:

@@ -1,6 +1,6 @@
 """The grader's episodes, simulated on the trusted side.
 
-A student episode is the seed's task cell for one controller, but the simulation runs
+A student episode is the problem set's task cell for one controller, but the simulation runs
 here: for task 1 the student's process only returns its IK (knots and trajectory, as
 numbers); for tasks 2 and 3 the student's plan lives in the student's process and is asked
 for its command at every control tick (:class:`RemotePlan`, one round trip of
@@ -25,13 +25,13 @@ from doorlab.pset.channel import MAX_DEGREE, MAX_SEGMENTS, ProtocolError, as_arr
 from doorlab.pset.student import StudentProcess
 
 DOOR_OPEN = math.pi / 2 - 0.001
-"""The seed's open-door hinge angle [rad]."""
+"""The problem set's open-door hinge angle [rad]."""
 DOOR_CLOSED = 0.001
-"""The seed's closed-door hinge angle [rad]."""
+"""The problem set's closed-door hinge angle [rad]."""
 ARC_DURATION = 10.0
-"""The seed's arc plans' duration [s]."""
+"""The problem set's arc plans' duration [s]."""
 GRIPPER_WIDTH = 0.005
-"""The seed's finger setpoint while the plans run [m]."""
+"""The problem set's finger setpoint while the plans run [m]."""
 
 
 def trajectory_from_answer(
@@ -90,8 +90,8 @@ class RemotePlan:
     """A doorlab plan whose commands come from the student's plan, in the student's process,
     one round trip per control tick.
 
-    ``q_cmd`` (the seed's "last position command") is the q_ref sent at the previous tick
-    (the measured q at the first), as in :class:`doorlab.pset.seedapi.SeedPlanAdapter`.
+    ``q_cmd`` (the notebook's "last position command") is the q_ref sent at the previous tick
+    (the measured q at the first), as in :class:`doorlab.pset.station_api.ProblemSetPlanAdapter`.
     Every answer is checked: 14 finite values.
     """
 
@@ -106,7 +106,7 @@ class RemotePlan:
     def command(self, t: float, state):
         """The student's q_ref (7,) [rad] and tau_ff (7,) [N m] at t [s]."""
         from doorlab.plans import Command
-        from doorlab.pset.seedapi import StudentCodeError
+        from doorlab.pset.station_api import StudentCodeError
 
         q_cmd = state.q if self._q_cmd is None else self._q_cmd
         request = np.concatenate(
@@ -157,8 +157,9 @@ def reference_episode(controller: str) -> dict:
 
 
 def grasp_configuration() -> np.ndarray:
-    """Where the task cell's plans 2 and 3 start: the seed's ``SolveOneShotIk`` at the handle,
-    L7 pitched by 3 pi / 4, from q_home (7,) [rad] (computed here, not by the student's copy)."""
+    """Where the task cell's plans 2 and 3 start: the 2019 notebook's ``SolveOneShotIk`` at the
+    handle, L7 pitched by 3 pi / 4, from q_home (7,) [rad] (computed here, not by the
+    student's copy)."""
     from doorlab.ik import solve_ik
     from doorlab.station import make_controller_plant
 
@@ -173,17 +174,17 @@ def grasp_configuration() -> np.ndarray:
 
 
 def student_episode(student: StudentProcess, controller: str) -> dict:
-    """The seed's task cell for one controller with the student's functions, simulated here:
+    """The problem set's task cell for one controller with the student's functions, simulated here:
     hold 2 s, move 7 s to the start, hold 1 (+1) s, the arc plan (10 + 1 s), 2 s more."""
     from dataclasses import replace
 
     from doorlab.plans import JointSpacePlan
-    from doorlab.pset.seedapi import seed_scenario
+    from doorlab.pset.station_api import problem_set_scenario
     from doorlab.simulation import run_episode
 
     doors = "closed" if controller == "impedance" else "open"
     angle = DOOR_CLOSED if controller == "impedance" else DOOR_OPEN
-    scenario = seed_scenario(
+    scenario = problem_set_scenario(
         Scenario(), [-angle, angle], extra_time=2.0, gripper_setpoint_initial=0.025
     )
     period = scenario.timeline.control_period

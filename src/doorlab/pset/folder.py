@@ -62,7 +62,7 @@ _RULES = {
     "changing q_cmd, v_iiwa, tau_iiwa or control_period alone must not change the answer",
     "Task 1 episode: IK with 10 knots, doors open": "Q's max radial error along the arc at "
     "most the reference's + {ik_margin:.2f} mm; Q ends the arc within {arc_end:.0f} deg of "
-    "the reference (Q's angle about the hinge is the seed's theta, measured from W's y "
+    "the reference (Q's angle about the hinge is the notebook's theta, measured from W's y "
     "axis, not the door's opening, which counts from the closed door)",
     "Task 2 episode: velocity plan, doors open": "Q's max radial error below the reference "
     "pointwise IK's (10 knots); L7's orientation error at most the reference's + "

@@ -189,7 +189,7 @@ def _order(jobs: set[str]) -> list[str]:
 
 def supervise(request: dict) -> dict:
     """Runs the request's jobs and returns the Gradescope results (or ``{"grader_error"}``)."""
-    from doorlab.pset.grader import TESTS, results_from_jobs
+    from doorlab.pset.verdicts import TESTS, results_from_jobs
 
     folder = Path(request["folder"])
     only = request.get("only")

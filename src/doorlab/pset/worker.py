@@ -43,8 +43,8 @@ def _preload() -> None:
     import doorlab.frames  # noqa: F401
     import doorlab.geometry  # noqa: F401
     import doorlab.ik  # noqa: F401
-    import doorlab.pset.seedapi  # noqa: F401
-    import doorlab.pset.seedtools  # noqa: F401
+    import doorlab.pset.station_api  # noqa: F401
+    import doorlab.pset.task_helpers  # noqa: F401
 
 
 class AnswerError(Exception):

@@ -1,10 +1,12 @@
-"""The seed's experiment set, run in parallel, and one self-contained HTML page answering it.
+"""The problem set's experiment set, run in parallel, and one self-contained HTML page answering it.
 
-- :mod:`doorlab.report.experiments`: :data:`EXPERIMENTS` and :func:`run_report` (the runs
-  through :mod:`doorlab.executor`, locally or on a Dask cluster);
+- :mod:`doorlab.report.experiments`: the experiment set as data (:data:`EXPERIMENTS`, the
+  robustness grid, :class:`RunRecord`);
+- :mod:`doorlab.report.runner`: :func:`run_report` (the runs through :mod:`doorlab.executor`,
+  locally or on a Dask cluster, then the page);
 - :mod:`doorlab.report.folders`: reading run folders (metrics, logs, trackings);
 - :mod:`doorlab.report.context`, :mod:`doorlab.report.answers` and
-  :mod:`doorlab.report.closed_door`: the seed's six questions
+  :mod:`doorlab.report.closed_door`: the problem set's six questions
   and answers GENERATED from the measured metrics; :mod:`doorlab.report.robustness_page`:
   the robustness section (every controller against the cupboard's yaw error);
 - :mod:`doorlab.report.page`: ``index.html`` from the Jinja2 templates in
@@ -23,10 +25,10 @@ from doorlab.report.experiments import (
     RunRecord,
     make_experiments,
     make_robustness_cases,
-    run_report,
 )
 from doorlab.report.folders import CONTROLLER_COLORS, discover_runs
 from doorlab.report.page import build_page
+from doorlab.report.runner import run_report
 
 __all__ = [
     "CONTROLLER_COLORS",

@@ -1,4 +1,4 @@
-"""The seed's six questions and their answers, GENERATED from the measured metrics and logs.
+"""The problem set's six questions and their answers, GENERATED from the measured metrics and logs.
 
 Each answer function takes the :class:`~doorlab.report.context.AnswerPage` and returns
 (figures HTML, answer HTML); the page template places them under the quoted question.
@@ -66,7 +66,7 @@ QUESTIONS: tuple[tuple[str, int, str], ...] = (
         "tracking error?",
     ),
 )
-"""The seed's six questions, quoted: (id, task, text)."""
+"""The problem set's six questions, quoted: (id, task, text)."""
 
 TASK_TITLES = {
     1: "Task 1: pointwise IK and a cubic joint spline",
@@ -108,8 +108,8 @@ def _answer_t1q1(page: AnswerPage) -> tuple[str, str]:
             else float("nan")
         )
         text += (
-            f"<p>From the commanded q_ref alone (what the seed plotted) the max radial errors are "
-            f"{cmd}: the measured and commanded maxima differ by at most "
+            "<p>From the commanded q_ref alone (what the problem set plotted) the max radial "
+            f"errors are {cmd}: the measured and commanded maxima differ by at most "
             f"{span(format_number(100 * share))} %, so "
             + (
                 "the error is the plan's own: between knots the cubic spline interpolates joint "
@@ -279,7 +279,7 @@ def _answer_t2q1(page: AnswerPage) -> tuple[str, str]:
         ]
         if v is not None and not larger:
             text += (
-                "<p>This agrees with the seed's hint (the error should be smaller): the "
+                "<p>This agrees with the problem set's hint (the error should be smaller): the "
                 "velocity plan closes the loop on Q's task-space error at every control "
                 "step, q_dot = J<sup>+</sup> (K<sub>w</sub> &theta; n, K<sub>v</sub> e), "
                 "so it follows the arc itself rather than a joint-space interpolation of "
@@ -287,8 +287,8 @@ def _answer_t2q1(page: AnswerPage) -> tuple[str, str]:
             )
         elif larger:
             text += (
-                '<p class="contradiction">This contradicts the seed\'s hint: here the velocity '
-                "plan's max radial error is not smaller than that of "
+                '<p class="contradiction">This contradicts the problem set\'s hint: here the '
+                "velocity plan's max radial error is not smaller than that of "
                 + ", ".join(html.escape(ik.label) for ik in larger)
                 + ".</p>"
             )
@@ -326,13 +326,13 @@ def _answer_t2q2(page: AnswerPage) -> tuple[str, str]:
             if spread < ispread:
                 text += (
                     "The velocity plan's error is smaller and more consistent along the arc, as "
-                    "the seed's hint says: there are no knots, the error is corrected "
+                    "the problem set's hint says: there are no knots, the error is corrected "
                     "continuously, and what remains varies slowly (the inner loop's lag and the "
                     "arm's changing configuration).</p>"
                 )
             else:
                 text += (
-                    '</p><p class="contradiction">This contradicts the seed\'s hint: the '
+                    '</p><p class="contradiction">This contradicts the problem set\'s hint: the '
                     "velocity plan's error along the arc does not vary less than that of "
                     f"{html.escape(ref.label)} here.</p>"
                 )

@@ -1,6 +1,6 @@
 """The simulated station: the iiwa 7, the WSG-50 gripper and the cupboard (doorlab's cell)."""
 
-from doorlab.pset.seedapi import StationRun, shared_meshcat
+from doorlab.pset.station_api import StationRun, shared_meshcat
 
 
 class ManipulationStationSimulator:

@@ -42,7 +42,7 @@ MAX_PLOT_POINTS = 1000
 
 
 def door_constants() -> dict:
-    """The seed's door constants from the model: hinge and handle (3,) [m], radius [m],
+    """The problem set's door constants from the model: hinge and handle (3,) [m], radius [m],
     initial handle angle and arc-end angle [rad]."""
     g = default_door_geometry()
     return {

@@ -1,13 +1,13 @@
-"""The 2019 problem set's API (``ManipulationStationSimulator``, seed-style plans, VectorLog-like
+"""The 2019 problem set's API (``ManipulationStationSimulator``, problem-set plans, VectorLog-like
 logs) implemented on doorlab's station, timeline and plan runner.
 
 The problem-set folder written by ``doorlab pset init`` keeps the original file names; its
 files subclass or call what is defined here, so a student reads short files. Nothing here is
 student code: the five student functions live in the folder.
 
-A *seed-style plan* has ``duration`` and ``CalcPositionCommand(q_iiwa, q_cmd, v_iiwa,
+A *problem-set plan* has ``duration`` and ``CalcPositionCommand(q_iiwa, q_cmd, v_iiwa,
 tau_iiwa, t_plan, control_period)`` / ``CalcTorqueCommand(...)`` (same arguments);
-:class:`SeedPlanAdapter` turns one into a doorlab :class:`~doorlab.plans.Plan`.
+:class:`ProblemSetPlanAdapter` turns one into a doorlab :class:`~doorlab.plans.Plan`.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ class StudentCodeError(RuntimeError):
 
 
 class VectorLogView:
-    """What the seed reads from a Drake ``VectorLog``: ``data()`` (channels x samples) and
+    """What the 2019 notebook reads from a Drake ``VectorLog``: ``data()`` (channels x samples) and
     ``sample_times()`` (samples,) [s]."""
 
     def __init__(self, t: np.ndarray, data: np.ndarray):
@@ -86,35 +86,35 @@ def _checked(value, what: str, t_plan: float) -> np.ndarray:
     return array
 
 
-class SeedPlanAdapter:
-    """A doorlab plan around a seed-style plan: the plan runner's tick calls the seed plan's
-    ``CalcPositionCommand`` and ``CalcTorqueCommand`` with the seed's arguments.
+class ProblemSetPlanAdapter:
+    """A doorlab plan around a problem-set plan: the plan runner's tick calls the plan's
+    ``CalcPositionCommand`` and ``CalcTorqueCommand`` with the notebook's arguments.
 
-    ``q_cmd`` (the seed's "last position command") is the q_ref this adapter sent at the
+    ``q_cmd`` (the notebook's "last position command") is the q_ref this adapter sent at the
     previous tick (the measured q at the first tick). Commands are checked: a wrong shape or a
     non-finite value raises :class:`StudentCodeError` naming the method and time.
     """
 
-    def __init__(self, seed_plan, control_period: float, *, name: str | None = None):
-        self.seed_plan = seed_plan
-        self.name = name or type(seed_plan).__name__
-        self.duration = float(seed_plan.duration)
+    def __init__(self, plan, control_period: float, *, name: str | None = None):
+        self.plan = plan
+        self.name = name or type(plan).__name__
+        self.duration = float(plan.duration)
         self.control_period = control_period
         self._q_cmd: np.ndarray | None = None
 
     def command(self, t: float, state: ArmState) -> Command:
-        """Asks the seed plan for q_ref (7,) [rad] and tau_ff (7,) [N m] at t [s]."""
+        """Asks the plan for q_ref (7,) [rad] and tau_ff (7,) [N m] at t [s]."""
         from doorlab.plans import Command
 
         q_cmd = state.q if self._q_cmd is None else self._q_cmd
         args = (state.q, q_cmd.copy(), state.v, state.tau_external, t, self.control_period)
-        q_ref = _checked(self.seed_plan.CalcPositionCommand(*args), "CalcPositionCommand", t)
-        tau_ff = _checked(self.seed_plan.CalcTorqueCommand(*args), "CalcTorqueCommand", t)
+        q_ref = _checked(self.plan.CalcPositionCommand(*args), "CalcPositionCommand", t)
+        tau_ff = _checked(self.plan.CalcTorqueCommand(*args), "CalcTorqueCommand", t)
         self._q_cmd = q_ref
         return Command(q_ref, tau_ff)
 
 
-class SeedPlanBase:
+class ProblemSetPlanBase:
     """The original's ``PlanBase``: a plan with ``duration`` [s] and the two command methods
     (hold the measured position, no feedforward torque unless overridden)."""
 
@@ -135,7 +135,7 @@ class SeedPlanBase:
         return _ZERO.copy()
 
 
-class SeedJointSpacePlan(SeedPlanBase):
+class ProblemSetJointSpacePlan(ProblemSetPlanBase):
     """q_ref = trajectory(t_plan), clamped to the trajectory's time span."""
 
     def __init__(self, trajectory: PiecewisePolynomial):
@@ -171,7 +171,7 @@ class ArmKinematics:
         )
 
 
-class SeedTaskSpacePlanBase(SeedPlanBase):
+class ProblemSetTaskSpacePlanBase(ProblemSetPlanBase):
     """The original's ``IiwaTaskSpacePlan``: kinematics and tracking errors of Q and L7.
 
     The reference of Q is relative to where Q is when the plan starts (``p_WQ_0``):
@@ -225,14 +225,14 @@ class SeedTaskSpacePlanBase(SeedPlanBase):
         return self.R_WL7.inverse() @ self.calc_R_WL7_ref(tau)
 
 
-def seed_scenario(
+def problem_set_scenario(
     base: Scenario,
     door_angles: Sequence[float],
     *,
     extra_time: float,
     gripper_setpoint_initial: float,
 ) -> Scenario:
-    """``base`` with the seed's ``RunSimulation`` arguments: the (left, right) hinge angles
+    """``base`` with the 2019 notebook's ``RunSimulation`` arguments: the (left, right) hinge angles
     [rad], the time simulated after the last plan [s] and the initial finger separation [m]
     (validated)."""
     scenario = replace(
@@ -249,7 +249,7 @@ def seed_scenario(
 
 
 class StationRun:
-    """The seed's ``RunSimulation``, on doorlab's station and timeline."""
+    """The problem set's ``RunSimulation``, on doorlab's station and timeline."""
 
     def __init__(self, scenario: Scenario | None = None):
         self.scenario = scenario or Scenario()
@@ -269,7 +269,7 @@ class StationRun:
         meshcat: Meshcat | None,
         gripper_setpoint_initial: float,
     ) -> tuple:
-        """Runs the plans after the original's hold and move-to-start; returns the seed's
+        """Runs the plans after the original's hold and move-to-start; returns the problem set's
         six outputs (four arm logs, the plant-position log, plan start times (k + 3,) [s])."""
         if not plan_list:
             raise ConfigError("plan_list is empty: give at least one plan")
@@ -281,7 +281,7 @@ class StationRun:
             )
         from doorlab.simulation import run_episode
 
-        scenario = seed_scenario(
+        scenario = problem_set_scenario(
             self.scenario,
             door_angles,
             extra_time=extra_time,
@@ -289,7 +289,7 @@ class StationRun:
         )
         self.last_scenario = scenario
         period = scenario.timeline.control_period
-        plans = [SeedPlanAdapter(p, period) for p in plan_list]
+        plans = [ProblemSetPlanAdapter(p, period) for p in plan_list]
         result = run_episode(
             scenario,
             plans,
@@ -324,7 +324,7 @@ class StationRun:
         yes: bool = False,
         link=None,
     ) -> tuple:
-        """The seed's ``RunRealRobot``: the same plans on the real arm over LCM, through the
+        """The problem set's ``RunRealRobot``: the same plans on the real arm over LCM, through the
         path of ``doorlab run --hardware`` (:mod:`doorlab.hardware`), from where the arm is.
 
         It waits ``wait`` [s] for the driver on ``lcm_url`` (default: Drake's), prints the plan
@@ -364,7 +364,7 @@ class StationRun:
         if not yes and input("Move the arm? [y/N] ").strip().lower() not in ("y", "yes"):
             raise ConfigError("not confirmed: nothing moved")
         period = scenario.timeline.control_period
-        plans = [SeedPlanAdapter(p, period) for p in plan_list]
+        plans = [ProblemSetPlanAdapter(p, period) for p in plan_list]
         widths = [float(w) for w in gripper_setpoint_list]
         outcome = run_hardware_episode(
             scenario, plans, widths, q_start=q_start, link=link, wait=wait
