@@ -22,6 +22,7 @@ import sys
 import zipfile
 from pathlib import Path
 
+import pset_fixtures
 import pytest
 
 import doorlab
@@ -71,6 +72,15 @@ def root(tmp_path_factory, zip_path) -> Path:
     ).stdout.strip()
     Path(purelib, "doorlab_test_dependencies.pth").write_text("\n".join(site.getsitepackages()))
     return root
+
+
+@pytest.fixture(scope="module")
+def reference_args(tmp_path_factory) -> tuple[str, ...]:
+    """``--reference FILE``: the session's reference episodes (``pset_fixtures``), so the
+    gradings after the first full one simulate only the student's episodes."""
+    path = tmp_path_factory.mktemp("reference") / "results.json"
+    path.write_text(json.dumps({"extra_data": {"reference": pset_fixtures.reference()}}))
+    return ("--reference", str(path))
 
 
 def _run(root: Path, *args: str) -> subprocess.CompletedProcess:
@@ -308,9 +318,9 @@ def test_run_autograder_gives_a_correct_submission_full_marks(root):
     assert f"Total score: {FULL_MARKS:g} / {FULL_MARKS:g}" in proc.stdout
 
 
-def test_run_autograder_gives_the_stubs_zero(root):
+def test_run_autograder_gives_the_stubs_zero(root, reference_args):
     _submit(root, init_folder)
-    proc = _run(root, *JOBS)
+    proc = _run(root, *JOBS, *reference_args)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     results = _results(root)
     assert results["score"] == 0
@@ -358,9 +368,9 @@ def _cheating_submission(folder: Path) -> None:
         path.write_text(_CHEAT + path.read_text())
 
 
-def test_run_autograder_gives_a_cheating_submission_zero(root):
+def test_run_autograder_gives_a_cheating_submission_zero(root, reference_args):
     _submit(root, _cheating_submission)
-    proc = _run(root, *JOBS)
+    proc = _run(root, *JOBS, *reference_args)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     results = _results(root)
     assert "json.py" in results["output"]  # not used: only the student files are

@@ -347,11 +347,11 @@ def collect_submission(submission: Path, folder: Path) -> Submission:
     return result
 
 
-def _grade(folder: Path, jobs: int) -> dict:
+def _grade(folder: Path, jobs: int, reference: dict[str, dict] | None) -> dict:
     """The one call into the grader (its public entry point), kept here alone."""
     from doorlab.pset.grader import grade
 
-    return grade(folder, jobs=jobs)
+    return grade(folder, jobs=jobs, reference=reference)
 
 
 def read_settings(root: Path) -> dict:
@@ -389,12 +389,17 @@ def check(root: Path) -> str:
     return f"doorlab {__version__} (Drake {metadata.version('drake')}) is ready to grade"
 
 
-def run_autograder(root: Path, *, jobs: int | None = None) -> dict:
+def run_autograder(
+    root: Path, *, jobs: int | None = None, reference: dict[str, dict] | None = None
+) -> dict:
     """Grades ``root/submission`` and writes ``root/results/results.json``.
 
     Args:
         root: Gradescope's ``/autograder`` (or a stand-in).
         jobs: Tests run at a time (default: the zip's setting).
+        reference: The reference episodes' figures of an earlier grading by this doorlab
+            (:func:`doorlab.pset.grader.load_reference`; rehearsals only: saves 3 episodes);
+            None (Gradescope) simulates them in this grading.
 
     Returns:
         The results written (Gradescope's format).
@@ -415,7 +420,7 @@ def run_autograder(root: Path, *, jobs: int | None = None) -> dict:
     with tempfile.TemporaryDirectory(prefix="doorlab_autograder_") as tmp:
         folder = init_folder(Path(tmp) / "pset")  # the stubs; the student's files go over them
         taken = collect_submission(submission, folder)
-        results = _grade(folder, jobs or int(settings.get("jobs", 1)))
+        results = _grade(folder, jobs or int(settings.get("jobs", 1)), reference)
     header = f"Graded by doorlab {__version__} (Drake {metadata.version('drake')})."
     results["output"] = "\n".join(filter(None, [header, taken.summary()]))
     results.setdefault("extra_data", {})["submission"] = {
@@ -429,7 +434,8 @@ def run_autograder(root: Path, *, jobs: int | None = None) -> dict:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -I -m doorlab.pset.autograder [--root ROOT] [--jobs N] [--check]``."""
+    """``python -I -m doorlab.pset.autograder [--root ROOT] [--jobs N] [--reference FILE]
+    [--check]``."""
     from doorlab.argtypes import OneLineParser, bounded_int
     from doorlab.errors import interrupt_exit_code
     from doorlab.interrupts import install_signal_handlers
@@ -445,6 +451,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("--jobs", type=bounded_int(1), default=None, help="tests at a time")
     parser.add_argument(
+        "--reference",
+        type=Path,
+        default=None,
+        metavar="RESULTS_JSON",
+        help="rehearsals: reuse the reference episodes of an earlier grading's results",
+    )
+    parser.add_argument(
         "--check", action="store_true", help="only check the installation (setup.sh's last step)"
     )
     args = parser.parse_args(argv)
@@ -453,7 +466,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.check:
             print(f"setup.sh: {check(args.root)}")
             return 0
-        results = run_autograder(args.root, jobs=args.jobs)
+        reference = None
+        if args.reference is not None:
+            from doorlab.pset.grader import load_reference
+
+            reference = load_reference(args.reference)
+        results = run_autograder(args.root, jobs=args.jobs, reference=reference)
     except DoorlabError as e:
         print(f"run_autograder: error: {e}", file=sys.stderr)
         return 1
