@@ -10,6 +10,7 @@ already listed. Runs that produced no metrics (ik_failed, diverged, error) have 
 from __future__ import annotations
 
 import dataclasses
+import io
 import os
 import tempfile
 import typing
@@ -104,6 +105,13 @@ def write_table(frame: pd.DataFrame, out_dir: Path) -> None:
 
 
 def read_table(out_dir: Path) -> pd.DataFrame | None:
-    """The results table in ``out_dir``, or None if there is none."""
+    """The results table in ``out_dir``, or None if there is none.
+
+    The file is read in one go: pyarrow opens a path once for the footer and again for the
+    data, so a table replaced in between (a running sweep writes it after every run) would
+    mix two files ("Couldn't deserialize thrift").
+    """
     path = Path(out_dir) / RESULTS_PARQUET
-    return pd.read_parquet(path) if path.is_file() else None
+    if not path.is_file():
+        return None
+    return pd.read_parquet(io.BytesIO(path.read_bytes()))
