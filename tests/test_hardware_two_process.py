@@ -2,33 +2,36 @@
 (a port of each test's own, tests/lcm_fixtures.py), in real time: the velocity and impedance
 plans against the same episode simulated in one process, and the faults.
 
-How far two processes may be from one: by the latency the LCM path adds to each command. In
-one process the plan's command, computed at its tick from the plant as it stands, acts from
-the first plant step after the tick. Over LCM it acts later by
+How far two processes may be from one: by when each command acts. In one process the plan's
+command, computed at its tick from the plant as it stands, acts from the first plant step after
+the tick. ``doorlab sim-driver`` keeps that timing (doorlab.hardware.sim_driver): a status at
+slot t_k reports the plant after the step at t_k, and a command that arrives before the next
+plant step's read (1 or 2 ms after the status) acts from that step. One that arrives later
+(the client's answer, two trips over loopback, and the three processes' scheduling on 2 cores)
+acts a plant step h = 2 ms later; the driver counts those (driver.json:
+``iiwa_command_delay_mean_s``, delta, the mean over the commands applied).
 
-    delta = answer + h + h / 2
+A command delta late adds, to first order, joint damping Kq delta: the inner loop's spring
+Kq (q(t - delta) - q(t)) = -Kq delta qdot (the impedance plan sends q_ref = q, the velocity plan
+q_ref = q + qdot dt). Dq = Kq x 10 ms on every joint (config.InnerLoopConfig), so delta is
+worth dq_scale = 1 + delta / 10 ms. The radial-error tolerances are the changes of the
+one-process run's figures under that damping (a second one-process run) plus ``MODEL_MARGIN``
+of them (below), plus ``RADIAL_FLOOR``: with no late command (test_hardware_wiring.py, on
+memq) the two paths differ by up to 0.52 um (the driver's clamp of q_home's joint 4 in the
+hold), so 1 um.
 
-- ``answer``: the client's time from a status's arrival to its command (measured by the
-  client: ``answer_p99_ms`` in metrics.json, the 99th percentile, as a bound);
-- ``h`` (the plant step, 2 ms): the driver reads the bus once per simulator step, and the read
-  before a plant step happens before its wait for the wall clock, so a command that arrives
-  during that wait acts one plant step later (doorlab sim-driver at 7e3a441: "a command read
-  after the plant step at t_n latches at t_n and acts from the step at t_n + h");
-- ``h / 2``: a status at a plant step's time reports the plant before that step's update,
-  which the one-process plan already sees: half the statuses are a step older.
-
-A command computed from a state delta old adds, to first order, joint damping Kq delta: the
-inner loop's spring Kq (q(t - delta) - q(t)) = -Kq delta qdot (the impedance plan sends
-q_ref = q, the velocity plan q_ref = q + qdot dt). Dq = Kq x 10 ms on every joint
-(config.InnerLoopConfig), so delta is worth dq_scale + delta / 10 ms. The tolerances are the
-changes of the one-process run's figures under that damping (a second one-process run): Q's
-radial error, max and RMS over the arc; the door's angle at the arc's end within the issue's
-1 deg, or that change where it is larger. The impedance plan, whose q_ref = q has nothing but
-the damping to work against, moves its door by about 0.9 deg per millisecond of delta: with
-the driver's h + h / 2 (3 ms) alone it cannot stay within 1 deg (measured: 1.6-2.7 deg). The
-velocity plan, which commands positions, is within 0.02 deg. Measured with a driver that reads
-the bus just before each plant step and reports the plant after its update (both h terms
-gone): the impedance door 0.2-0.65 deg from the one-process run's.
+The door at the arc's end: within the issue's 1 deg, or, where delta is larger than that
+allows, within the damping's change plus ``MODEL_MARGIN`` of it. The velocity plan commands
+positions and stays within 0.01 deg whatever delta. The impedance plan, whose q_ref = q has
+nothing but the damping to work against, moves its door by 0.94 deg per millisecond of delta
+(one-process runs at delta = 0.5, 1, 1.66, 2 ms); measured over LCM on this 2-core host: the
+client answers a status in 1.0-1.4 ms (median; its plan tick and checks in Python), so most
+commands miss the 1 ms a status between two plant steps leaves, delta = 1.64-1.66 ms, and the
+door is +1.76 and +1.99 deg from the one-process run's in two runs, where the damping model
+gives +1.54-1.56 deg (13 % and 29 % less: it is first order, and the delays are 0, 1 or 2
+plant steps, not their mean), hence a margin of 50 % (the impedance plan's max radial error
+likewise: +1.09 mm against the model's +0.89 mm). On a host where the client answers
+within about 0.8 ms, delta falls under 1 ms and the door within 1 deg.
 
 The timelines are shortened before the arc (hold 0.5 s, move 3 s) where a property does not
 need the whole episode; the arc keeps its 10 s. These are real-time runs of three processes on
@@ -64,10 +67,13 @@ from doorlab.hardware.ground_truth import GROUND_TRUTH_FILE, GroundTruth
 from doorlab.hardware.protocol import START_COMMAND_GUARD
 from doorlab.safety import SafetyLimits, check_command
 
+pytestmark = pytest.mark.realtime  # runs alone under pytest-xdist (conftest.py)
+
 PRE_ARC = ["timeline.hold_duration=0.5", "timeline.approach_duration=3.0"]
-PLANT_STEP = 0.002  # [s] the driver's (and the in-process run's) plant time step
-DRIVER_DELAY = 1.5 * PLANT_STEP  # [s] h + h / 2: what doorlab sim-driver adds (docstring)
 DAMPING_TIME = 0.010  # [s] Dq / Kq of every joint (config.InnerLoopConfig)
+DOOR_TOLERANCE = 1.0  # [deg] the issue's bound on the door at the arc's end
+MODEL_MARGIN = 0.5  # the damping model's first-order error, measured 13-29 % (docstring)
+RADIAL_FLOOR = 1e-6  # [m] the two paths' difference with no late command (docstring)
 
 
 def scenario(controller: str, sets=PRE_ARC) -> Scenario:
@@ -164,23 +170,25 @@ def test_two_processes_open_the_door_as_one(lcm_url, tmp_path, controller):  # n
     assert metrics["status"] == "ok" and metrics["fingers_on_handle"]
     assert gt.wsg_width[-1] > 0.0075  # still on the 10 mm handle at the end
 
-    # The tolerances: the one-process run's change under the damping the delay adds.
-    delta = 1e-3 * metrics["link"]["answer_p99_ms"] + DRIVER_DELAY
+    # The tolerances: the one-process run's change under the damping the late commands add.
+    facts = json.loads((gt_dir / "driver.json").read_text())
+    delta = facts["iiwa_command_delay_mean_s"]
     damped_result, damped = in_process(controller, dq_scale=1.0 + delta / DAMPING_TIME)
     t0 = log.status_time[0]  # the client's t = 0 on the driver's clock
     i_end = ground_truth_at(gt, t0 + log.arc_window[1])
     j_end = int(np.argmin(np.abs(reference.t - reference.arc_window[1])))
     door = math.degrees(gt.door_angles[i_end, 0] - reference.door_angles[j_end, 0])
-    door_tolerance = max(
-        1.0,
-        math.degrees(abs(damped_result.door_angles[j_end, 0] - reference.door_angles[j_end, 0])),
-    )
+    late = facts["iiwa_commands_late"] / facts["iiwa_commands_applied"]
+    model = math.degrees(damped_result.door_angles[j_end, 0] - reference.door_angles[j_end, 0])
+    door_tolerance = max(DOOR_TOLERANCE, (1 + MODEL_MARGIN) * abs(model))
     print(
-        f"{controller}: delta {1e3 * delta:.2f} ms, door {door:+.3f} deg (<= {door_tolerance:.3f})"
+        f"{controller}: {late:.1%} of the commands late, delta {1e3 * delta:.3f} ms, "
+        f"door {door:+.3f} deg (damping model {model:+.3f}, tolerance {door_tolerance:.3f})"
     )
-    assert abs(door) <= door_tolerance, (door, door_tolerance, delta)
+    assert abs(door) <= door_tolerance, (door, model, delta)
     for key in ("max_radial_error_m", "rms_radial_error_m"):
-        tolerance = abs(getattr(damped, key) - getattr(ref_metrics, key))
+        change = abs(getattr(damped, key) - getattr(ref_metrics, key))
+        tolerance = (1 + MODEL_MARGIN) * change + RADIAL_FLOOR
         difference = abs(metrics[key] - getattr(ref_metrics, key))
         print(f"  {key}: {1e3 * difference:.4f} mm (<= {1e3 * tolerance:.4f} mm)")
         assert difference <= tolerance, (key, metrics[key], getattr(ref_metrics, key), delta)

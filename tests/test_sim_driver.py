@@ -31,7 +31,8 @@ from doorlab.hardware.protocol import (
     WSG_STATUS_CHANNEL,
     resolve_lcm_url,
 )
-from doorlab.hardware.sim_driver import SimDriver, add_sim_driver
+from doorlab.hardware.sim_cell import STATUS_DELAY, add_sim_driver
+from doorlab.hardware.sim_driver import SimDriver
 from doorlab.runs import write_manifest
 
 H = 0.002
@@ -64,9 +65,9 @@ class InProcessCell:
         return lambda data: messages.append(lcm_type.decode(data))
 
     def advance(self, t: float):
-        """Advances to t [s] and delivers what the driver published at t (memq delivers a
-        message at the next poll)."""
-        status = self.simulator.AdvanceTo(t)
+        """Advances to just past t [s] and delivers what the driver published up to then (a
+        status at t goes out STATUS_DELAY later; memq delivers a message at the next poll)."""
+        status = self.simulator.AdvanceTo(t + STATUS_DELAY)
         self.lcm.HandleSubscriptions(0)
         return status
 
@@ -110,11 +111,12 @@ def test_command_acts_from_the_next_plant_step_and_is_held():
     assert np.all(truth.tau_feedforward[before] == 0)
     assert np.all(truth.tau_feedforward[after] == tau)
     # The plant steps at 0.020 and 0.022: the first that sees the command is 0.022, whose
-    # result is the state from 0.022 on (the log sample at a step's time precedes the step).
+    # result is the state from 0.022 on (the truth at a step's time follows the step, as the
+    # status at that time does).
     first_step = math.ceil(t_read / H) * H
-    unmoved = truth.t <= first_step + 1e-9
+    unmoved = truth.t < first_step - 1e-9
     assert np.abs(truth.q_measured[unmoved, 0]).max() < 1e-15  # at rest: round-off only
-    assert truth.q_measured[np.searchsorted(truth.t, first_step + 0.001), 0] > 1e-5
+    assert truth.q_measured[np.searchsorted(truth.t, first_step - 1e-9), 0] > 1e-5
     # The status at 20 ms (before the read) reports the old command, the next one the new.
     assert cell.status_at(20000).joint_position_commanded[0] == 0.0
     assert cell.status_at(25000).joint_position_commanded[0] == 0.1

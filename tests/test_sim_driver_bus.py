@@ -30,6 +30,8 @@ from doorlab.hardware.protocol import (
     WSG_STATUS_PERIOD,
 )
 
+pytestmark = pytest.mark.realtime  # runs alone under pytest-xdist (conftest.py)
+
 STARTUP_TIMEOUT = 90.0
 """Seconds to wait for the driver's first status (Python and pydrake start-up on a busy
 machine: about 3 s idle)."""

@@ -13,6 +13,8 @@ The simulated driver (``doorlab sim-driver``):
 
 - :mod:`doorlab.hardware.protocol`: channels, rates, utime semantics, the start guard, the
   driver's limits, the LCM URL check and a loopback test.
-- :mod:`doorlab.hardware.sim_driver`: doorlab's simulated cell behind that protocol
-  (``doorlab sim-driver``), as a process or as systems added to a diagram.
+- :mod:`doorlab.hardware.sim_cell`: doorlab's simulated cell behind that protocol, as
+  systems added to a diagram (its timing matches an episode in one process).
+- :mod:`doorlab.hardware.sim_driver`: that cell as a process (``doorlab sim-driver``), paced
+  to real time, with its ground truth.
 """

@@ -28,7 +28,8 @@ class GroundTruth:
     """What the simulated cell did, sampled every log period (named channels).
 
     Attributes:
-        t: Sample times (n,) [s], simulation time (a status at t carries utime t * 1e6).
+        t: Sample times (n,) [s], simulation time: the cell just after the plant step at t,
+            as the status at t (utime t * 1e6) reports it.
         utime: The utime a status at t carries (n,) [us] (-1 in the warm-up).
         plant_state: The whole plant's [q; v] (n, nx). plant_positions: Its q (n, nq).
         q_measured: Arm joint positions (n, 7) [rad]. v_measured: Their rates (n, 7) [rad/s].

@@ -92,7 +92,14 @@ def serve(
         f"doorlab sim-driver: {outcome.status} at t = {outcome.sim_time_s:.3f} s: "
         f"{facts['iiwa_statuses_sent']} statuses sent, {facts['iiwa_commands_received']} iiwa "
         f"and {facts['wsg_commands_received']} gripper commands read, real-time rate "
-        f"{outcome.realtime_rate:.3f}" + (f"; ground truth in {out}" if out is not None else ""),
+        f"{outcome.realtime_rate:.3f}"
+        + (
+            f"; {facts['iiwa_commands_late']} of {facts['iiwa_commands_applied']} iiwa commands "
+            "acted a plant step or more later than in one process"
+            if "iiwa_commands_late" in facts
+            else ""
+        )
+        + (f"; ground truth in {out}" if out is not None else ""),
         flush=True,
     )
     if outcome.status in ("aborted", "failed"):
