@@ -1,13 +1,115 @@
-"""Shared fixtures: full episodes are expensive (~3-5 s each), so each is run once per session."""
+"""Shared fixtures: full episodes are expensive (~3-5 s each), so each is run once per session.
+
+The suite runs on pytest-xdist's workers (``addopts`` in pyproject.toml: one per core, a test
+file per worker at a time). A test's real-time section (``with alone():``: LCM processes paced
+to the wall clock, with tolerances derived from their latency) runs alone: the other workers
+finish the test they are in and wait (a lock shared by the run's workers, below), so a
+real-time run never shares the cores with a simulation running as fast as it can.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import os
+import shutil
+import tempfile
 from functools import cache
+from pathlib import Path
 
 import pytest
+from shared_cache import RUN_DIR_ENV, run_dir
 
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    # The run's shared folder (tests/shared_cache.py, the locks below), made by the main
+    # process before pytest-xdist starts its workers, which inherit the variable.
+    if not hasattr(config, "workerinput") and RUN_DIR_ENV not in os.environ:
+        config._doorlab_run_dir = tempfile.mkdtemp(prefix="doorlab-pytest-")
+        os.environ[RUN_DIR_ENV] = config._doorlab_run_dir
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    folder = getattr(config, "_doorlab_run_dir", None)
+    if folder is not None:
+        shutil.rmtree(folder, ignore_errors=True)
+        os.environ.pop(RUN_DIR_ENV, None)
+
+
+class _RunLock:
+    """Under xdist, a lock shared by the run's workers: every test holds it shared; a test's
+    real-time section (the ``alone`` fixture) holds it alone.
+
+    The turnstile, taken before the main lock and dropped once that is held, makes a section
+    that waits for the main lock also stop new tests from taking it shared, so it gets it as
+    soon as the tests in progress end. A worker waits for the main lock only while holding
+    the turnstile and for the turnstile only while holding nothing: no deadlock.
+    """
+
+    def __init__(self, folder: Path):
+        self._lock = open(folder / "tests.lock", "a")  # held for the session
+        self._turnstile = open(folder / "turnstile.lock", "a")
+
+    def _take(self, mode: int) -> None:
+        fcntl.flock(self._turnstile, fcntl.LOCK_EX)
+        fcntl.flock(self._lock, mode)
+        fcntl.flock(self._turnstile, fcntl.LOCK_UN)
+
+    def shared(self) -> None:
+        self._take(fcntl.LOCK_SH)
+
+    def alone(self) -> None:
+        self.release()
+        self._take(fcntl.LOCK_EX)
+
+    def release(self) -> None:
+        fcntl.flock(self._lock, fcntl.LOCK_UN)
+
+
+def _run_lock(config: pytest.Config) -> _RunLock | None:
+    """This worker's lock (None when not under xdist: then nothing else runs)."""
+    folder = run_dir()
+    if not hasattr(config, "workerinput") or folder is None:
+        return None
+    if not hasattr(config, "_doorlab_run_lock"):
+        config._doorlab_run_lock = _RunLock(folder)
+    return config._doorlab_run_lock
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None):
+    """Setup, call and teardown of each test (module fixtures included) hold the lock shared."""
+    lock = _run_lock(item.config)
+    if lock is not None:
+        lock.shared()
+    try:
+        yield
+    finally:
+        if lock is not None:
+            lock.release()
+
+
+@pytest.fixture
+def alone(request):
+    """``with alone(): ...``: a real-time section (LCM processes paced to the wall clock,
+    tolerances derived from their latency) that runs while no other worker runs a test."""
+    lock = _run_lock(request.config)
+
+    @contextlib.contextmanager
+    def section():
+        if lock is None:
+            yield
+            return
+        lock.alone()
+        try:
+            yield
+        finally:
+            lock.release()
+            lock.shared()
+
+    return section
 
 
 @cache

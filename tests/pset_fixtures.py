@@ -21,6 +21,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
+from shared_cache import shared_text
 
 from doorlab.pset.folder import init_folder
 
@@ -164,6 +165,10 @@ def solutions_run() -> tuple[Path, subprocess.CompletedProcess]:
 
 @functools.cache
 def _reference() -> str:
+    return shared_text("pset_reference.json", _compute_reference)
+
+
+def _compute_reference() -> str:
     if notebook_path() is not None:
         folder, _ = solutions_run()
         data = json.loads((folder / "test_results.json").read_text())
