@@ -67,8 +67,6 @@ from doorlab.hardware.ground_truth import GROUND_TRUTH_FILE, GroundTruth
 from doorlab.hardware.protocol import START_COMMAND_GUARD
 from doorlab.safety import SafetyLimits, check_command
 
-pytestmark = pytest.mark.realtime  # runs alone under pytest-xdist (conftest.py)
-
 PRE_ARC = ["timeline.hold_duration=0.5", "timeline.approach_duration=3.0"]
 DAMPING_TIME = 0.010  # [s] Dq / Kq of every joint (config.InnerLoopConfig)
 DOOR_TOLERANCE = 1.0  # [deg] the issue's bound on the door at the arc's end
@@ -125,7 +123,7 @@ def ground_truth_at(gt: GroundTruth, t: float) -> int:
 
 
 @pytest.mark.parametrize("controller", ["velocity", "impedance"])
-def test_two_processes_open_the_door_as_one(lcm_url, tmp_path, controller):  # noqa: F811
+def test_two_processes_open_the_door_as_one(alone, lcm_url, tmp_path, controller):  # noqa: F811
     """The handle is held; the door at the arc's end and Q's radial error within the
     tolerances derived from the measured latency (module docstring); no command within
     0.25 s of the driver's first status (a listener's view)."""
@@ -133,7 +131,7 @@ def test_two_processes_open_the_door_as_one(lcm_url, tmp_path, controller):  # n
     for attempt in (1, 2):
         bus = listener(lcm_url)
         gt_dir, out = tmp_path / f"gt{attempt}", tmp_path / f"run{attempt}"
-        with sim_driver_process(lcm_url, "--doors", "closed", out=gt_dir) as driver:
+        with alone(), sim_driver_process(lcm_url, "--doors", "closed", out=gt_dir) as driver:
             bus.wait_for("IIWA_STATUS", timeout=60)
             run = client(lcm_url, out, controller)
             follow(run, bus)
@@ -194,14 +192,14 @@ def test_two_processes_open_the_door_as_one(lcm_url, tmp_path, controller):  # n
         assert difference <= tolerance, (key, metrics[key], getattr(ref_metrics, key), delta)
 
 
-def test_the_driver_killed_mid_arc_stops_the_client_within_0_2_s(lcm_url, tmp_path):  # noqa: F811
+def test_the_driver_killed_mid_arc_stops_the_client_within_0_2_s(alone, lcm_url, tmp_path):  # noqa: F811
     """SIGKILL the driver in the arc: the client exits 7 within 0.2 s of the last status, with
     the folder written (status driver_lost) and no command after that status."""
     for attempt in (1, 2):
         bus = listener(lcm_url)
         out = tmp_path / f"run{attempt}"
         killed = False
-        with sim_driver_process(lcm_url, "--doors", "closed") as driver:
+        with alone(), sim_driver_process(lcm_url, "--doors", "closed") as driver:
             bus.wait_for("IIWA_STATUS", timeout=60)
             run = client(lcm_url, out, "velocity")
             kill_at = None
@@ -232,18 +230,21 @@ def test_the_driver_killed_mid_arc_stops_the_client_within_0_2_s(lcm_url, tmp_pa
     assert log.arc_window[0] < log.t[-1] < log.arc_window[1]  # it stopped in the arc
 
 
-def test_no_driver_is_exit_7_within_the_wait_and_writes_nothing(lcm_url, tmp_path):  # noqa: F811
+def test_no_driver_is_exit_7_within_the_wait_and_writes_nothing(alone, lcm_url, tmp_path):  # noqa: F811
     """Timed from the client's "waiting" line (Python and Drake take a second to import)."""
     wait = 1.0
     command = [sys.executable, "-m", "doorlab.cli", "run", "--hardware", "--yes"]
     command += ["--lcm-url", lcm_url, "--wait", str(wait), "--out", str(tmp_path / "run")]
-    start = time.monotonic()
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    line = process.stdout.readline()
-    waiting = time.monotonic()
-    assert "waiting up to 1 s for IIWA_STATUS" in line
-    _, stderr = process.communicate(timeout=30)
-    done = time.monotonic()
+    with alone():
+        start = time.monotonic()
+        process = subprocess.Popen(
+            command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        line = process.stdout.readline()
+        waiting = time.monotonic()
+        assert "waiting up to 1 s for IIWA_STATUS" in line
+        _, stderr = process.communicate(timeout=30)
+        done = time.monotonic()
     assert process.returncode == 7
     assert done - waiting <= wait + 1.0, (done - waiting, done - start)
     (message,) = stderr.strip().splitlines()
@@ -251,13 +252,13 @@ def test_no_driver_is_exit_7_within_the_wait_and_writes_nothing(lcm_url, tmp_pat
     assert not any(tmp_path.iterdir())
 
 
-def test_a_command_over_a_limit_is_never_sent(lcm_url, tmp_path):  # noqa: F811
+def test_a_command_over_a_limit_is_never_sent(alone, lcm_url, tmp_path):  # noqa: F811
     """A position-gap bound the move's first steps break: exit 8 before the command is sent;
     every command a listener saw passes the limits against the status it answers, and none
     answers the status of the violation."""
     bus = listener(lcm_url)
     out = tmp_path / "run"
-    with sim_driver_process(lcm_url, "--doors", "closed") as driver:
+    with alone(), sim_driver_process(lcm_url, "--doors", "closed") as driver:
         bus.wait_for("IIWA_STATUS", timeout=60)
         run = client(lcm_url, out, "velocity", "--set", "station.safety.gap_time=0.0001")
         follow(run, bus)

@@ -30,8 +30,6 @@ from doorlab.hardware.protocol import (
     WSG_STATUS_PERIOD,
 )
 
-pytestmark = pytest.mark.realtime  # runs alone under pytest-xdist (conftest.py)
-
 STARTUP_TIMEOUT = 90.0
 """Seconds to wait for the driver's first status (Python and pydrake start-up on a busy
 machine: about 3 s idle)."""
@@ -81,7 +79,7 @@ def rate(messages, period: float, window: float = 0.5) -> float:
     return 1.0 / (period * wall_per_sim)
 
 
-def test_protocol_over_the_bus(lcm_url, tmp_path):  # noqa: F811
+def test_protocol_over_the_bus(alone, lcm_url, tmp_path):  # noqa: F811
     """Statuses decode with every field filled at 200 Hz (WSG 20 Hz); a client answering each
     status is applied by the next one, the last command is held; SIGTERM (exit 143) writes a
     ground truth that the statuses match sample for sample."""
@@ -100,7 +98,7 @@ def test_protocol_over_the_bus(lcm_url, tmp_path):  # noqa: F811
             sent.append((k, status.utime))
 
     listener.handlers.append(answer)
-    with sim_driver_process(lcm_url, out=out) as driver:
+    with alone(), sim_driver_process(lcm_url, out=out) as driver:
         listener.wait_for(IIWA_STATUS_CHANNEL, timeout=STARTUP_TIMEOUT)
         listener.poll(0.35)  # the client waits out the driver's 0.25 s start guard
         answering[0] = True
@@ -178,12 +176,12 @@ def test_protocol_over_the_bus(lcm_url, tmp_path):  # noqa: F811
     assert truth.q_measured[-1, 0] == pytest.approx(1e-4 * n_answered, abs=2e-4)
 
 
-def test_start_guard_aborts(lcm_url, tmp_path):  # noqa: F811
+def test_start_guard_aborts(alone, lcm_url, tmp_path):  # noqa: F811
     """A command right after the first status aborts the driver (exit 1) before it acts:
     the statuses stop, and the ground truth never saw the command."""
     listener = listener_for(lcm_url)
     out = tmp_path / "gt"
-    with sim_driver_process(lcm_url, out=out) as driver:
+    with alone(), sim_driver_process(lcm_url, out=out) as driver:
         listener.wait_for(IIWA_STATUS_CHANNEL, timeout=STARTUP_TIMEOUT)
         q = Q_HOME.copy()
         q[0] = 0.3
@@ -203,11 +201,11 @@ def test_start_guard_aborts(lcm_url, tmp_path):  # noqa: F811
     assert np.all(truth.q_commanded[:, 0] == 0.0) and np.all(truth.tau_feedforward == 0)
 
 
-def test_utime_warmup_and_sigint(lcm_url):  # noqa: F811
+def test_utime_warmup_and_sigint(alone, lcm_url):  # noqa: F811
     """--utime-warmup: utime -1 for the first 200 statuses (1 s), then the time in us;
     Ctrl-C (SIGINT) ends it with exit 130."""
     listener = listener_for(lcm_url)
-    with sim_driver_process(lcm_url, "--utime-warmup") as driver:
+    with alone(), sim_driver_process(lcm_url, "--utime-warmup") as driver:
         listener.wait_for(IIWA_STATUS_CHANNEL, timeout=STARTUP_TIMEOUT)
         statuses = listener.messages[IIWA_STATUS_CHANNEL]
         listener.poll(5.0, lambda: statuses[-1][1].utime >= 1_100_000)
