@@ -15,8 +15,9 @@ own (``udpm://239.255.76.67:PORT?ttl=0``, a random port):
 ``paced_idle``
     The same driver, the client listening only (no commands): what commands cost.
 ``no_tick``
-    The paced driver and client, the driver without its pacing tick (the C++ ZeroOrderHold
-    that starts a simulator step 1 us before each status): what the tick buys in timing.
+    The paced driver and client, the driver without its read and status ticks (the C++
+    ZeroOrderHolds that start a simulator step 1 us before each plant step and at each status
+    slot, ``doorlab.hardware.sim_cell``): what the ticks buy in timing.
 ``unpaced``
     ``SimDriver.run(duration=D, realtime_rate=0)`` with no client: the simulation's own cost
     of D seconds of the cell, the floor the paced CPU share is compared with.
@@ -29,6 +30,9 @@ Measured:
 - driver CPU share: the driver process's CPU time (``/proc/PID/stat``, user + system) between
   the client's first and last status, over that wall time [cores];
 - real-time rate: statuses sent (from utime) times 5 ms over the wall span they arrived in;
+- commands late: of the commands the driver applied, how many acted a plant step or more
+  later than in one process, and the mean delay (``driver.json``: the drivers record their
+  ground truth, ``--out``);
 - round trip: from sending command k to receiving the first status whose
   ``joint_position_commanded`` reports it (median, p99, max) [ms];
 - command interval: between consecutive commands sent (the client's jitter: median, std,
@@ -45,8 +49,10 @@ import json
 import os
 import platform
 import random
+import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -58,12 +64,19 @@ from common import CpuWatch, subprocess_env  # noqa: E402
 
 NO_TICK_SCRIPT = """
 import math, sys
-import doorlab.hardware.sim_driver as sd
+import json
+import doorlab.hardware.sim_cell as cell
+from doorlab.hardware.sim_driver import SimDriver
 from pydrake.systems.primitives import ZeroOrderHold
-sd.ZeroOrderHold = lambda period, size, offset_sec: ZeroOrderHold(1e9, size, offset_sec=1e9)
+def hold(period, size, offset_sec):  # the two ticks (size 1) never fire; the truth's hold does
+    if size == 1:
+        return ZeroOrderHold(1e9, 1, offset_sec=1e9)
+    return ZeroOrderHold(period, size, offset_sec=offset_sec)
+cell.ZeroOrderHold = hold
 from doorlab.config import Scenario
-driver = sd.SimDriver(Scenario(), lcm_url=sys.argv[1])
+driver = SimDriver(Scenario(), lcm_url=sys.argv[1], record=True)
 print(driver.run(duration=float(sys.argv[2])), flush=True)
+print("SUMMARY", json.dumps(driver.summary()), flush=True)
 """
 UNPACED_SCRIPT = """
 import sys, time
@@ -136,9 +149,10 @@ def run_client(variant: str, duration: float) -> dict:
 
     lcm.Subscribe("IIWA_STATUS", handle)
     env = subprocess_env()
+    scratch = Path(tempfile.mkdtemp(prefix="sim_driver_bench."))
     if variant in ("paced", "paced_idle"):
         command = [sys.executable, "-m", "doorlab.cli", "sim-driver", "--lcm-url", url]
-        command += ["--duration", str(duration)]
+        command += ["--duration", str(duration), "--out", str(scratch / "gt")]
     else:
         command = [sys.executable, "-c", NO_TICK_SCRIPT, url, str(duration)]
     watch = CpuWatch()
@@ -162,6 +176,11 @@ def run_client(variant: str, duration: float) -> dict:
     other = watch.other_cores()
     if driver.returncode != 0:
         raise RuntimeError(f"{variant}: the driver exited {driver.returncode}: {err[-300:]!r}")
+    if (scratch / "gt" / "driver.json").is_file():
+        facts = json.loads((scratch / "gt" / "driver.json").read_text())
+    else:
+        facts = json.loads(out.decode().split("SUMMARY", 1)[1])
+    shutil.rmtree(scratch, ignore_errors=True)
 
     received = np.array([s[0] for s in statuses])
     utimes = np.array([s[1] for s in statuses])
@@ -178,6 +197,9 @@ def run_client(variant: str, duration: float) -> dict:
         "statuses_received": len(statuses),
         "statuses_sent": int(utimes[-1] // 5000 + 1),
         "commands_sent": len(sent),
+        "commands_applied": facts["iiwa_commands_applied"],
+        "commands_late": facts["iiwa_commands_late"],
+        "command_delay_mean_ms": 1e3 * (facts["iiwa_command_delay_mean_s"] or 0.0),
         "realtime_rate": float((utimes[-1] - utimes[0]) * 1e-6 / span),
         "status_rate_hz": float((utimes[-1] - utimes[0]) / 5000 / span),
         "driver_cpu_share": (
@@ -219,7 +241,7 @@ def _median(runs: list[dict], *keys: str) -> float:
     for run in runs:
         value = run
         for key in keys:
-            value = value[key] if value is not None else None
+            value = value.get(key) if value is not None else None
         values.append(np.nan if value is None else value)
     return float(np.median(values))
 
@@ -236,17 +258,19 @@ def main(argv: list[str] | None = None) -> int:
             run = run_unpaced(args.duration) if variant == "unpaced" else None
             run = run or run_client(variant, args.duration)
             run["repeat"] = repeat
+            if run.get("commands_applied"):
+                run["late_fraction"] = run["commands_late"] / run["commands_applied"]
             runs.append(run)
             print(json.dumps(run), flush=True)
     by = {v: [r for r in runs if r["variant"] == v] for v in VARIANTS}
     busy = ", ".join(f"{r['other_cores']:.2f}" for r in runs if r["other_cores"] is not None)
     print(f"\n{args.repeats} repeats of {args.duration:g} s, medians (other cores busy: {busy})")
     print(
-        "| variant | CPU share [cores] | real-time rate | status Hz | round trip median / p99 / "
-        "max [ms] | command interval median / std / p1 / p99 / max [ms] | status interval "
-        "(same) [ms] |"
+        "| variant | CPU share [cores] | real-time rate | status Hz | commands late [%] / mean "
+        "delay [ms] | round trip median / p99 / max [ms] | command interval median / std / p1 "
+        "/ p99 / max [ms] | status interval (same) [ms] |"
     )
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|")
     for variant in ("paced", "paced_idle", "no_tick"):
         group = by[variant]
         rt = [_median(group, "round_trip_ms", k) for k in ("median", "p99", "max")]
@@ -259,6 +283,8 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"| {variant} | {_median(group, 'driver_cpu_share'):.3f} | "
             f"{_median(group, 'realtime_rate'):.4f} | {_median(group, 'status_rate_hz'):.2f} | "
+            f"{100 * _median(group, 'late_fraction'):.1f} / "
+            f"{_median(group, 'command_delay_mean_ms'):.2f} | "
             + " / ".join(f"{v:.2f}" for v in rt)
             + " | "
             + " / ".join(f"{v:.2f}" for v in ci)
@@ -269,7 +295,7 @@ def main(argv: list[str] | None = None) -> int:
     unpaced = _median(by["unpaced"], "cpu_per_sim_s")
     print(
         f"| unpaced (no client, as fast as possible) | {unpaced:.3f} CPU s per simulated s | "
-        f"{args.duration / _median(by['unpaced'], 'wall_s'):.1f} | | | | |"
+        f"{args.duration / _median(by['unpaced'], 'wall_s'):.1f} | | | | | |"
     )
     summary = {
         "date": datetime.datetime.now().isoformat(timespec="seconds"),
