@@ -59,9 +59,9 @@ pace; two C++ ticks (``ZeroOrderHold`` systems, no output used) place those step
 
 A command for the status at t_k therefore acts from the first plant step after t_k, as in
 one process, if it arrives before that step (1 ms for a status between two 2 ms steps, 2 ms
-for one on a step); later, it acts one plant step later. Python runs only per simulator call:
-during the start guard (0.25 s) a monitor per step checks the command count; after it one
-``AdvanceTo`` runs until the end (Drake checks for signals between steps).
+for one on a step); later, it acts a plant step (or more) later. Python runs only per
+simulator call: during the start guard (0.25 s) a monitor per step checks the command count;
+after it one ``AdvanceTo`` runs until the end (Drake checks for signals between steps).
 
 Add it to a diagram with :func:`add_sim_driver`, e.g. next to a client on one
 ``DrakeLcm("memq://")``, deterministic (no real-time pacing)::
