@@ -138,13 +138,7 @@ def plot_joint_log(log, legend: str, y_label: str) -> Figure:
     fig, axes = plt.subplots(len(data), 1, figsize=(8, 14), dpi=100, sharex=True)
     for i, (ax, signal) in enumerate(zip(np.atleast_1d(axes), data, strict=True)):
         ax.plot(t[idx], signal[idx], label=f"{legend}{i + 1}")
-        ax.set_ylabel(y_label)
-        ax.legend(loc="upper right")
-        ax.grid(True)
-    np.atleast_1d(axes)[-1].set_xlabel("t (s)")
-    fig.tight_layout()
-    plt.show()
-    return fig
+    return _show_joint_figure(fig, axes, y_label)
 
 
 def plot_position_logs(command_log, measured_log) -> Figure:
@@ -156,7 +150,13 @@ def plot_position_logs(command_log, measured_log) -> Figure:
     for i, ax in enumerate(np.atleast_1d(axes)):
         ax.plot(t[idx], q_cmd[i][idx], label=f"q_cmd@{i + 1}")
         ax.plot(t[idx], q[i][idx], label=f"q@{i + 1}")
-        ax.set_ylabel("degrees")
+    return _show_joint_figure(fig, axes, "degrees")
+
+
+def _show_joint_figure(fig: Figure, axes, y_label: str) -> Figure:
+    """Labels, legends and grids the per-joint subplots, then shows the figure once."""
+    for ax in np.atleast_1d(axes):
+        ax.set_ylabel(y_label)
         ax.legend(loc="upper right")
         ax.grid(True)
     np.atleast_1d(axes)[-1].set_xlabel("t (s)")

@@ -122,14 +122,19 @@ def _judge_ik(results: dict[str, dict]) -> tuple[bool, str]:
             f"max radial error of Q {_mm(s['max_radial_error_m'])} (bound {_mm(bound)} = the "
             f"reference's {_mm(r['max_radial_error_m'])} + {_mm(IK_RADIAL_MARGIN)})",
         ),
-        (
-            abs(s["q_end_angle_rad"] - r["q_end_angle_rad"]) <= ARC_END_MARGIN,
-            f"Q's angle about the hinge at the arc's end {_deg(s['q_end_angle_rad'])} "
-            f"(reference {_deg(r['q_end_angle_rad'])}, margin {_deg(ARC_END_MARGIN)})",
-        ),
+        _arc_end_check(s, r),
     ]
     passed, text = _combine(checks)
     return passed, f"{text}\n({_angle_zero(s, r)})"
+
+
+def _arc_end_check(s: dict, r: dict) -> tuple[bool, str]:
+    """Q's angle about the hinge at the arc's end, the student's (s) against the reference's (r)."""
+    return (
+        abs(s["q_end_angle_rad"] - r["q_end_angle_rad"]) <= ARC_END_MARGIN,
+        f"Q's angle about the hinge at the arc's end {_deg(s['q_end_angle_rad'])} "
+        f"(reference {_deg(r['q_end_angle_rad'])}, margin {_deg(ARC_END_MARGIN)})",
+    )
 
 
 def _judge_velocity(results: dict[str, dict]) -> tuple[bool, str]:
@@ -153,11 +158,7 @@ def _judge_velocity(results: dict[str, dict]) -> tuple[bool, str]:
             f"{o_bound:.4f} = the reference's {r['max_orientation_error_rad']:.4f} + "
             f"{VELOCITY_ORIENTATION_MARGIN})",
         ),
-        (
-            abs(s["q_end_angle_rad"] - r["q_end_angle_rad"]) <= ARC_END_MARGIN,
-            f"Q's angle about the hinge at the arc's end {_deg(s['q_end_angle_rad'])} "
-            f"(reference {_deg(r['q_end_angle_rad'])}, margin {_deg(ARC_END_MARGIN)})",
-        ),
+        _arc_end_check(s, r),
     ]
     passed, text = _combine(checks)
     return passed, f"{text}\n({_angle_zero(s, r)})"
