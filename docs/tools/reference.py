@@ -331,8 +331,11 @@ def scenario_markdown() -> str:
         if r.is_section:
             owner = classes[r.section]
             classes[r.name + "."] = typing.get_type_hints(owner)[r.name.rsplit(".", 1)[-1]]
+    first = {}  # depth first: a section right after its parent's fields
+    for i, r in enumerate(rows):
+        first.setdefault(r.section, i)
     out = []
-    for section, cls in classes.items():
+    for section, cls in sorted(classes.items(), key=lambda item: first.get(item[0], 0)):
         dotted = section.rstrip(".")
         title = f"`{dotted}`" if dotted else "The scenario (top level)"
         out.append(f"## {title} {{#{_anchor(dotted)}}}\n")
@@ -408,7 +411,7 @@ def _default(action: argparse.Action) -> str:
 
 
 def _usage(parser: argparse.ArgumentParser) -> str:
-    formatter = parser.formatter_class(prog=parser.prog, width=88)
+    formatter = parser.formatter_class(prog=parser.prog, width=80)
     formatter.add_usage(parser.usage, parser._actions, parser._mutually_exclusive_groups, "")
     return formatter.format_help().strip()
 
