@@ -76,11 +76,11 @@ class InnerLoopConfig:
     """
 
     kind: str = "stiffness"  # one of INNER_LOOPS
-    # Joint stiffness Kq [N m/rad] and damping Dq [N m s/rad], per joint (README, "Inner loop
-    # gains"), for the arm's joint inertia M_ii at the grasp pose (links plus the motors'
-    # reflected inertia, 1.4-6.9 kg m^2): Kq = wn^2 M_ii with wn = 20 rad/s, Dq = 2 zeta
-    # sqrt(Kq M_ii) with zeta = 0.1, so Dq/Kq = 10 ms. Low damping is a measured trade-off
-    # (benchmarks/inner_loop_sweep.py): with q_ref = q, Dq (and Kq over the 5 ms control
+    # Joint stiffness Kq [N m/rad] and damping Dq [N m s/rad], per joint (docs: the model of
+    # the cell, "Inner loop gains"), for the arm's joint inertia M_ii at the grasp pose (links
+    # plus the motors' reflected inertia, 1.4-6.9 kg m^2): Kq = wn^2 M_ii with wn = 20 rad/s,
+    # Dq = 2 zeta sqrt(Kq M_ii) with zeta = 0.1, so Dq/Kq = 10 ms. Low damping is a measured
+    # trade-off (benchmarks/inner_loop_sweep.py): with q_ref = q, Dq (and Kq over the 5 ms control
     # period) is all that resists the impedance plan's J^T F, and the velocity plan's
     # q_ref = q + qdot dt stalls once Dq/Kq exceeds a few control periods.
     kq: list[float] = field(

@@ -44,7 +44,7 @@ CLOSED_DOOR_ANGLE = 0.1
 """A left door opened less than this at the start [rad] counts as closed (handle in reach)."""
 
 STATUSES = ("ok", "slipped", "speed_limit", "diverged", "ik_failed")
-"""Run statuses, best first (see the README's exit codes)."""
+"""Run statuses, best first (see the documentation's exit codes)."""
 
 
 @dataclass(frozen=True)
