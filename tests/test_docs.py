@@ -7,9 +7,9 @@
   (walked here from the code, independently of docs/tools/reference.py's walk);
 - a real run folder holds only files the reference lists;
 - the built HTML loads nothing from another host, and the theme links to none;
-- the home page, a guide and the API reference render in headless Chromium with their
-  navigation (and screenshots of them are taken: set DOORLAB_DOCS_SCREENSHOTS=DIR to keep
-  them).
+- the home page, a guide and the API reference, served on loopback, render in headless
+  Chromium with their navigation and load nothing from elsewhere (and screenshots of them are
+  taken: set DOORLAB_DOCS_SCREENSHOTS=DIR to keep them).
 """
 
 from __future__ import annotations
@@ -64,6 +64,26 @@ def site(tmp_path_factory) -> Path:
     assert warnings == [], warnings
     print(f"mkdocs build --strict: {elapsed:.1f} s")
     return out
+
+
+@pytest.fixture(scope="module")
+def served(site: Path):
+    """The built site served over HTTP on loopback (as ``mkdocs serve`` would): its URL."""
+    import functools
+    import http.server
+    import threading
+
+    class Quiet(http.server.SimpleHTTPRequestHandler):
+        def log_message(self, *args) -> None:
+            pass
+
+    handler = functools.partial(Quiet, directory=str(site))
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    yield f"http://127.0.0.1:{server.server_address[1]}/"
+    server.shutdown()
+    server.server_close()
 
 
 def _text(page: Path) -> str:
@@ -301,6 +321,7 @@ window.addEventListener("load", () => {
     content_height: article ? article.getBoundingClientRect().height : 0,
     images: images.length,
     broken_images: images.filter(i => !(i.complete && i.naturalWidth > 0)).map(i => i.alt),
+    resources: performance.getEntriesByType("resource").map(e => e.name),
   };
   const out = document.createElement("pre");
   out.id = "nav-check";
@@ -319,9 +340,15 @@ def _chromium(binary: str, profile: Path, *args: str) -> subprocess.CompletedPro
 
     from doorlab.pdf import HEADLESS_FLAGS
 
+    flags = [  # no host resolves but the loopback address the site is served on
+        "--host-resolver-rules=MAP * ~NOTFOUND , EXCLUDE 127.0.0.1"
+        if f.startswith("--host-resolver-rules=")
+        else f
+        for f in HEADLESS_FLAGS
+    ]
     command = [
         binary,
-        *HEADLESS_FLAGS,
+        *flags,
         f"--user-data-dir={profile}",
         f"--window-size={SCREEN[0]},{SCREEN[1]}",
         "--hide-scrollbars",
@@ -341,9 +368,12 @@ def _chromium(binary: str, profile: Path, *args: str) -> subprocess.CompletedPro
         ("reference/api/control.html", "Control laws, plans and controllers"),
     ],
 )
-def test_pages_render_with_their_navigation(site: Path, tmp_path: Path, page: str, title: str):
+def test_pages_render_with_their_navigation(
+    site: Path, served: str, tmp_path: Path, page: str, title: str
+):
     """In headless Chromium the page has its styled header, the site's navigation on the left
-    with every top-level section, its title, content and images; a screenshot is taken."""
+    with every top-level section, its title, content and images, and loaded nothing but the
+    site's own files; a screenshot is taken."""
     from test_report_browser import chromium
 
     binary = chromium()
@@ -355,7 +385,8 @@ def test_pages_render_with_their_navigation(site: Path, tmp_path: Path, page: st
         source.read_text(encoding="utf-8").replace("</body>", NAV_CHECK + "</body>"),
         encoding="utf-8",
     )
-    done = _chromium(binary, tmp_path / "profile", "--dump-dom", copy.as_uri())
+    url = served + copy.relative_to(site).as_posix()
+    done = _chromium(binary, tmp_path / "profile", "--dump-dom", url)
     copy.unlink()
     match = re.search(r'<pre id="nav-check">(.*?)</pre>', done.stdout, flags=re.S)
     assert match, f"no check in the DOM (exit {done.returncode}): {done.stderr[-2000:]}"
@@ -371,12 +402,14 @@ def test_pages_render_with_their_navigation(site: Path, tmp_path: Path, page: st
     assert (result["title"] or "").strip().rstrip("¶").strip() == title
     assert result["content_height"] > 300
     assert result["broken_images"] == []
+    assert len(result["resources"]) >= 3  # the theme's stylesheets and scripts
+    assert [u for u in result["resources"] if not u.startswith(served)] == []
 
     keep = os.environ.get("DOORLAB_DOCS_SCREENSHOTS")
     shots = Path(keep) if keep else tmp_path
     shots.mkdir(parents=True, exist_ok=True)
     png = shots / (page.replace("/", "_").replace(".html", ".png"))
-    done = _chromium(binary, tmp_path / "profile2", f"--screenshot={png}", source.as_uri())
+    done = _chromium(binary, tmp_path / "profile2", f"--screenshot={png}", served + page)
     assert png.is_file(), done.stderr[-2000:]
     import matplotlib.image
 
