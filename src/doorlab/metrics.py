@@ -152,6 +152,8 @@ class DoorMetrics:
         rms_orientation_error_rad: RMS orientation error of L7 [rad].
         max_radial_error_cmd_m: Largest |radial error| of Q from the commanded q_ref [m].
         max_orientation_error_cmd_rad: Largest orientation error of L7 from q_ref [rad].
+        handle_held: Whether Q is still at the handle at the episode's end (within
+            :data:`HANDLE_CAPTURE_RADIUS`); None with the doors open (no handle to hold).
         handle_distance_m: Horizontal distance of Q from the handle axis at the end [m].
         slip_time_s: When Q left the handle (beyond :data:`HANDLE_CAPTURE_RADIUS`) during
             or after the arc [s]; None if it never did or the doors were open.
