@@ -195,6 +195,58 @@ def test_units_come_from_the_fields_comments():
     assert [r.name for r in floats if not r.unit] == []
 
 
+def test_the_reference_follows_the_code(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """What another branch adds appears by itself, and what it leaves undocumented stops the
+    build with a message naming it: a new option, a field without a comment, a new module."""
+    reference = _reference_module()
+    import doorlab.cli
+
+    build = doorlab.cli.build_parser
+
+    def with_new_option():
+        parser = build()
+        run = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[
+            "run"
+        ]
+        run.add_argument("--brand-new", metavar="N", help="an option added on another branch")
+        return parser
+
+    monkeypatch.setattr(doorlab.cli, "build_parser", with_new_option)
+    cli = reference.cli_markdown()
+    run_section = cli[cli.index("{#doorlab-run}") : cli.index("{#doorlab-report}")]
+    assert "| `--brand-new` | `N` |  | an option added on another branch |" in run_section
+
+    module = tmp_path / "new_config.py"
+    module.write_text(
+        "from dataclasses import dataclass, field\n\n\n"
+        "@dataclass\nclass Inner:\n"
+        "    gain: float = 2.0  # [1/s] a documented gain\n"
+        "    forgotten: float = 1.0\n\n\n"
+        "@dataclass\nclass Outer:\n"
+        "    # [m] a length, documented above the field\n"
+        "    length: float = 0.5\n"
+        "    inner: Inner = field(default_factory=Inner)\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import new_config
+
+    rows = {r.name: r for r in reference.scenario_fields(new_config.Outer)}
+    assert (rows["length"].unit, rows["length"].text) == (
+        "m",
+        "a length, documented above the field",
+    )
+    assert (rows["inner.gain"].unit, rows["inner.gain"].default) == ("1/s", "2.0")
+    with pytest.raises(ValueError, match="inner.forgotten"):
+        reference.scenario_markdown(new_config.Outer)
+
+    modules = reference.package_modules()
+    monkeypatch.setattr(reference, "package_modules", lambda: [*modules, "doorlab.brand_new"])
+    with pytest.raises(ValueError, match="doorlab.brand_new"):
+        reference.api_coverage()
+    with pytest.raises(ValueError, match="unknown marker"):
+        reference.expand("<!-- doorlab:nonsense -->\n")
+
+
 def test_exit_codes_outputs_and_logs_are_in_the_reference(site: Path):
     from doorlab.adaptive import LOG_CHANNELS
     from doorlab.episode import EpisodeResult

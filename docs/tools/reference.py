@@ -315,18 +315,20 @@ def _anchor(dotted: str) -> str:
     return "scenario" if not dotted else "scenario-" + dotted.replace(".", "-").replace("_", "-")
 
 
-def scenario_markdown() -> str:
-    """Tables of every scenario field, one section per dataclass."""
-    from doorlab.config import Scenario
+def scenario_markdown(cls: type | None = None) -> str:
+    """Tables of every field of the scenario (or of ``cls``), one section per dataclass."""
+    if cls is None:
+        from doorlab.config import Scenario
 
-    rows = scenario_fields()
+        cls = Scenario
+    rows = scenario_fields(cls)
     missing = [r.name for r in rows if not r.text and not r.is_section]
     if missing:
         raise ValueError(
             "scenario fields without a description (write a comment on the field in "
             f"src/doorlab/config.py, units first as [unit]): {', '.join(missing)}"
         )
-    classes = {"": Scenario}
+    classes = {"": cls}
     for r in rows:
         if r.is_section:
             owner = classes[r.section]
