@@ -2,7 +2,7 @@
 """The stiffness inner loop's damping trade-off, measured: one row per Dq scale.
 
 The problem set's inner loop is tau = Kq (q_ref - q) - Dq qdot + g(q) + tau_ff. Its damping Dq pulls
-two ways (README, "Inner loop gains"):
+two ways (docs/explanation/model.md, "Inner loop gains"):
 
 - the position plans (IK, velocity) want a well damped joint loop (no ringing, a small lag
   Dq/Kq x joint speed);

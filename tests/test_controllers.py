@@ -78,7 +78,8 @@ def test_impedance_plan_trails_the_arc_but_holds_the_handle(episode):
     """Doors closed, default (damped) inner loop: q_ref = q leaves the impedance plan's J^T F
     against the joint damping, so the door trails the plan (less open at the arc's end than
     with the velocity plan, and still opening in the hold after it), but the handle is held.
-    The figures are measured and stated in the README (benchmarks/inner_loop_sweep.py)."""
+    The figures are measured (benchmarks/inner_loop_sweep.py) and stated in
+    docs/explanation/model.md."""
     impedance = episode("impedance", "closed")[3]
     velocity = episode("velocity", "closed")[3]
     assert impedance.status == "ok" and impedance.handle_held

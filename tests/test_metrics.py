@@ -58,8 +58,9 @@ def test_door_metrics_of_a_delayed_ramp():
 
 def test_default_inner_loop_is_damped_at_zeta_0_1_at_the_grasp():
     """The default gains were derived as Kq = wn^2 M_ii, Dq = 2 zeta sqrt(Kq M_ii) with zeta =
-    0.1 at the grasp pose (README, "Inner loop gains"): the model gives that back within the
-    gains' rounding (3 significant digits, so 1 %); dq_scale scales it; ID-PID has none."""
+    0.1 at the grasp pose (docs/explanation/model.md, "Inner loop gains"): the model gives that
+    back within the gains' rounding (3 significant digits, so 1 %); dq_scale scales it; ID-PID
+    has none."""
     from doorlab.config import Scenario
     from doorlab.controllers import get_controller
     from doorlab.geometry import scenario_door_geometry

@@ -17,7 +17,7 @@ RANDOM = re.compile(
 
 def _files() -> list[Path]:
     files = [ROOT / "README.md"]
-    for folder in ("src", "examples"):
+    for folder in ("src", "examples", "docs"):
         files += [
             p
             for p in (ROOT / folder).rglob("*")

@@ -1,9 +1,10 @@
 """doorlab: three ways of commanding a simulated KUKA iiwa 7 to open a cupboard door, and a
 fourth (``adaptive``) that opens one whose hinge it does not know.
 
-Public API (see the README): :class:`Scenario` and :func:`load_scenario` (configuration),
-:func:`run_controller` (one episode of a registered controller), :func:`run_episode`
-(your own plans), :class:`EpisodeResult` (named logs), :func:`compute_metrics`; sweeps in
+Public API (the site's Python API reference shows it all): :class:`Scenario` and
+:func:`load_scenario` (configuration), :func:`run_controller` (one episode of a registered
+controller), :func:`run_episode` (your own plans), :class:`EpisodeResult` (named logs),
+:func:`compute_metrics`; sweeps in
 :mod:`doorlab.sweep` (``run_sweep(spec) -> pandas.DataFrame``), the report in
 :mod:`doorlab.report`.
 

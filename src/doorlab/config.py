@@ -76,32 +76,34 @@ class InnerLoopConfig:
     """
 
     kind: str = "stiffness"  # one of INNER_LOOPS
-    # Joint stiffness Kq [N m/rad] and damping Dq [N m s/rad], per joint (README, "Inner loop
-    # gains"), for the arm's joint inertia M_ii at the grasp pose (links plus the motors'
-    # reflected inertia, 1.4-6.9 kg m^2): Kq = wn^2 M_ii with wn = 20 rad/s, Dq = 2 zeta
-    # sqrt(Kq M_ii) with zeta = 0.1, so Dq/Kq = 10 ms. Low damping is a measured trade-off
-    # (benchmarks/inner_loop_sweep.py): with q_ref = q, Dq (and Kq over the 5 ms control
+    # Joint stiffness Kq [N m/rad] and damping Dq [N m s/rad], per joint (docs: the model of
+    # the cell, "Inner loop gains"), for the arm's joint inertia M_ii at the grasp pose (links
+    # plus the motors' reflected inertia, 1.4-6.9 kg m^2): Kq = wn^2 M_ii with wn = 20 rad/s,
+    # Dq = 2 zeta sqrt(Kq M_ii) with zeta = 0.1, so Dq/Kq = 10 ms. Low damping is a measured
+    # trade-off (benchmarks/inner_loop_sweep.py): with q_ref = q, Dq (and Kq over the 5 ms control
     # period) is all that resists the impedance plan's J^T F, and the velocity plan's
     # q_ref = q + qdot dt stalls once Dq/Kq exceeds a few control periods.
     kq: list[float] = field(
         default_factory=lambda: [1330.0, 2770.0, 1670.0, 1090.0, 570.0, 580.0, 560.0]
     )
-    dq: list[float] = field(default_factory=lambda: [13.3, 27.7, 16.7, 10.9, 5.7, 5.8, 5.6])
+    dq: list[float] = field(  # [N m s/rad] per joint (see kq)
+        default_factory=lambda: [13.3, 27.7, 16.7, 10.9, 5.7, 5.8, 5.6]
+    )
     # Multiplier on every Dq [-] (>= 0): one knob for the position-tracking vs impedance-lag
     # trade-off (benchmarks/inner_loop_sweep.py).
     dq_scale: float = 1.0
     # Inverse-dynamics PID gains of the original station (act through M(q)).
-    id_kp: float = 100.0  # [1/s^2]
-    id_ki: float = 1.0  # [1/s^3]
-    id_kd: float = 20.0  # [1/s]
+    id_kp: float = 100.0  # [1/s^2] proportional gain
+    id_ki: float = 1.0  # [1/s^3] integral gain
+    id_kd: float = 20.0  # [1/s] derivative gain
 
 
 @dataclass
 class GripperConfig:
     """WSG-50 finger controller: PD on finger separation, force-limited."""
 
-    kp: float = 200.0  # [N/m]
-    kd: float = 5.0  # [N s/m]
+    kp: float = 200.0  # [N/m] stiffness on the finger separation
+    kd: float = 5.0  # [N s/m] damping on the finger separation's rate
     force_limit: float = 15.0  # [N], the course code's value
     initial_width: float = 0.03  # [m] finger separation at t = 0
     approach_width: float = 0.025  # [m] setpoint while moving to the handle
@@ -131,7 +133,7 @@ class StationConfig:
     contact_approximation: str = (
         "sap"  # one of CONTACT_APPROXIMATIONS ("tamsi" cannot run kind=implicit_pd)
     )
-    arm_collision: bool = False  # the original arm had no collision geometry
+    arm_collision: bool = False  # give the arm collision capsules (the original arm had none)
     # Keep the collision geometry of the cupboard's carcass, right door and the table also
     # without arm collision (only the gripper could touch them; it touches the left door only).
     scene_collision: bool = False
@@ -142,7 +144,7 @@ class StationConfig:
     # handle stays where the plans believe it is, the hinge does not (10 deg moves it 4.7 cm);
     # the problem set's plans follow the believed arc, metrics use the true one.
     cupboard_yaw_error: float = 0.0
-    hinge_damping: float = 1.0  # [N m s/rad]
+    hinge_damping: float = 1.0  # [N m s/rad] viscous damping of the door hinges
     friction: float = 1.0  # Coulomb friction of fingers and handle [-]
     inner_loop: InnerLoopConfig = field(default_factory=InnerLoopConfig)
     gripper: GripperConfig = field(default_factory=GripperConfig)
@@ -154,7 +156,7 @@ class TimelineConfig:
     """The original episode timeline (station facts §4)."""
 
     control_period: float = 0.005  # [s] plan runner period (200 Hz)
-    log_period: float = 0.01  # [s]
+    log_period: float = 0.01  # [s] sample period of the episode's logs
     hold_duration: float = 1.0  # [s] hold q_home (plus the 1 s every plan gets)
     approach_duration: float = 6.0  # [s] cubic move to the first plan's start (+1 s)
     grasp_duration: float = 1.0  # [s] close the gripper on the handle (+1 s)
@@ -190,8 +192,8 @@ class IkConfig:
 class VelocityPlanConfig:
     """Jacobian pseudo-inverse velocity plan (task 2)."""
 
-    kv: float = 100.0  # [1/s]
-    kw: float = 50.0  # [1/s]
+    kv: float = 100.0  # [1/s] gain from Q's position error to its desired velocity
+    kw: float = 50.0  # [1/s] gain from L7's orientation error to its angular velocity
     joint_speed_limit: float = 1.0  # [rad/s] clip on q_dot (the original's)
 
 
@@ -199,8 +201,8 @@ class VelocityPlanConfig:
 class ImpedancePlanConfig:
     """Jacobian-transpose impedance plan (task 3)."""
 
-    kv: float = 100.0  # [N/m]
-    kw: float = 50.0  # [N m/rad]
+    kv: float = 100.0  # [N/m] translational stiffness: force at Q per metre of error
+    kw: float = 50.0  # [N m/rad] rotational stiffness: torque on L7 per radian of error
     torque_limit: float = 20.0  # [N m] clip on tau_ff (the original's)
 
 

@@ -62,7 +62,9 @@ class EpisodeResult:
 
     Attributes:
         t: Sample times (n,) [s].
-        q_commanded, q_measured: (n, 7) [rad]. v_measured: (n, 7) [rad/s].
+        q_commanded: Commanded joint positions q_ref (n, 7) [rad].
+        q_measured: Measured joint positions (n, 7) [rad].
+        v_measured: Measured joint velocities (n, 7) [rad/s].
         tau_external: Contact torques on the arm joints (n, 7) [N m].
         tau_feedforward: tau_ff sent by the plans (n, 7) [N m].
         tau_commanded: Torque the joints receive (n, 7) [N m]: the actuators' after
@@ -71,7 +73,8 @@ class EpisodeResult:
             cell, which has no hinge sensor.
         wsg_width: Finger separation (n,) [m].
         plant_positions: Positions of the whole plant (n, nq), for replays.
-        plan_names: Names of the scheduled plans. plan_starts: Their start times (k,) [s].
+        plan_names: Names of the scheduled plans.
+        plan_starts: Start times of the scheduled plans (k,) [s].
         arc_window: [t_start, t_end] of the door-opening arc [s], shape (2,).
         wall_time_s: Wall-clock time of the simulation [s].
         scenario_yaml: The scenario that produced the logs.

@@ -44,7 +44,7 @@ CLOSED_DOOR_ANGLE = 0.1
 """A left door opened less than this at the start [rad] counts as closed (handle in reach)."""
 
 STATUSES = ("ok", "slipped", "speed_limit", "diverged", "ik_failed")
-"""Run statuses, best first (see the README's exit codes)."""
+"""Run statuses, best first (see the documentation's exit codes)."""
 
 
 @dataclass(frozen=True)
@@ -136,7 +136,36 @@ def handle_distance(
 
 @dataclass(frozen=True)
 class DoorMetrics:
-    """The figures of one run (SI units; the keys of ``metrics.json``)."""
+    """The figures of one run (SI units; the keys of ``metrics.json``).
+
+    Tracking errors are over the arc window, from the measured joint positions unless the
+    key says ``cmd`` (from q_ref, as the problem set's plots drew them).
+
+    Attributes:
+        controller: The controller that ran (``Scenario.controller``).
+        doors: ``open`` or ``closed`` (``Scenario.doors``).
+        knots: IK knot points (``ik.knots``) for the ``ik`` controller, else None.
+        status: One of :data:`STATUSES` (sets the exit code).
+        max_radial_error_m: Largest |radial error| of Q off the handle's arc [m].
+        rms_radial_error_m: RMS radial error of Q [m].
+        max_orientation_error_rad: Largest orientation error of L7 [rad].
+        rms_orientation_error_rad: RMS orientation error of L7 [rad].
+        max_radial_error_cmd_m: Largest |radial error| of Q from the commanded q_ref [m].
+        max_orientation_error_cmd_rad: Largest orientation error of L7 from q_ref [rad].
+        handle_held: Whether Q is still at the handle at the episode's end (within
+            :data:`HANDLE_CAPTURE_RADIUS`); None with the doors open (no handle to hold).
+        handle_distance_m: Horizontal distance of Q from the handle axis at the end [m].
+        slip_time_s: When Q left the handle (beyond :data:`HANDLE_CAPTURE_RADIUS`) during
+            or after the arc [s]; None if it never did or the doors were open.
+        peak_external_torque_Nm: Largest |external (contact) joint torque| over the episode
+            [N m].
+        peak_external_torque_arc_Nm: The same over the arc window [N m].
+        max_joint_speed_rad_s: Largest measured |joint speed| [rad/s].
+        speed_limit_exceeded: Whether a joint exceeded its data-sheet speed.
+        sim_time_s: Simulated duration [s].
+        wall_time_s: Wall-clock time of the simulation [s].
+        realtime_factor: Simulated over wall-clock time [-].
+    """
 
     controller: str
     doors: str

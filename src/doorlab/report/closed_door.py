@@ -112,8 +112,9 @@ def damping_paragraph(run: LoadedRun) -> str:
         f"ratios at the grasp are {span(format_number(float(zeta.min())))}-"
         f"{span(format_number(float(zeta.max())))} (motors' reflected inertia included); "
         "more damping leaves the door further behind at the arc's end, less lets the "
-        "position plans ring. The measured trade-off over D<sub>q</sub> is in the README "
-        "(<code>benchmarks/inner_loop_sweep.py</code>, <code>station.inner_loop.dq_scale</code>)."
+        "position plans ring. The measured trade-off over D<sub>q</sub> is in doorlab's "
+        "documentation (<em>The model of the cell</em>, <em>Inner loop gains</em>; "
+        "<code>benchmarks/inner_loop_sweep.py</code>, <code>station.inner_loop.dq_scale</code>)."
         "</p>"
     )
 
