@@ -95,7 +95,12 @@ def _pset_grade(args: argparse.Namespace, assignment) -> int:
     _check_writable(out)  # before grading: the grading takes minutes
     reference = None if args.reference is None else grader.load_reference(args.reference)
     results = grader.grade_submission(
-        source, jobs=args.jobs, reference=reference, assignment=assignment, seed=args.seed
+        source,
+        jobs=args.jobs,
+        reference=reference,
+        assignment=assignment,
+        seed=args.seed,
+        require_files=True,
     )
     grader.write_results(results, out)
     if source.is_dir():

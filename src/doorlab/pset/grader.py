@@ -140,6 +140,7 @@ def grade_submission(
     reference: dict[str, dict] | None = None,
     assignment: object = None,
     seed: int | None = None,
+    require_files: bool = False,
 ) -> dict:
     """Grades a submission as every grading path does (``doorlab pset grade``, the folder's
     ``test_pset_5a.py``, Gradescope's ``run_autograder``): its student files taken by the one
@@ -152,22 +153,32 @@ def grade_submission(
     Args:
         source: The submission: a folder, or a zip file.
         jobs, reference, assignment, seed: As for :func:`grade`.
+        require_files: Refuse (OutputError) a submission that holds none of the student
+            files, rather than grade the stubs (``doorlab pset grade``: a mistyped folder;
+            Gradescope grades it: every test 0, as it should).
 
     Returns:
         :func:`grade`'s results; their top-level ``output`` says which doorlab graded, what was
         taken from the submission and the grading seed; ``extra_data["submission"]`` lists it.
 
     Raises:
-        OutputError: ``source`` is neither a folder nor a zip file.
+        OutputError: ``source`` is neither a folder nor a zip file; with ``require_files``,
+            it holds none of the student files.
         GradingError: As for :func:`grade`.
     """
     from importlib.metadata import version
 
     from doorlab import __version__
     from doorlab.pset.intake import graded_copy
-    from doorlab.pset.verdicts import TESTS, results_not_graded
+    from doorlab.pset.verdicts import STUDENT_FILES, TESTS, results_not_graded
 
     with graded_copy(source) as (folder, intake):
+        if require_files and intake.refused is None and not intake.taken:
+            raise OutputError(
+                f"{source} holds none of {', '.join(STUDENT_FILES)} (nothing to grade; "
+                f"{len(intake.rejected)} refused): give the problem-set folder, its files "
+                "or a zip of them"
+            )
         if intake.refused is not None:
             results = results_not_graded(TESTS, intake.refused, assignment)
         else:
