@@ -293,9 +293,14 @@ def run(args: argparse.Namespace) -> int:
 def require_sweep_extra(what: str, modules: tuple[str, ...]) -> None:
     """Raises ConfigError (one line, the install command) if a module of doorlab's ``sweep``
     extra that ``what`` needs is not installed (doorlab itself installs without them)."""
-    import importlib.util
+    import importlib
 
-    missing = [m for m in modules if importlib.util.find_spec(m) is None]
+    missing = []
+    for module in modules:  # imported now: the command imports them next anyway
+        try:
+            importlib.import_module(module)
+        except ImportError:
+            missing.append(module)
     if missing:
         raise ConfigError(
             f"{what} needs {' and '.join(missing)}, of doorlab's sweep extra: "
