@@ -244,7 +244,7 @@ def test_the_same_submission_grades_the_same_and_a_seed_replays(tmp_path):
     seed = first["extra_data"]["seed"]
     assert seed == {
         "grading": grading_seed(course.seed, digest),
-        "source": "from the assignment's seed and your files' SHA-256",
+        "source": "from the assignment's random seed and your files' SHA-256",
         "files_sha256": digest,
     }
     failed = {t["name"] for t in first["tests"] if t["score"] == 0}

@@ -284,12 +284,14 @@ def add_pset_parser(sub) -> None:
         "--force", action="store_true", help="replace an existing OUT.zip written by doorlab"
     )
     assignment = actions.add_parser(
-        "assignment", help="write the default assignment file (points, margins, seed, ...)"
+        "assignment", help="write the default assignment file (points, margins, random seed, ...)"
     )
     assignment.add_argument("out", type=Path, metavar="FILE", help="the YAML file to write")
 
 
-def _assignment_option(parser, what: str = "points, margins, visibility, seed, helpers") -> None:
+def _assignment_option(
+    parser, what: str = "points, margins, visibility, random seed, helpers"
+) -> None:
     parser.add_argument(
         "--assignment",
         type=Path,

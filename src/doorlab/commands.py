@@ -41,7 +41,7 @@ def pset(args: argparse.Namespace) -> int:
 
         out = write_default_assignment(args.out)
         print(
-            f"doorlab pset: wrote {out} (the defaults, a fresh seed); grade with it: "
+            f"doorlab pset: wrote {out} (the defaults, a fresh random seed); grade with it: "
             f"doorlab pset grade SUBMISSION --assignment {out}"
         )
         return 0

@@ -1,6 +1,6 @@
 """The assignment file: a course's grading settings, typed and validated like a scenario.
 
-``doorlab pset assignment FILE`` writes the defaults (with a fresh seed);
+``doorlab pset assignment FILE`` writes the defaults (with a fresh random seed);
 ``doorlab pset grade --assignment FILE`` and ``doorlab pset autograder OUT.zip --assignment
 FILE`` grade with it (the zip carries it, inside its digest). Every key is optional (the
 defaults below); unknown keys, wrong types and values out of range are one-line errors naming
@@ -18,7 +18,7 @@ the dotted field::
         helpers: reference        # calc_p_Q and calc_R_WL7_ref: doorlab's, or the student's
 
 The defaults are the grader's (:data:`doorlab.pset.verdicts.TESTS` and its margins), so a
-grading without a file is a grading with the default file (seed 0).
+grading without a file is a grading with the default file (random seed 0).
 
 (No ``from __future__ import annotations`` here: ``yaml_load_typed`` reads the dataclasses'
 field types, which must be classes, not strings.)
@@ -45,7 +45,7 @@ MAX_SEED = 2**63 - 1
 MAX_POINTS = 1000.0
 """Most points one test may carry (a typo guard)."""
 SEED_BITS = 32
-"""Bits of the seed ``doorlab pset assignment`` draws, and of a grading seed."""
+"""Bits of the random seed ``doorlab pset assignment`` draws, and of a grading seed."""
 
 
 def _points(key: str) -> float:
@@ -331,11 +331,12 @@ def files_digest(folder: str | Path, files: tuple[str, ...]) -> str:
 
 
 def grading_seed(assignment_seed: int, digest: str) -> int:
-    """The grading's seed, from the assignment's and the graded files' SHA-256 (32 bits)."""
+    """The grading seed (32 bits) from the assignment's random seed and the graded files'
+    SHA-256."""
     text = f"doorlab-grading-seed:{assignment_seed}:{digest}".encode()
     return int.from_bytes(hashlib.sha256(text).digest()[: SEED_BITS // 8], "big")
 
 
-def job_seed(seed: int, job: str) -> int:
-    """The seed of one job's draws, from the grading's seed (64 bits)."""
-    return int.from_bytes(hashlib.sha256(f"{seed}:{job}".encode()).digest()[:8], "big")
+def job_seed(grading: int, job: str) -> int:
+    """The random seed (64 bits) of one job's draws, from the grading seed."""
+    return int.from_bytes(hashlib.sha256(f"{grading}:{job}".encode()).digest()[:8], "big")

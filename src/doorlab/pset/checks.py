@@ -1,7 +1,7 @@
 """The grader's unit tests, on the trusted side.
 
-Each test draws its inputs here, from the grading's seed (printed; derived from the
-assignment's seed and the submission's files, so a regrade draws the same inputs), asks
+Each test draws its inputs here, from the grading seed (printed; derived from the
+assignment's random seed and the submission's files: a regrade draws the same inputs), asks
 the student's process (:class:`~doorlab.pset.student.StudentProcess`) for the student's
 outputs, validates them (:mod:`doorlab.pset.channel`) and compares them with doorlab's
 reference, computed here. Nothing the student's process holds can see or change the
@@ -70,12 +70,11 @@ SEED_CONTROL_PERIOD = 0.005
 
 
 def _rng(seed: int | None, job: str) -> tuple[np.random.Generator, int]:
-    """The draws of ``job`` from the grading's ``seed`` (None: a fresh one), and that seed."""
+    """The random draws of ``job`` from the grading seed (None: a fresh one), and that seed."""
     from doorlab.pset.assignment import SEED_BITS, job_seed
 
-    if seed is None:
-        seed = int(np.random.SeedSequence().entropy % (2**SEED_BITS))
-    return np.random.default_rng(job_seed(seed, job)), seed
+    grading = seed if seed is not None else int(np.random.SeedSequence().entropy % 2**SEED_BITS)
+    return np.random.default_rng(job_seed(grading, job)), grading
 
 
 def _fmt(x) -> str:
@@ -354,12 +353,12 @@ def _check_law(student: StudentProcess, kind: str, seed: int | None) -> dict:
 
 def check_velocity(student: StudentProcess, seed: int | None = None) -> dict:
     """IiwaTaskSpaceVelocityPlan.CalcPositionCommand = q + J^+ V_des dt at random states."""
-    return _check_law(student, "velocity", seed)
+    return _check_law(student, "velocity", seed=seed)
 
 
 def check_impedance(student: StudentProcess, seed: int | None = None) -> dict:
     """IiwaTaskSpaceImpedancePlan.CalcTorqueCommand = J^T F at random states."""
-    return _check_law(student, "impedance", seed)
+    return _check_law(student, "impedance", seed=seed)
 
 
 # Task 1 ------------------------------------------------------------------------------------

@@ -81,16 +81,16 @@ def grade(
         only: Names of the tests to run (default: all, :data:`TESTS`).
         time_limit_scale: Multiplies every test's time limit.
         assignment: The course's settings (:class:`doorlab.pset.assignment.Assignment`:
-            points, margins, visibility, seed, the episodes' helpers); None: the defaults.
+            points, margins, visibility, random seed, the episodes' helpers); None: the defaults.
         seed: The grading's seed (``--seed``: replays a recorded grading's random inputs);
-            None derives it from the assignment's seed and the folder's graded files.
+            None derives it from the assignment's random seed and the folder's graded files.
 
     Returns:
         Gradescope's results: ``{"score", "visibility", "output", "output_format",
         "test_output_format", "test_name_format", "tests": [{"name", "number", "score",
         "max_score", "status", "visibility", "output", "output_format"}], "execution_time",
         "extra_data": {"max_score", "seed", "reference", "sandbox"}}`` (``seed``: the grading
-        seed and where it came from, the graded files' SHA-256; ``reference``: the reference
+        grading seed and where it came from, the graded files' SHA-256; ``reference``: the reference
         episodes' figures, reusable as the ``reference`` argument; ``sandbox``: how the
         student's code ran: uids, network isolated, reference files hidden, limits).
 
@@ -216,7 +216,7 @@ def write_results(results: dict, path: str | Path) -> Path:
 
 def pretty_format_json_results(path: str | Path) -> str:
     """A readable summary of a results file: its top-level output (the doorlab that graded,
-    what was taken from the submission, the seed), one block per test and the total."""
+    what was taken from the submission, the grading seed), one block per test and the total."""
     data = json.loads(Path(path).read_text())
     lines = str(data.get("output") or "").splitlines()
     for t in data["tests"]:

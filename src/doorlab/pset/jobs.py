@@ -66,7 +66,7 @@ def run_job(
 ) -> dict:
     """Runs one job in this process and returns its JSON-ready result.
 
-    ``options``: ``seed`` (a unit test's draws: the grading's seed) and ``helpers`` (a task 2
+    ``options``: ``seed`` (a unit test's random draws: the grading seed) and ``helpers`` (a task 2
     or 3 episode: ``reference`` or ``student``, whose calc_p_Q and calc_R_WL7_ref it runs).
     """
     options = options or {}
@@ -211,13 +211,13 @@ def _seed(request: dict, folder: Path, assignment) -> dict:
         }
     return {
         "grading": grading_seed(assignment.seed, digest),
-        "source": "from the assignment's seed and your files' SHA-256",
+        "source": "from the assignment's random seed and your files' SHA-256",
         "files_sha256": digest,
     }
 
 
 def _job_options(specs, assignment, seed: int) -> dict[str, dict]:
-    """Each job's options (:func:`run_job`): the grading's seed; an episode's helpers."""
+    """Each job's options (:func:`run_job`): the grading seed; an episode's helpers."""
     from doorlab.pset.verdicts import test_settings
 
     options: dict[str, dict] = {}
@@ -245,8 +245,8 @@ def supervise(request: dict) -> dict:
         return {"grader_error": f"the assignment: {e}"}
     only = request.get("only")
     specs = [t for t in TESTS if only is None or t.name in only]
-    seed = _seed(request, folder, assignment)
-    options = _job_options(specs, assignment, seed["grading"])
+    drawn = _seed(request, folder, assignment)
+    options = _job_options(specs, assignment, drawn["grading"])
     needed = {j for t in specs for j in t.needed_jobs(test_settings(assignment, t))}
     results: dict[str, dict] = {}
     reference = request.get("reference") or {}
@@ -270,7 +270,7 @@ def supervise(request: dict) -> dict:
     if errors:
         return {"grader_error": errors[0]}
     elapsed = time.perf_counter() - start
-    return results_from_jobs(specs, results, elapsed, assignment, seed)
+    return results_from_jobs(specs, results, elapsed, assignment, drawn)
 
 
 def _on_signal(signum, frame):

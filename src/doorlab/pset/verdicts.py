@@ -392,7 +392,7 @@ def results_from_jobs(
     results: dict[str, dict],
     execution_time: float,
     assignment: object = None,
-    seed: dict | None = None,
+    drawn: dict | None = None,
 ) -> dict:
     """The Gradescope results of ``specs`` judged on the jobs' ``results`` (in the
     supervisor; see :func:`doorlab.pset.grader.grade` for the format).
@@ -403,7 +403,8 @@ def results_from_jobs(
         execution_time: The grading's wall time [s].
         assignment: The assignment (:class:`doorlab.pset.assignment.Assignment`: points,
             margins, visibility); None: the defaults.
-        seed: How the unit tests' inputs were drawn (``extra_data["seed"]``), if they were.
+        drawn: How the unit tests' random inputs were drawn (``extra_data["seed"]``: the
+            grading seed, its source, the graded files' SHA-256), if they were.
     """
     tests = []
     for spec in specs:
@@ -413,16 +414,16 @@ def results_from_jobs(
             output = f"{output}\n{note}" if output else note
         tests.append(_gradescope_test(spec, settings, passed, output))
     line = ""
-    if seed is not None:
+    if drawn is not None:
         line = (
-            f"The unit tests' random inputs come from grading seed {seed['grading']} "
-            f"({seed['source']}); doorlab pset grade --seed {seed['grading']} replays them."
+            f"The unit tests' random inputs come from grading seed {drawn['grading']} "
+            f"({drawn['source']}); doorlab pset grade --seed {drawn['grading']} replays them."
         )
     out = _gradescope_results(assignment, tests, line)
     out["execution_time"] = round(execution_time, 2)
     out["extra_data"] = {
         "max_score": sum(t["max_score"] for t in tests),
-        "seed": seed,
+        "seed": drawn,
         "reference": {k: v for k, v in results.items() if k.startswith("reference:")},
         "sandbox": _sandbox_facts(results),
     }
