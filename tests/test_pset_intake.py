@@ -289,3 +289,19 @@ def test_both_paths_grade_a_missing_file_the_same(tmp_path):
     assert via_grade["extra_data"]["seed"]["files_sha256"] == files_digest(
         _key_files(init_folder(tmp_path / "same"), STUDENT_FILES[:2]), STUDENT_FILES
     )
+
+
+def test_pset_grade_takes_a_zip_and_writes_its_results_beside_it(tmp_path, capsys):
+    """`doorlab pset grade SUBMISSION.zip`: the stubs zipped (reference episodes reused):
+    NAME_results.json beside the zip, the three files taken from it, 0 points."""
+    earlier = tmp_path / "earlier.json"
+    earlier.write_text(json.dumps({"extra_data": {"reference": pset_fixtures.reference()}}))
+    stubs = init_folder(tmp_path / "stubs")
+    submission = _zip_folder(stubs, tmp_path / "hw5.zip", prefix="hw5/")
+    assert main(["pset", "grade", str(submission), "--reference", str(earlier)]) == 0
+    capsys.readouterr()
+    results = json.loads((tmp_path / "hw5_results.json").read_text())
+    assert results["score"] == 0
+    assert results["extra_data"]["submission"]["taken"] == {
+        rel: f"hw5/{rel}" for rel in STUDENT_FILES
+    }
