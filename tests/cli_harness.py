@@ -177,9 +177,11 @@ def leftovers(*folders: Path) -> list[Path]:
 
 
 def assert_clean_exit(outcome: Outcome, code: int, *, lines: int | None = None) -> None:
-    """The acceptance checks on any exit: its code, no traceback, stderr under 10 kB."""
+    """The acceptance checks on any exit: its code, no traceback (nor an exception Python
+    ignored at exit), stderr under 10 kB."""
     assert outcome.code == code, (outcome.code, outcome.stderr[-3000:])
     assert "Traceback" not in outcome.stderr + outcome.stdout, outcome.stderr[-3000:]
+    assert "Exception ignored" not in outcome.stderr, outcome.stderr[-3000:]  # issue 25
     assert len(outcome.stderr.encode()) < MAX_STDERR_BYTES, len(outcome.stderr)
     if lines is not None:
         assert len(outcome.stderr.strip().splitlines()) == lines, outcome.stderr

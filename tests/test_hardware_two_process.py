@@ -60,6 +60,7 @@ from lcm_fixtures import (  # noqa: F401
     sim_driver_process,
     stop,
 )
+from realtime_host import host_watch
 
 from doorlab.config import Scenario, validate
 from doorlab.episode import EpisodeResult
@@ -131,7 +132,11 @@ def test_two_processes_open_the_door_as_one(alone, lcm_url, tmp_path, controller
     for attempt in (1, 2):
         bus = listener(lcm_url)
         gt_dir, out = tmp_path / f"gt{attempt}", tmp_path / f"run{attempt}"
-        with alone(), sim_driver_process(lcm_url, "--doors", "closed", out=gt_dir) as driver:
+        with (
+            alone(),
+            host_watch() as host,
+            sim_driver_process(lcm_url, "--doors", "closed", out=gt_dir) as driver,
+        ):
             bus.wait_for("IIWA_STATUS", timeout=60)
             run = client(lcm_url, out, controller)
             follow(run, bus)
@@ -140,6 +145,8 @@ def test_two_processes_open_the_door_as_one(alone, lcm_url, tmp_path, controller
             assert code == 143, driver_err
         if run.returncode != 7 or attempt == 2:  # 7: the host did not keep real time
             break
+    with host.excuse("the client's watchdog stopped both runs (statuses missing for 50 ms)"):
+        assert run.returncode != 7, stderr.strip().splitlines()[-1:]
     assert run.returncode == 0, (stdout, stderr)
     metrics = json.loads((out / "metrics.json").read_text())
     log = EpisodeResult.load(out / "log.npz")
@@ -160,9 +167,11 @@ def test_two_processes_open_the_door_as_one(alone, lcm_url, tmp_path, controller
     assert np.all(utimes % 5000 == 0) and utimes.max() < 5000 * sent
     assert np.all(np.diff(utimes) > 0)
     seen = {m.utime for _, m in statuses}
-    assert np.mean([u in seen for u in utimes]) > 0.9
     answered = metrics["link"]["commands"] / (log.t[-1] - log.t[0])
-    assert abs(answered - 200.0) <= 4.0, answered
+    with host.excuse("statuses missed, the client's rate"):
+        seen_fraction = np.mean([u in seen for u in utimes])
+        assert seen_fraction > 0.9, f"the listener saw {seen_fraction:.0%} of the statuses"
+        assert abs(answered - 200.0) <= 4.0, f"the client answered at {answered:.1f} Hz"
 
     # The handle is held (the driver's truth: Q at the handle at the end, fingers apart).
     assert metrics["status"] == "ok" and metrics["fingers_on_handle"]
@@ -199,7 +208,11 @@ def test_the_driver_killed_mid_arc_stops_the_client_within_0_2_s(alone, lcm_url,
         bus = listener(lcm_url)
         out = tmp_path / f"run{attempt}"
         killed = False
-        with alone(), sim_driver_process(lcm_url, "--doors", "closed") as driver:
+        with (
+            alone(),
+            host_watch() as host,
+            sim_driver_process(lcm_url, "--doors", "closed") as driver,
+        ):
             bus.wait_for("IIWA_STATUS", timeout=60)
             run = client(lcm_url, out, "velocity")
             kill_at = None
@@ -218,12 +231,17 @@ def test_the_driver_killed_mid_arc_stops_the_client_within_0_2_s(alone, lcm_url,
         _, stderr = run.communicate()
         if killed or attempt == 2:  # else the host did not keep real time before the kill
             break
-    assert killed, stderr
+    with host.excuse("the client's watchdog stopped both runs before the kill"):
+        assert killed, stderr.strip().splitlines()[-1:]
     assert run.returncode == 7, stderr
-    assert exited - last_status <= 0.2, exited - last_status
+    with host.excuse("the client's exit after the last status"):
+        assert exited - last_status <= 0.2, f"exit {exited - last_status:.3f} s after it"
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["status"] == "driver_lost"
-    assert 0.05 <= metrics["stop"]["last_status_to_stop_s"] <= 0.1
+    stopped = metrics["stop"]["last_status_to_stop_s"]
+    assert stopped >= 0.05  # the watchdog's 50 ms: never sooner
+    with host.excuse("the client's watchdog delay"):
+        assert stopped <= 0.1, f"stopped {stopped:.3f} s after the last status"
     last_utime = bus.messages["IIWA_STATUS"][-1][1].utime
     assert all(c.utime <= last_utime for _, c in bus.messages["IIWA_COMMAND"])
     log = EpisodeResult.load(out / "log.npz")
@@ -235,7 +253,7 @@ def test_no_driver_is_exit_7_within_the_wait_and_writes_nothing(alone, lcm_url, 
     wait = 1.0
     command = [sys.executable, "-m", "doorlab.cli", "run", "--hardware", "--yes"]
     command += ["--lcm-url", lcm_url, "--wait", str(wait), "--out", str(tmp_path / "run")]
-    with alone():
+    with alone(), host_watch() as host:
         start = time.monotonic()
         process = subprocess.Popen(
             command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
@@ -246,7 +264,9 @@ def test_no_driver_is_exit_7_within_the_wait_and_writes_nothing(alone, lcm_url, 
         _, stderr = process.communicate(timeout=30)
         done = time.monotonic()
     assert process.returncode == 7
-    assert done - waiting <= wait + 1.0, (done - waiting, done - start)
+    with host.excuse("the client's exit after its wait"):
+        elapsed = f"{done - waiting:.2f} s after its wait line, {done - start:.2f} s after start"
+        assert done - waiting <= wait + 1.0, f"exit {elapsed}"
     (message,) = stderr.strip().splitlines()
     assert lcm_url in message and "IIWA_STATUS" in message and "ip route add" in message
     assert not any(tmp_path.iterdir())

@@ -127,9 +127,18 @@ def test_init_refuses_a_bad_destination(tmp_path, capsys):
     assert "mine.txt" in capsys.readouterr().err and marker.read_text() == "keep"
     marker.unlink()
     assert main(["pset", "init", str(folder), "--force", "--solutions"]) == 0
-    assert main(["pset", "grade", str(tmp_path / "nowhere")]) == 2
-    assert main(["pset", "grade", str(tmp_path)]) == 2
-    assert "not a problem-set folder" in capsys.readouterr().err
+    capsys.readouterr()
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    for target, needle in [
+        (tmp_path / "nowhere", "does not exist"),
+        (a_file, "is not a folder or a .zip"),
+        (empty, "holds none of"),  # a mistyped folder is not graded as the stubs
+    ]:
+        assert main(["pset", "grade", str(target)]) == 2
+        err = capsys.readouterr().err
+        assert needle in err and len(err.strip().splitlines()) == 1, err
+    assert not (empty / "test_results.json").exists()
 
 
 # The 2019 notebook's own cells, and the solutions' full marks ------------------------------
@@ -215,17 +224,35 @@ def test_two_disjoint_mistakes_lose_exactly_their_tests(tmp_path_factory, refere
     assert "FAILED door opened" in _output(results, EPISODE["impedance"])
 
 
-def test_calc_p_Q_without_the_handle_offset_fails_its_tests(tmp_path_factory, reference):
-    """calc_p_Q returns the arc point itself (absolute, not relative to the start)."""
+def test_calc_p_Q_without_the_handle_offset_costs_its_own_point_only(tmp_path_factory, reference):
+    """calc_p_Q returns the arc point itself (absolute, not relative to the start): by
+    default the task 2 and 3 episodes run doorlab's helpers, so only calc_p_Q's unit test
+    fails; with the student's helpers (the assignment's choice) both episodes fail and say
+    that they used the student's calc_p_Q, which failed its unit test."""
+    from doorlab.pset.assignment import Assignment
+
     folder = _wrong_folder(
         tmp_path_factory,
         "calc_p_Q_absolute",
         [("open_left_door.py", "return p_WQ - p_WC_handle", "return p_WQ")],
     )
-    only = [UNIT["calc_p_Q"], UNIT["calc_R_WL7_ref"], EPISODE["velocity"]]
+    episodes = [EPISODE["velocity"], EPISODE["impedance"]]
+    only = [UNIT["calc_p_Q"], UNIT["calc_R_WL7_ref"], *episodes]
     results = grade(folder, reference=reference, only=only)
-    assert _failed(results) == {UNIT["calc_p_Q"], EPISODE["velocity"]}, pretty(results)
+    assert _failed(results) == {UNIT["calc_p_Q"]}, pretty(results)
     assert "expected" in _output(results, UNIT["calc_p_Q"])
+    for name in episodes:
+        assert "runs doorlab's calc_p_Q and calc_R_WL7_ref" in _output(results, name)
+
+    theirs = Assignment()
+    theirs.tests.velocity_episode.helpers = "student"
+    theirs.tests.impedance_episode.helpers = "student"
+    results = grade(folder, reference=reference, only=episodes, assignment=theirs)
+    assert _failed(results) == set(episodes), pretty(results)
+    for name in episodes:
+        text = _output(results, name)
+        assert "this episode uses your calc_p_Q, which failed its unit test" in text, text
+        assert "calc_R_WL7_ref, which failed" not in text, text
 
 
 def test_velocity_with_the_error_sign_flipped_fails_its_tests(tmp_path_factory, reference):

@@ -28,9 +28,8 @@ import pytest
 import doorlab
 from doorlab.cli import main
 from doorlab.pset import autograder
-from doorlab.pset.folder import STUDENT_FILES, init_folder, render_folder
+from doorlab.pset.folder import STUDENT_FILES, init_folder
 from doorlab.pset.grader import TESTS
-from doorlab.runs import MANIFEST_NAME
 
 FULL_MARKS = sum(t.max_score for t in TESTS)
 RUN_TIMEOUT_S = 900
@@ -117,7 +116,14 @@ def test_zip_holds_the_scripts_the_settings_and_this_doorlab_as_a_wheel(zip_path
         names = set(archive.namelist())
         settings = json.loads(archive.read(autograder.SETTINGS_NAME))
         wheel_name = settings["wheel"]
-        assert names == {"setup.sh", "run_autograder", autograder.SETTINGS_NAME, wheel_name}
+        assert names == {
+            "setup.sh",
+            "run_autograder",
+            autograder.SETTINGS_NAME,
+            autograder.ASSIGNMENT_NAME,
+            autograder.CONSTRAINTS_NAME,
+            wheel_name,
+        }
         for script in ("setup.sh", "run_autograder"):
             info = archive.getinfo(script)
             assert info.external_attr >> 16 & 0o111, f"{script} is not executable"
@@ -127,11 +133,14 @@ def test_zip_holds_the_scripts_the_settings_and_this_doorlab_as_a_wheel(zip_path
             assert check.returncode == 0, check.stderr
         setup = archive.read("setup.sh").decode()
         wheel = archive.read(wheel_name)
-    assert f'WHEEL="$SOURCE/{wheel_name}"' in setup  # the one file setup.sh takes from the zip
+    # The files setup.sh takes from the zip: the wheel and the pinned versions.
+    assert f'WHEEL="$SOURCE/{wheel_name}"' in setup
+    assert f'CONSTRAINTS="$SOURCE/{autograder.CONSTRAINTS_NAME}"' in setup
     assert settings["doorlab"] == doorlab.__version__
     assert settings["package_sha256"] == autograder.package_digest()
     assert settings["student_files"] == list(STUDENT_FILES)
-    assert settings["jobs"] == 1  # fits Gradescope's default 768 MB (a grading peaks ~380 MiB)
+    assert settings["jobs"] == 1  # fits Gradescope's default 768 MB (README: its peak)
+    assert settings["digest"] == autograder.zip_digest(settings)
     assert wheel_name == f"doorlab-{doorlab.__version__}-py3-none-any.whl"
 
     # The wheel: exactly the imported package's files (models, templates included), and a
@@ -216,58 +225,6 @@ def test_autograder_refuses_bad_destinations_and_leaves_nothing_half_written(
         assert json.loads(archive.read(autograder.SETTINGS_NAME))["jobs"] == 3
 
 
-# What a submission may replace -------------------------------------------------------------
-
-
-def test_only_the_student_files_are_taken_from_a_submission(tmp_path):
-    """A whole solutions folder inside another folder, with decoys: modules named like the
-    ones the grader imports, a symbolic link and an oversized file named like student files
-    (shallower, so they would win if they were allowed), a flat robot_plans.py."""
-    submission = tmp_path / "submission"
-    init_folder(submission / "pset5", solutions=True)
-    (submission / "json.py").write_text("def dumps(*a, **k):\n    return '{\"passed\": true}'\n")
-    (submission / "doorlab" / "pset").mkdir(parents=True)
-    (submission / "doorlab" / "pset" / "worker.py").write_text("raise SystemExit(0)\n")
-    (submission / "ik_utils.py").symlink_to("/etc/passwd")
-    big = "#" * (autograder.SUBMISSION_FILE_LIMIT + 1)
-    (submission / "open_left_door.py").write_text(big)
-    (submission / "robot_plans.py").write_text("# an old copy\n")
-    (submission / "__MACOSX").mkdir()
-    (submission / "__MACOSX" / "._robot_plans.py").write_text("resource fork")
-
-    folder = init_folder(tmp_path / "pset")
-    taken = autograder.collect_submission(submission, folder)
-    assert taken.taken == {rel: f"pset5/{rel}" for rel in STUDENT_FILES}
-    assert taken.missing == []
-    solutions = render_folder(solutions=True)
-    stubs = render_folder(solutions=False)
-    files = {p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file()}
-    files.discard(MANIFEST_NAME)  # what doorlab wrote there (issue 19's --force rule)
-    assert files == set(stubs), "nothing but the student files enters the folder"
-    for rel in files:
-        expected = solutions[rel] if rel in STUDENT_FILES else stubs[rel]
-        assert (folder / rel).read_text() == expected, rel
-    assert {"json.py", "doorlab/pset/worker.py", "robot_plans.py"} <= set(taken.ignored)
-    assert not any("__MACOSX" in f for f in taken.ignored)
-    assert any("ik_utils.py is a symbolic link" in r for r in taken.rejected), taken.rejected
-    assert any("open_left_door.py is over" in r for r in taken.rejected), taken.rejected
-    summary = taken.summary()
-    assert "json.py" in summary and "symbolic link" in summary
-
-
-def test_a_flat_upload_of_one_file_grades_it_and_the_other_stubs(tmp_path):
-    submission = tmp_path / "submission"
-    submission.mkdir()
-    robot_plans = render_folder(solutions=True)["manip_station_sim/robot_plans.py"]
-    (submission / "robot_plans.py").write_text(robot_plans)
-    folder = init_folder(tmp_path / "pset")
-    taken = autograder.collect_submission(submission, folder)
-    assert taken.taken == {"manip_station_sim/robot_plans.py": "robot_plans.py"}
-    assert taken.missing == ["ik_utils.py", "open_left_door.py"]
-    assert (folder / "manip_station_sim" / "robot_plans.py").read_text() == robot_plans
-    assert "Not in your submission" in taken.summary()
-
-
 # run_autograder --------------------------------------------------------------------------
 
 
@@ -287,6 +244,7 @@ def test_setup_check_accepts_the_installed_wheel_and_rejects_another_doorlab(roo
     )
     assert check.returncode == 0, check.stderr
     assert "ready to grade" in check.stdout
+    assert f"distributions at the versions of {autograder.CONSTRAINTS_NAME}" in check.stdout
 
     # A root whose settings name other package files: refused before any grading.
     other = tmp_path / "other"
@@ -305,6 +263,21 @@ def test_setup_check_accepts_the_installed_wheel_and_rejects_another_doorlab(roo
     assert "is not the zip's" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
     assert not (other / "results" / "results.json").exists()
 
+    # An assignment changed after the zip was written (say, points raised by hand in the
+    # image): refused too, naming the file.
+    shutil.rmtree(other / "source")
+    shutil.copytree(root / "source", other / "source")
+    path = other / "source" / autograder.ASSIGNMENT_NAME
+    path.write_text(path.read_text().replace("points: 2.0", "points: 20.0", 1))
+    proc = subprocess.run(
+        [str(python), "-I", "-m", "doorlab.pset.autograder", "--root", str(other)],
+        capture_output=True,
+        text=True,
+    )
+    assert proc.returncode == 1 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert f"{autograder.ASSIGNMENT_NAME} is not the zip's" in proc.stderr
+    assert not (other / "results" / "results.json").exists()
+
 
 def test_run_autograder_gives_a_correct_submission_full_marks(root):
     _submit(root, lambda d: init_folder(d, solutions=True))
@@ -316,13 +289,22 @@ def test_run_autograder_gives_a_correct_submission_full_marks(root):
     assert "Graded from your submission: " + ", ".join(STUDENT_FILES) in results["output"]
     assert f"doorlab {doorlab.__version__}" in results["output"]
     assert f"Total score: {FULL_MARKS:g} / {FULL_MARKS:g}" in proc.stdout
+    # Gradescope's fields (its Autograder Specifications): plain text, never HTML; the
+    # zip's (default) visibility; each test's number and status; which zip graded.
+    assert results["output_format"] == results["test_output_format"] == "text"
+    assert results["visibility"] == "visible"
+    assert [t["number"] for t in results["tests"]] == [t.number for t in TESTS]
+    assert all(t["status"] == "passed" and t["output_format"] == "text" for t in results["tests"])
+    settings = json.loads((root / "source" / autograder.SETTINGS_NAME).read_text())
+    assert results["extra_data"]["autograder"]["digest"] == settings["digest"]
 
 
 def test_run_autograder_gives_the_stubs_zero(root, reference_args):
     _submit(root, init_folder)
-    proc = _run(root, *JOBS, *reference_args)
+    proc = _run(root, *JOBS, *reference_args, "--seed", "7")  # a recorded grading's seed
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     results = _results(root)
+    assert results["extra_data"]["seed"]["grading"] == 7
     assert results["score"] == 0
     assert len(results["tests"]) == len(TESTS)
     assert all(t["score"] == 0 for t in results["tests"])

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import doorlab
 from doorlab.pset.folder import STUDENT_FILES, init_folder, render_folder
 from doorlab.pset.notebook import NOTEBOOK_NAME
 
@@ -98,7 +99,10 @@ def test_the_pset_extra_gives_the_jupyter_notebook_the_folder_readme_runs():
     pset = [r for r in metadata.requires("doorlab") or [] if 'extra == "pset"' in r]
     assert any(r.startswith("notebook") for r in pset), pset
     readme = render_folder(solutions=False)["README.md"]
-    assert 'pip install "doorlab[pset]"' in readme
+    # The install line works from the handout alone (doorlab is not on PyPI): the wheel.
+    assert f'pip install "./doorlab-{doorlab.__version__}-py3-none-any.whl[pset]"' in readme
+    assert 'pip install "doorlab[pset]"' not in readme
+    assert "doorlab report" not in readme  # doorlab's own answers to the graded questions
     assert f"jupyter notebook {NOTEBOOK_NAME}" in readme
     for rel in STUDENT_FILES:
         assert f"`{rel}`" in readme  # what to submit

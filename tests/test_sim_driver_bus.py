@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from drake import lcmt_iiwa_command, lcmt_iiwa_status, lcmt_schunk_wsg_status
 from lcm_fixtures import BusListener, lcm_url, multicast_route, sim_driver_process, stop  # noqa: F401
+from realtime_host import host_watch
 
 from doorlab.constants import DOOR_ANGLES, Q_HOME
 from doorlab.hardware.ground_truth import GroundTruth
@@ -98,7 +99,7 @@ def test_protocol_over_the_bus(alone, lcm_url, tmp_path):  # noqa: F811
             sent.append((k, status.utime))
 
     listener.handlers.append(answer)
-    with alone(), sim_driver_process(lcm_url, out=out) as driver:
+    with alone(), host_watch() as host, sim_driver_process(lcm_url, out=out) as driver:
         listener.wait_for(IIWA_STATUS_CHANNEL, timeout=STARTUP_TIMEOUT)
         listener.poll(0.35)  # the client waits out the driver's 0.25 s start guard
         answering[0] = True
@@ -116,12 +117,17 @@ def test_protocol_over_the_bus(alone, lcm_url, tmp_path):  # noqa: F811
     assert np.all(utimes % 5000 == 0) and np.all(np.diff(utimes) > 0)
     sent_count = utimes[-1] // 5000 + 1
     # The listener keeps up: it misses a status only when the test process sleeps > 5 ms.
-    assert len(statuses) >= 0.9 * sent_count
+    missed = 1 - len(statuses) / sent_count
+    with host.excuse("statuses missed by the listener"):
+        assert missed <= 0.1, f"{missed:.1%} of the {sent_count} statuses missed (<= 10 %)"
     # 200 Hz within 2 %: the least-delayed stamps are within a millisecond or two of due,
     # which over the >= 4 s span weighs < 0.1 %; 2 % would be 80 ms lost or gained.
-    assert rate(statuses, IIWA_STATUS_PERIOD) == pytest.approx(200.0, rel=0.02)
     wsg = listener.messages[WSG_STATUS_CHANNEL]
-    assert rate(wsg, WSG_STATUS_PERIOD) == pytest.approx(20.0, rel=0.02)
+    with host.excuse("the driver's measured rate"):
+        hz = rate(statuses, IIWA_STATUS_PERIOD)
+        assert hz == pytest.approx(200.0, rel=0.02), f"IIWA_STATUS at {hz:.1f} Hz (200 +- 2 %)"
+        hz = rate(wsg, WSG_STATUS_PERIOD)
+        assert hz == pytest.approx(20.0, rel=0.02), f"WSG_STATUS at {hz:.2f} Hz (20 +- 2 %)"
     assert wsg[0][1].actual_position_mm == pytest.approx(30.0, abs=1e-6)  # initial width
 
     for _, status in statuses:
@@ -143,9 +149,10 @@ def test_protocol_over_the_bus(alone, lcm_url, tmp_path):  # noqa: F811
     assert np.all(np.diff(shown) >= 0)
     due = [(answered.get(u - 5000), k) for u, k in zip(utimes, shown, strict=True)]
     due = [(d, k) for d, k in due if d is not None]
-    assert len(due) > 0.8 * n_answered
-    on_time = np.mean([k >= d for d, k in due])
-    assert on_time >= 0.9, f"only {on_time:.0%} of the statuses report the previous answer"
+    with host.excuse("commands applied late"):
+        assert len(due) > 0.8 * n_answered, f"{len(due)} of {n_answered} answers seen due"
+        on_time = np.mean([k >= d for d, k in due])
+        assert on_time >= 0.9, f"only {on_time:.0%} of the statuses report the previous answer"
     # Held: every status after the last command reports it.
     last_utime = sent[-1][1]
     later = [k for u, k in zip(utimes, shown, strict=True) if u > last_utime + 10000]
@@ -154,7 +161,10 @@ def test_protocol_over_the_bus(alone, lcm_url, tmp_path):  # noqa: F811
     # The ground truth: the driver's record of the same instants, sample for sample.
     facts = json.loads((out / "driver.json").read_text())
     assert facts["status"] == "interrupted" and "signal 15" in facts["message"]
-    assert 0.95 * n_answered <= facts["iiwa_commands_received"] <= n_answered
+    received = facts["iiwa_commands_received"]
+    assert received <= n_answered
+    with host.excuse("commands the driver did not read"):
+        assert received >= 0.95 * n_answered, f"the driver read {received} of {n_answered}"
     truth = GroundTruth.load(out / "ground_truth.npz")
     assert np.allclose(np.diff(truth.t), 0.01)
     np.testing.assert_allclose(truth.door_angles[-1], DOOR_ANGLES["closed"], atol=1e-6)
@@ -205,7 +215,7 @@ def test_utime_warmup_and_sigint(alone, lcm_url):  # noqa: F811
     """--utime-warmup: utime -1 for the first 200 statuses (1 s), then the time in us;
     Ctrl-C (SIGINT) ends it with exit 130."""
     listener = listener_for(lcm_url)
-    with alone(), sim_driver_process(lcm_url, "--utime-warmup") as driver:
+    with alone(), host_watch() as host, sim_driver_process(lcm_url, "--utime-warmup") as driver:
         listener.wait_for(IIWA_STATUS_CHANNEL, timeout=STARTUP_TIMEOUT)
         statuses = listener.messages[IIWA_STATUS_CHANNEL]
         listener.poll(5.0, lambda: statuses[-1][1].utime >= 1_100_000)
@@ -214,7 +224,9 @@ def test_utime_warmup_and_sigint(alone, lcm_url):  # noqa: F811
     utimes = [s.utime for _, s in statuses]
     warm = [u for u in utimes if u == -1]
     assert utimes[: len(warm)] == warm  # every -1 comes first
-    assert 0.9 * 200 <= len(warm) <= 200
+    assert len(warm) <= 200
+    with host.excuse("statuses missed by the listener"):
+        assert len(warm) >= 0.9 * 200, f"{len(warm)} of the 200 warm-up statuses seen"
     ready = [(w, s.utime) for w, s in statuses if s.utime >= 0]
     assert ready[0][1] % 5000 == 0 and 1_000_000 <= ready[0][1] <= 1_025_000
     # The 201st status leaves 1 s after the first, never sooner: the driver is paced, and a

@@ -10,7 +10,7 @@ ROOT = Path(__file__).resolve().parents[1]
 TEXTS = (".py", ".j2", ".md", ".yaml", ".ipynb", ".css", ".html")
 RANDOM = re.compile(
     r"random|rng|sampl|\bseed\b\s*(:|=|<)|\.seed\b|\"seed\"|SeedSequence|seed must be|"
-    r"from the seed$|from ``seed``|SPEC_KEYS",
+    r"from the seed$|from ``seed``|SPEC_KEYS|--seed\b|grading seed",
     re.I,
 )
 

@@ -210,12 +210,13 @@ def _scheduler(parser: argparse.ArgumentParser) -> None:
 
 
 def add_pset_parser(sub) -> None:
-    """``doorlab pset {init,grade,autograder}``: the problem-set folder, its grader and the
-    grader as a Gradescope autograder zip."""
+    """``doorlab pset {init,grade,autograder,handout,assignment}``: the problem-set folder,
+    its grader, the grader as a Gradescope autograder zip, the students' handout and the
+    assignment file."""
     pset = sub.add_parser("pset", help="write the problem-set folder for students, or grade one")
     actions = pset.add_subparsers(
         dest="pset_command",
-        metavar="{init,grade,autograder}",
+        metavar="{init,grade,autograder,handout,assignment}",
         parser_class=OneLineParser,
         required=True,
     )
@@ -225,13 +226,21 @@ def add_pset_parser(sub) -> None:
         "--solutions", action="store_true", help="write the reference solutions, not the stubs"
     )
     init.add_argument("--force", action="store_true", help="replace an existing DIR")
-    grade = actions.add_parser("grade", help="grade the problem-set folder DIR")
-    grade.add_argument("dir", type=Path, metavar="DIR", help="a folder written by pset init")
+    grade = actions.add_parser(
+        "grade", help="grade a submission (a problem-set folder, its three files, or a zip)"
+    )
+    grade.add_argument(
+        "dir",
+        type=Path,
+        metavar="SUBMISSION",
+        help="a folder (the problem set's, or holding its student files at any depth) or a .zip",
+    )
     grade.add_argument(
         "--out",
         type=Path,
         default=None,
-        help="results JSON (Gradescope format; default DIR/test_results.json)",
+        help="results JSON (Gradescope format; default SUBMISSION/test_results.json, or "
+        "NAME_results.json beside a NAME.zip)",
     )
     grade.add_argument(
         "--jobs", type=bounded_int(1), default=2, help="tests run at a time (default 2)"
@@ -243,6 +252,15 @@ def add_pset_parser(sub) -> None:
         metavar="RESULTS_JSON",
         help="reuse the reference episodes of an earlier grading's results (saves 3 episodes)",
     )
+    _assignment_option(grade)
+    grade.add_argument(
+        "--seed",
+        type=bounded_int(0, 2**63 - 1),
+        default=None,
+        metavar="N",
+        help="the grading seed of a recorded grading (its results' extra_data.seed.grading): "
+        "replays its random inputs",
+    )
     auto = actions.add_parser(
         "autograder", help="write a Gradescope autograder zip that grades with this doorlab"
     )
@@ -253,8 +271,33 @@ def add_pset_parser(sub) -> None:
         default=1,
         help="tests run at a time on Gradescope (default 1; 2 with 2 CPUs and 1.5 GB)",
     )
+    _assignment_option(auto)
     auto.add_argument(
         "--force", action="store_true", help="replace an existing OUT.zip written by doorlab"
+    )
+    hand = actions.add_parser(
+        "handout", help="write the students' zip: the problem-set folder and doorlab's wheel"
+    )
+    hand.add_argument("out", type=Path, metavar="OUT.zip", help="the zip to write")
+    _assignment_option(hand, "the README's points and margins")
+    hand.add_argument(
+        "--force", action="store_true", help="replace an existing OUT.zip written by doorlab"
+    )
+    assignment = actions.add_parser(
+        "assignment", help="write the default assignment file (points, margins, random seed, ...)"
+    )
+    assignment.add_argument("out", type=Path, metavar="FILE", help="the YAML file to write")
+
+
+def _assignment_option(
+    parser, what: str = "points, margins, visibility, random seed, helpers"
+) -> None:
+    parser.add_argument(
+        "--assignment",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help=f"the course's assignment file ({what}; doorlab pset assignment FILE writes one)",
     )
 
 

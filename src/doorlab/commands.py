@@ -28,33 +28,83 @@ from doorlab.inputs import quote_text
 
 
 def pset(args: argparse.Namespace) -> int:
-    """``doorlab pset {init,grade,autograder}``; returns the exit code."""
-    from doorlab.pset.folder import check_problem_set, init_folder
+    """``doorlab pset {init,grade,autograder,handout,assignment}``; returns the exit code."""
+    from doorlab.pset.folder import init_folder
 
     if args.pset_command == "init":
         out = init_folder(args.dir, solutions=args.solutions, force=args.force)
         kind = "solutions" if args.solutions else "student stubs"
         print(f"doorlab pset: wrote {out} ({kind}); grade it with: doorlab pset grade {out}")
         return 0
+    if args.pset_command == "assignment":
+        from doorlab.pset.assignment import write_default_assignment
+
+        out = write_default_assignment(args.out)
+        print(
+            f"doorlab pset: wrote {out} (the defaults, a fresh random seed); grade with it: "
+            f"doorlab pset grade SUBMISSION --assignment {out}"
+        )
+        return 0
+    assignment = _assignment(args.assignment)
     if args.pset_command == "autograder":
         from doorlab.pset.autograder import write_autograder
 
-        out = write_autograder(args.out, jobs=args.jobs, force=args.force)
+        out = write_autograder(args.out, jobs=args.jobs, force=args.force, assignment=assignment)
         print(
             f"doorlab pset: wrote {out} ({out.stat().st_size / 1e3:.0f} kB); upload it as the "
-            "assignment's autograder on Gradescope (base image Ubuntu 22.04 or newer)"
+            "assignment's autograder on Gradescope (base image: see the README)"
         )
         return 0
+    if args.pset_command == "handout":
+        from doorlab.pset.handout import write_handout
+
+        out = write_handout(args.out, force=args.force, assignment=assignment)
+        print(
+            f"doorlab pset: wrote {out} ({out.stat().st_size / 1e3:.0f} kB): the student "
+            "folder and doorlab's wheel; its README says how to install and submit"
+        )
+        return 0
+    return _pset_grade(args, assignment)
+
+
+def _assignment(path: Path | None):
+    if path is None:
+        return None
+    from doorlab.pset.assignment import load_assignment
+
+    return load_assignment(path)
+
+
+def _pset_grade(args: argparse.Namespace, assignment) -> int:
+    """``doorlab pset grade SUBMISSION``: the one intake, the grader, the results file."""
     from doorlab.pset import grader
     from doorlab.runs import record_written
 
-    folder = check_problem_set(args.dir)
-    out = args.out or folder / "test_results.json"
+    source = Path(args.dir)
+    if not source.exists():
+        raise OutputError(f"{source} does not exist; grade a folder or a .zip")
+    if source.is_dir():
+        out = args.out or source / "test_results.json"
+    elif source.suffix.lower() == ".zip":
+        out = args.out or source.with_name(f"{source.stem}_results.json")
+    else:
+        raise OutputError(
+            f"{source} is not a folder or a .zip: grade the submission's folder (the problem "
+            "set's, or one holding its files) or its zip"
+        )
     _check_writable(out)  # before grading: the grading takes minutes
     reference = None if args.reference is None else grader.load_reference(args.reference)
-    results = grader.grade(folder, jobs=args.jobs, reference=reference)
+    results = grader.grade_submission(
+        source,
+        jobs=args.jobs,
+        reference=reference,
+        assignment=assignment,
+        seed=args.seed,
+        require_files=True,
+    )
     grader.write_results(results, out)
-    record_written(folder, [out])  # doorlab's (pset init --force may replace it)
+    if source.is_dir():
+        record_written(source, [out])  # doorlab's (pset init --force may replace it)
     print(grader.pretty_format_json_results(out))
     print(f"doorlab pset: wrote {out} in {results['execution_time']:.0f} s")
     return 0
@@ -240,10 +290,29 @@ def run(args: argparse.Namespace) -> int:
     return outcome.exit_code
 
 
+def require_sweep_extra(what: str, modules: tuple[str, ...]) -> None:
+    """Raises ConfigError (one line, the install command) if a module of doorlab's ``sweep``
+    extra that ``what`` needs is not installed (doorlab itself installs without them)."""
+    import importlib
+
+    missing = []
+    for module in modules:  # imported now: the command imports them next anyway
+        try:
+            importlib.import_module(module)
+        except ImportError:
+            missing.append(module)
+    if missing:
+        raise ConfigError(
+            f"{what} needs {' and '.join(missing)}, of doorlab's sweep extra: "
+            'pip install "doorlab[sweep]" (in a clone: pip install -e ".[sweep]")'
+        )
+
+
 def _probe(args: argparse.Namespace) -> None:
     """A --scheduler is checked and asked who it is before anything else is imported or
     built: an address that is no Dask scheduler is one line within --scheduler-timeout."""
     if args.scheduler is not None:
+        require_sweep_extra("--scheduler", ("distributed",))
         from doorlab.executor import check_scheduler, probe_scheduler
 
         probe_scheduler(check_scheduler(args.scheduler), args.scheduler_timeout)
@@ -289,6 +358,7 @@ def sweep(args: argparse.Namespace) -> int:
     if args.resume and args.force:
         raise ConfigError("--resume and --force exclude each other")
     spec = load_spec(args.spec, grid=args.grid)  # before pandas is imported: refusals stay small
+    require_sweep_extra("doorlab sweep", ("pandas", "pyarrow"))
     jobs = args.jobs or os.cpu_count() or 1
     try:
         _probe(args)

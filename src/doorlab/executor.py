@@ -29,7 +29,7 @@ from contextlib import contextmanager
 
 from doorlab.errors import ConfigError
 from doorlab.inputs import quote, quote_text
-from doorlab.interrupts import spawning_workers, stop_processes, worker_signals
+from doorlab.interrupts import end_pool, spawning_workers, worker_signals
 
 SCHEDULER_SCHEMES = ("tcp", "tls", "ws", "wss")
 """Protocols of the addresses ``--scheduler`` accepts, e.g. ``tcp://10.0.0.5:8786``."""
@@ -118,9 +118,7 @@ class LocalExecutor(concurrent.futures.ProcessPoolExecutor):
     def stop(self) -> None:
         """Cancels pending tasks and ends the worker processes (SIGTERM, then SIGKILL for any
         still there after a moment); returns once they are gone."""
-        processes = list((getattr(self, "_processes", None) or {}).values())
-        self.shutdown(wait=False, cancel_futures=True)
-        stop_processes(processes)
+        end_pool(self, at_once=True)
 
 
 def _within(timeout_s: float, what: str, call):

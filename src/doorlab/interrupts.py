@@ -142,6 +142,32 @@ def stop_processes(processes, *, grace_s: float = 2.0) -> None:
             process.join(timeout=grace_s)
 
 
+POOL_JOIN_S = 10.0
+"""How long :func:`end_pool` waits for a pool's manager thread [s] (it sends the workers
+their stop and joins them: a fraction of a second)."""
+
+
+def end_pool(pool, *, at_once: bool = False, join_s: float = POOL_JOIN_S) -> None:
+    """Ends a ``ProcessPoolExecutor``: cancels its pending tasks, stops its workers
+    (``at_once``: :func:`stop_processes`, without waiting for their tasks; else they finish
+    the task in hand) and waits for its manager thread.
+
+    That last wait is the point: ``shutdown(wait=False)`` leaves the manager thread closing
+    the pool's wake-up pipe while the interpreter exits, and CPython's exit hook
+    (``concurrent.futures.process._python_exit``) writes to that pipe without the pool's
+    lock: on a busy machine the two meet and Python prints "Exception ignored ...
+    OSError: [Errno 9] Bad file descriptor" at exit. Once the thread is gone the pipe is
+    closed and marked so, and the hook leaves it alone.
+    """
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    manager = getattr(pool, "_executor_manager_thread", None)
+    pool.shutdown(wait=False, cancel_futures=True)
+    if at_once:
+        stop_processes(processes)
+    if manager is not None and manager.is_alive():
+        manager.join(join_s)
+
+
 def _raise_interrupted(signum: int, frame) -> None:
     raise Interrupted(signum)
 

@@ -29,9 +29,9 @@ from doorlab.errors import IkError, OutputError, RunStopped, SafetyStop, Simulat
 from doorlab.geometry import true_door_geometry
 from doorlab.interrupts import (
     deferred_signals,
+    end_pool,
     ignoring_signals,
     spawning_workers,
-    stop_processes,
     worker_signals,
 )
 from doorlab.metrics import DoorMetrics, Kinematics, compute_metrics
@@ -447,10 +447,7 @@ def _plot_worker() -> concurrent.futures.ProcessPoolExecutor:
 def _stop_plot_worker(worker: concurrent.futures.ProcessPoolExecutor, *, at_once: bool) -> None:
     """Ends the plot worker; ``at_once``: without waiting for its drawing (and before the
     staging folder it draws into is removed)."""
-    processes = list((getattr(worker, "_processes", None) or {}).values())
-    worker.shutdown(wait=False, cancel_futures=True)
-    if at_once:
-        stop_processes(processes)
+    end_pool(worker, at_once=at_once)
 
 
 def run_to_folder(

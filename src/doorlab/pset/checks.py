@@ -1,6 +1,7 @@
 """The grader's unit tests, on the trusted side.
 
-Each test draws its inputs here (the random seed is printed, so a result can be reproduced), asks
+Each test draws its inputs here, from the grading seed (printed; derived from the
+assignment's random seed and the submission's files: a regrade draws the same inputs), asks
 the student's process (:class:`~doorlab.pset.student.StudentProcess`) for the student's
 outputs, validates them (:mod:`doorlab.pset.channel`) and compares them with doorlab's
 reference, computed here. Nothing the student's process holds can see or change the
@@ -68,9 +69,12 @@ SEED_CONTROL_PERIOD = 0.005
 """The plan runner's period [s]: the drawn control periods avoid it."""
 
 
-def _rng() -> tuple[np.random.Generator, int]:
-    seed = int(np.random.SeedSequence().entropy % (2**32))
-    return np.random.default_rng(seed), seed
+def _rng(seed: int | None, job: str) -> tuple[np.random.Generator, int]:
+    """The random draws of ``job`` from the grading seed (None: a fresh one), and that seed."""
+    from doorlab.pset.assignment import SEED_BITS, job_seed
+
+    grading = seed if seed is not None else int(np.random.SeedSequence().entropy % 2**SEED_BITS)
+    return np.random.default_rng(job_seed(grading, job)), grading
 
 
 def _fmt(x) -> str:
@@ -93,13 +97,13 @@ def _draw_taus(rng: np.random.Generator) -> np.ndarray:
     return np.concatenate([[0.0, 1.0], rng.uniform(0.02, 0.98, 5)])
 
 
-def check_calc_p_Q(student: StudentProcess) -> dict:
+def check_calc_p_Q(student: StudentProcess, seed: int | None = None) -> dict:
     """calc_p_Q(tau) = arc(tau) - handle at random tau in [0, 1] (and 0 at tau = 0)."""
     g = default_door_geometry()
-    rng, seed = _rng()
+    rng, seed = _rng(seed, "unit:calc_p_Q")
     taus = _draw_taus(rng)
     values = _values(student.call("p_Q", taus=taus.tolist()), len(taus))
-    lines = [f"random seed {seed}; tolerance {POSITION_ATOL:g} m"]
+    lines = [f"grading seed {seed}; tolerance {POSITION_ATOL:g} m"]
     ok = True
     for tau, value in zip(taus, values, strict=True):
         expected = g.p_WQ_ref(tau) - g.p_W_handle
@@ -126,13 +130,13 @@ def _rotation(value: dict) -> np.ndarray | str:
     return R
 
 
-def check_calc_R_WL7_ref(student: StudentProcess) -> dict:
+def check_calc_R_WL7_ref(student: StudentProcess, seed: int | None = None) -> dict:
     """calc_R_WL7_ref(tau) = RollPitchYaw(0, 3 pi/4, -sweep tau) at random tau."""
     g = default_door_geometry()
-    rng, seed = _rng()
+    rng, seed = _rng(seed, "unit:calc_R_WL7_ref")
     taus = _draw_taus(rng)
     values = _values(student.call("R_WL7_ref", taus=taus.tolist()), len(taus))
-    lines = [f"random seed {seed}; tolerance {ROTATION_ATOL:g} rad"]
+    lines = [f"grading seed {seed}; tolerance {ROTATION_ATOL:g} rad"]
     ok = True
     for tau, value in zip(taus, values, strict=True):
         expected = g.R_WL7_ref(tau)
@@ -288,13 +292,13 @@ def _close(a: np.ndarray, b: np.ndarray) -> bool:
     return bool(np.all(np.abs(a - b) <= COMMAND_ATOL))
 
 
-def _check_law(student: StudentProcess, kind: str) -> dict:
+def _check_law(student: StudentProcess, kind: str, seed: int | None) -> dict:
     method = "CalcPositionCommand" if kind == "velocity" else "CalcTorqueCommand"
     cls = "IiwaTaskSpaceVelocityPlan" if kind == "velocity" else "IiwaTaskSpaceImpedancePlan"
     unit = "rad" if kind == "velocity" else "N m"
     ignored = ["q_cmd", "v", "tau_ext"] + ([] if kind == "velocity" else ["dt"])
     kin = ArmKinematics()
-    rng, seed = _rng()
+    rng, seed = _rng(seed, f"unit:{kind}")
     cases = [_law_case(rng, kin) for _ in range(UNIT_DRAWS)]
     # For each draw: its inputs, then the same with one argument the law must not read
     # drawn anew (one request: one round trip for the whole test).
@@ -308,7 +312,7 @@ def _check_law(student: StudentProcess, kind: str) -> dict:
     answers = _values(student.call("law", kind=kind, cases=requests), len(requests))
     got = [as_array(a, (7,), method, finite=False) for a in answers]
     lines = [
-        f"random seed {seed}; {UNIT_DRAWS} random arm states (q_cmd != q_iiwa, v_iiwa and "
+        f"grading seed {seed}; {UNIT_DRAWS} random arm states (q_cmd != q_iiwa, v_iiwa and "
         f"tau_iiwa != 0, t_plan off the knots, control_period != {SEED_CONTROL_PERIOD} s); "
         f"tolerance {COMMAND_ATOL:g}"
     ]
@@ -347,14 +351,14 @@ def _check_law(student: StudentProcess, kind: str) -> dict:
     return _result(ok, lines)
 
 
-def check_velocity(student: StudentProcess) -> dict:
+def check_velocity(student: StudentProcess, seed: int | None = None) -> dict:
     """IiwaTaskSpaceVelocityPlan.CalcPositionCommand = q + J^+ V_des dt at random states."""
-    return _check_law(student, "velocity")
+    return _check_law(student, "velocity", seed=seed)
 
 
-def check_impedance(student: StudentProcess) -> dict:
+def check_impedance(student: StudentProcess, seed: int | None = None) -> dict:
     """IiwaTaskSpaceImpedancePlan.CalcTorqueCommand = J^T F at random states."""
-    return _check_law(student, "impedance")
+    return _check_law(student, "impedance", seed=seed)
 
 
 # Task 1 ------------------------------------------------------------------------------------
@@ -422,17 +426,17 @@ def _knot_problems(case: dict, q_knots: np.ndarray, kin: ArmKinematics) -> list[
     return problems
 
 
-def check_ik(student: StudentProcess) -> dict:
+def check_ik(student: StudentProcess, seed: int | None = None) -> dict:
     """InverseKinPointwise on a path, knot count, duration, grasp point, guess and tolerances
     drawn at random: FK of every knot within the tolerances, the trajectory through the
     knots over [0, duration], zero end velocities, no branch flips."""
     g = default_door_geometry()
     kin = ArmKinematics()
-    rng, seed = _rng()
+    rng, seed = _rng(seed, "unit:ik")
     case = _ik_case(rng)
     n, duration = case["num_knot_points"], case["duration"]
     lines = [
-        f"random seed {seed}: num_knot_points {n}, duration {duration:.2f} s, arc tau from "
+        f"grading seed {seed}: num_knot_points {n}, duration {duration:.2f} s, arc tau from "
         f"{case['a']:.2f} to {case['b']:.2f} shifted by {_fmt(case['offset'])} m, p_L7Q "
         f"{_fmt(case['p_L7Q'])} m, position_tolerance {case['position_tolerance'] * 1e3:.2f} "
         f"mm, theta_bound {case['theta_bound']:.4f} rad"

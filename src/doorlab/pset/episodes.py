@@ -32,6 +32,9 @@ ARC_DURATION = 10.0
 """The problem set's arc plans' duration [s]."""
 GRIPPER_WIDTH = 0.005
 """The problem set's finger setpoint while the plans run [m]."""
+HELPER_KNOTS = 1001
+"""Values of tau at which the reference calc_p_Q and calc_R_WL7_ref are sent to the
+student's process, which interpolates between them (:func:`reference_helper_table`)."""
 
 
 def trajectory_from_answer(
@@ -84,6 +87,23 @@ def trajectory_from_answer(
             f"[{t[0]:.3f}, {t[-1]:.3f}] s"
         )
     return qtraj, knots
+
+
+def reference_helper_table(knots: int = HELPER_KNOTS) -> dict:
+    """doorlab's calc_p_Q and calc_R_WL7_ref at ``knots`` values of tau in [0, 1], for an
+    episode that runs the reference helpers (:data:`doorlab.pset.verdicts.TESTS`' helpers):
+    the student's process interpolates them (positions linearly: the arc's chord error at
+    1,001 knots is r (sweep / 1000)^2 / 8 < 0.1 um; orientations by slerp, exact for a yaw
+    that is linear in tau), so no reference code runs there.
+
+    Returns:
+        ``{"taus": [...], "p_Q": [[x, y, z], ...] [m], "quaternions": [[w, x, y, z], ...]}``.
+    """
+    g = default_door_geometry()
+    taus = np.linspace(0.0, 1.0, knots)
+    p_Q = [(g.p_WQ_ref(tau) - g.p_W_handle).tolist() for tau in taus]
+    quaternions = [g.R_WL7_ref(tau).ToQuaternion().wxyz().tolist() for tau in taus]
+    return {"taus": taus.tolist(), "p_Q": p_Q, "quaternions": quaternions}
 
 
 class RemotePlan:
@@ -173,9 +193,15 @@ def grasp_configuration() -> np.ndarray:
     )
 
 
-def student_episode(student: StudentProcess, controller: str) -> dict:
+def student_episode(
+    student: StudentProcess, controller: str, *, helpers: str = "reference"
+) -> dict:
     """The problem set's task cell for one controller with the student's functions, simulated here:
-    hold 2 s, move 7 s to the start, hold 1 (+1) s, the arc plan (10 + 1 s), 2 s more."""
+    hold 2 s, move 7 s to the start, hold 1 (+1) s, the arc plan (10 + 1 s), 2 s more.
+
+    ``helpers`` (the velocity and impedance plans): ``reference`` runs the plan on doorlab's
+    calc_p_Q and calc_R_WL7_ref (:func:`reference_helper_table`), so the episode grades the
+    plan alone; ``student`` on the student's."""
     from dataclasses import replace
 
     from doorlab.plans import JointSpacePlan
@@ -212,12 +238,14 @@ def student_episode(student: StudentProcess, controller: str) -> dict:
         arc = JointSpacePlan(qtraj, name="student_ik")
     else:
         q_start = grasp_configuration()
+        table = reference_helper_table() if helpers == "reference" else None
         student.call(
             "plan",
             kind=controller,
             duration=ARC_DURATION,
             p_L7Q=p_L7Q.tolist(),
             q_start=q_start.tolist(),
+            reference_helpers=table,
         )
         arc = RemotePlan(student, ARC_DURATION, period, name=f"student_{controller}")
     hold = JointSpacePlan(

@@ -8,15 +8,15 @@ is the one ``pset init`` wrote.
 
 from __future__ import annotations
 
-import math
 from importlib.resources import files
 from pathlib import Path
 
 import jinja2
 
 from doorlab.errors import OutputError
-from doorlab.pset import grader
+from doorlab.pset.jobs import EPISODE_TIME_LIMIT_S, UNIT_TIME_LIMIT_S
 from doorlab.pset.notebook import NOTEBOOK_NAME, notebook_json
+from doorlab.pset.verdicts import STUDENT_FILES, TESTS
 
 TEMPLATES = (
     ("open_left_door.py.j2", "open_left_door.py"),
@@ -41,9 +41,6 @@ STUDENT_FUNCTIONS = (
     "IiwaTaskSpaceImpedancePlan.CalcTorqueCommand",
 )
 
-STUDENT_FILES = ("ik_utils.py", "open_left_door.py", "manip_station_sim/robot_plans.py")
-"""The files a student edits (they hold every stub of STUDENT_FUNCTIONS): the only files of a
-submission that the Gradescope autograder grades; the rest of the folder is doorlab's."""
 
 _RULES = {
     "Task 1 unit test: InverseKinPointwise": "random knot count (3-7), duration (3-8 s), "
@@ -61,44 +58,62 @@ _RULES = {
     "arm states and errors (1e-6 N m; clipped at +-20 N m as in 2019 is accepted too); "
     "changing q_cmd, v_iiwa, tau_iiwa or control_period alone must not change the answer",
     "Task 1 episode: IK with 10 knots, doors open": "Q's max radial error along the arc at "
-    "most the reference's + {ik_margin:.2f} mm; Q ends the arc within {arc_end:.0f} deg of "
+    "most the reference's + {ik_margin:.2f} mm; Q ends the arc within {ik_arc_end:g} deg of "
     "the reference (Q's angle about the hinge is the notebook's theta, measured from W's y "
     "axis, not the door's opening, which counts from the closed door)",
     "Task 2 episode: velocity plan, doors open": "Q's max radial error below the reference "
     "pointwise IK's (10 knots); L7's orientation error at most the reference's + "
-    "{o_margin} rad; Q ends within {arc_end:.0f} deg of the reference (the same angle as "
+    "{o_margin:g} rad; Q ends within {velocity_arc_end:g} deg of the reference (the same angle as "
     "in task 1)",
     "Task 3 episode: impedance plan, doors closed": "the gripper still holds the handle at "
-    "the end; the door opens within {door:.0f} deg of the reference's opening (measured "
+    "the end; the door opens within {door:g} deg of the reference's opening (measured "
     "from the closed door)",
 }
 
 
-def _context(solutions: bool) -> dict:
+def wheel_name() -> str:
+    """The file name of this doorlab's wheel (``doorlab pset handout`` and the autograder
+    zip carry it; the folder's README installs it)."""
+    from doorlab import __version__
+
+    return f"doorlab-{__version__}-py3-none-any.whl"
+
+
+def _context(solutions: bool, assignment=None) -> dict:
     from importlib.metadata import version
 
     from doorlab import __version__
+    from doorlab.pset.assignment import Assignment
 
+    t = (assignment or Assignment()).tests
     values = {
-        "ik_margin": grader.IK_RADIAL_MARGIN * 1e3,
-        "arc_end": math.degrees(grader.ARC_END_MARGIN),
-        "o_margin": grader.VELOCITY_ORIENTATION_MARGIN,
-        "door": math.degrees(grader.DOOR_OPENING_MARGIN),
+        "ik_margin": t.ik_episode.radial_margin * 1e3,
+        "ik_arc_end": t.ik_episode.arc_end_margin_deg,
+        "velocity_arc_end": t.velocity_episode.arc_end_margin_deg,
+        "o_margin": t.velocity_episode.orientation_margin,
+        "door": t.impedance_episode.door_opening_margin_deg,
     }
     tests = [
-        {"name": t.name, "points": f"{t.max_score:g}", "rule": _RULES[t.name].format(**values)}
-        for t in grader.TESTS
+        {
+            "name": spec.name,
+            "points": f"{getattr(t, spec.key).points:g}",
+            "rule": _RULES[spec.name].format(**values),
+        }
+        for spec in TESTS
     ]
+    helpers = {
+        spec.name.split(": ")[0]: getattr(t, spec.key).helpers for spec in TESTS if spec.helpers
+    }
     reasons = [
         f"IK: +{values['ik_margin']:.2f} mm, because each knot may sit anywhere in the "
         "+-1 mm box, so two valid IKs can place a knot 2 sqrt(2) mm apart.",
-        f"Arc end: {values['arc_end']:.0f} deg; a correct plan ends within a fraction of a "
+        f"Arc end: {values['ik_arc_end']:g} deg; a correct plan ends within a fraction of a "
         "degree of the reference, one that does not follow the whole arc misses by tens.",
         "Velocity: staying below pointwise IK's error is the point of task 2 (the loop "
         "closes on Q at 200 Hz); the orientation margin "
-        f"{values['o_margin']} rad is far above the difference between two correct plans, "
+        f"{values['o_margin']:g} rad is far above the difference between two correct plans, "
         "while a wrong rotational term is off by tenths of a radian.",
-        f"Impedance: {values['door']:.0f} deg of door opening at the arc's end; a correct "
+        f"Impedance: {values['door']:g} deg of door opening at the arc's end; a correct "
         "J^T F lands within a degree of the reference, a wrong gain, sign or frame leaves "
         "the door far behind or loses the handle.",
     ]
@@ -106,10 +121,12 @@ def _context(solutions: bool) -> dict:
         "solutions": solutions,
         "version": __version__,
         "drake_version": version("drake"),
-        "unit_limit": f"{grader.UNIT_TIME_LIMIT_S:.0f}",
-        "episode_limit": f"{grader.EPISODE_TIME_LIMIT_S:.0f}",
+        "wheel": wheel_name(),
+        "unit_limit": f"{UNIT_TIME_LIMIT_S:.0f}",
+        "episode_limit": f"{EPISODE_TIME_LIMIT_S:.0f}",
         "tests": tests,
         "reasons": reasons,
+        "helpers": helpers,
         "student_files": STUDENT_FILES,
     }
 
@@ -127,10 +144,11 @@ def _environment() -> jinja2.Environment:
     )
 
 
-def render_folder(solutions: bool) -> dict[str, str]:
-    """Every file of the folder: relative path -> text."""
+def render_folder(solutions: bool, assignment=None) -> dict[str, str]:
+    """Every file of the folder: relative path -> text (the README's points and margins are
+    ``assignment``'s, default: the grader's defaults)."""
     env = _environment()
-    context = _context(solutions)
+    context = _context(solutions, assignment)
     out = {dest: env.get_template(src).render(context) for src, dest in TEMPLATES}
     out[NOTEBOOK_NAME] = notebook_json()
     return out

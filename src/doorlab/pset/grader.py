@@ -45,6 +45,7 @@ __all__ = [
     "UNIT_TIME_LIMIT_S",
     "GradingError",
     "grade",
+    "grade_submission",
     "load_reference",
     "pretty_format_json_results",
     "write_results",
@@ -63,6 +64,8 @@ def grade(
     reference: dict[str, dict] | None = None,
     only: Sequence[str] | None = None,
     time_limit_scale: float = 1.0,
+    assignment: object = None,
+    seed: int | None = None,
 ) -> dict:
     """Grades a problem-set folder; returns the Gradescope results (write them with
     :func:`write_results`).
@@ -77,10 +80,17 @@ def grade(
             ``extra_data["reference"]``); None simulates them in this grading.
         only: Names of the tests to run (default: all, :data:`TESTS`).
         time_limit_scale: Multiplies every test's time limit.
+        assignment: The course's settings (:class:`doorlab.pset.assignment.Assignment`:
+            points, margins, visibility, random seed, the episodes' helpers); None: the defaults.
+        seed: The grading's seed (``--seed``: replays a recorded grading's random inputs);
+            None derives it from the assignment's random seed and the folder's graded files.
 
     Returns:
-        ``{"score", "tests": [{"name", "score", "max_score", "output"}], "execution_time",
-        "extra_data": {"max_score", "reference", "sandbox"}}`` (``reference``: the reference
+        Gradescope's results: ``{"score", "visibility", "output", "output_format",
+        "test_output_format", "test_name_format", "tests": [{"name", "number", "score",
+        "max_score", "status", "visibility", "output", "output_format"}], "execution_time",
+        "extra_data": {"max_score", "seed", "reference", "sandbox"}}`` (``seed``: the grading
+        grading seed and where it came from, the graded files' SHA-256; ``reference``: the reference
         episodes' figures, reusable as the ``reference`` argument; ``sandbox``: how the
         student's code ran: uids, network isolated, reference files hidden, limits).
 
@@ -94,6 +104,8 @@ def grade(
         "reference": reference,
         "only": None if only is None else list(only),
         "time_limit_scale": float(time_limit_scale),
+        "assignment": None if assignment is None else assignment.to_dict(),
+        "seed": None if seed is None else int(seed),
     }
     proc = subprocess.Popen(
         [sys.executable, "-I", "-m", "doorlab.pset.jobs", "supervise"],
@@ -121,6 +133,66 @@ def grade(
     return results
 
 
+def grade_submission(
+    source: str | Path,
+    *,
+    jobs: int = 2,
+    reference: dict[str, dict] | None = None,
+    assignment: object = None,
+    seed: int | None = None,
+    require_files: bool = False,
+) -> dict:
+    """Grades a submission as every grading path does (``doorlab pset grade``, the folder's
+    ``test_pset_5a.py``, Gradescope's ``run_autograder``): its student files taken by the one
+    intake (:mod:`doorlab.pset.intake`: flat files, a folder, a folder under another, a zip;
+    a missing file's stub) into a fresh folder, graded there (:func:`grade`).
+
+    A submission over an intake bound is not graded: every test 0, the reason in its output.
+    The temporary folder is gone when this returns (or raises).
+
+    Args:
+        source: The submission: a folder, or a zip file.
+        jobs, reference, assignment, seed: As for :func:`grade`.
+        require_files: Refuse (OutputError) a submission that holds none of the student
+            files, rather than grade the stubs (``doorlab pset grade``: a mistyped folder;
+            Gradescope grades it: every test 0, as it should).
+
+    Returns:
+        :func:`grade`'s results; their top-level ``output`` says which doorlab graded, what was
+        taken from the submission and the grading seed; ``extra_data["submission"]`` lists it.
+
+    Raises:
+        OutputError: ``source`` is neither a folder nor a zip file; with ``require_files``,
+            it holds none of the student files.
+        GradingError: As for :func:`grade`.
+    """
+    from importlib.metadata import version
+
+    from doorlab import __version__
+    from doorlab.pset.intake import graded_copy
+    from doorlab.pset.verdicts import STUDENT_FILES, TESTS, results_not_graded
+
+    with graded_copy(source) as (folder, intake):
+        if require_files and intake.refused is None and not intake.taken:
+            raise OutputError(
+                f"{source} holds none of {', '.join(STUDENT_FILES)} (nothing to grade; "
+                f"{len(intake.rejected)} refused): give the problem-set folder, its files "
+                "or a zip of them"
+            )
+        if intake.refused is not None:
+            results = results_not_graded(TESTS, intake.refused, assignment)
+        else:
+            results = grade(
+                folder, jobs=jobs, reference=reference, assignment=assignment, seed=seed
+            )
+    header = f"Graded by doorlab {__version__} (Drake {version('drake')})."
+    results["output"] = "\n".join(
+        filter(None, [header, intake.summary(), str(results.get("output") or "")])
+    )
+    results["extra_data"]["submission"] = intake.to_dict()
+    return results
+
+
 def write_results(results: dict, path: str | Path) -> Path:
     """Writes Gradescope JSON atomically: a new file in the same folder, flushed to disk,
     renamed over ``path`` (a reader sees the old file or the whole new one)."""
@@ -143,9 +215,10 @@ def write_results(results: dict, path: str | Path) -> Path:
 
 
 def pretty_format_json_results(path: str | Path) -> str:
-    """A readable summary of a results file: one block per test and the total."""
+    """A readable summary of a results file: its top-level output (the doorlab that graded,
+    what was taken from the submission, the grading seed), one block per test and the total."""
     data = json.loads(Path(path).read_text())
-    lines = []
+    lines = str(data.get("output") or "").splitlines()
     for t in data["tests"]:
         mark = "PASS" if t["score"] >= t["max_score"] else "FAIL"
         lines.append(f"[{mark}] {t['name']}: {t['score']:g} / {t['max_score']:g}")
@@ -175,8 +248,9 @@ def load_reference(path: str | Path) -> dict[str, dict]:
 
 def main(argv: Sequence[str]) -> int:
     """``python -I -m doorlab.pset.grader FOLDER [RESULTS_JSON] [--reference FILE]`` (what the
-    folder's ``test_pset_5a.py`` runs): grades FOLDER, writes the JSON (default
-    ``test_results.json`` in the working directory) and prints the summary."""
+    folder's ``test_pset_5a.py`` runs): grades FOLDER's student files as Gradescope does
+    (:func:`grade_submission`), writes the JSON (default ``test_results.json`` in the
+    working directory) and prints the summary."""
     import argparse
 
     from doorlab.errors import interrupt_exit_code
@@ -194,7 +268,7 @@ def main(argv: Sequence[str]) -> int:
     os.chdir("/")  # nothing of the folder in this process either
     try:
         reference = None if args.reference is None else load_reference(args.reference)
-        results = grade(folder, reference=reference)
+        results = grade_submission(folder, reference=reference)
         write_results(results, out)
     except DoorlabError as e:
         print(f"test_pset_5a.py: {e}", file=sys.stderr)

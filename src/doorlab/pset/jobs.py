@@ -61,8 +61,15 @@ def _first_line(e: BaseException) -> str:
     return f"{type(e).__name__}: {line}".rstrip(": ")
 
 
-def run_job(job: str, folder: Path, workdir: Path, limit: float) -> dict:
-    """Runs one job in this process and returns its JSON-ready result."""
+def run_job(
+    job: str, folder: Path, workdir: Path, limit: float, options: dict | None = None
+) -> dict:
+    """Runs one job in this process and returns its JSON-ready result.
+
+    ``options``: ``seed`` (a unit test's random draws: the grading seed) and ``helpers`` (a task 2
+    or 3 episode: ``reference`` or ``student``, whose calc_p_Q and calc_R_WL7_ref it runs).
+    """
+    options = options or {}
     from doorlab.pset.channel import ProtocolError
     from doorlab.pset.student import SandboxError, StudentFailure, StudentProcess
 
@@ -83,11 +90,12 @@ def run_job(job: str, folder: Path, workdir: Path, limit: float) -> dict:
                 if kind == "unit":
                     from doorlab.pset.checks import UNIT_CHECKS
 
-                    result = UNIT_CHECKS[name](student)
+                    result = UNIT_CHECKS[name](student, options.get("seed"))
                 else:
                     from doorlab.pset.episodes import student_episode
 
-                    result = {"figures": student_episode(student, name)}
+                    helpers = options.get("helpers", "reference")
+                    result = {"figures": student_episode(student, name, helpers=helpers)}
             except StudentFailure as e:
                 result = {"passed": False, "error": str(e), "output": e.detail}
             except ProtocolError as e:  # an answer that does not hold what was asked
@@ -107,14 +115,14 @@ def run_job(job: str, folder: Path, workdir: Path, limit: float) -> dict:
 
 
 def job_main(argv: list[str]) -> int:
-    """``job JOB FOLDER WORKDIR LIMIT PARENT_PID``: the result as JSON on stdout."""
-    job, folder, workdir, limit, parent = argv
+    """``job JOB FOLDER WORKDIR LIMIT PARENT_PID OPTIONS_JSON``: the result as JSON on stdout."""
+    job, folder, workdir, limit, parent, options = argv
     result_fd = os.dup(1)
     os.dup2(2, 1)  # anything printed (Drake's warnings) goes to stderr, not into the result
     sandbox.die_with_parent(int(parent))
     sandbox.become_subreaper()
     sandbox.make_undumpable()
-    result = run_job(job, Path(folder), Path(workdir), float(limit))
+    result = run_job(job, Path(folder), Path(workdir), float(limit), json.loads(options))
     with os.fdopen(result_fd, "w") as out:
         out.write(json.dumps(result, default=str))
     return 0
@@ -126,8 +134,9 @@ def job_main(argv: list[str]) -> int:
 class _Jobs:
     """Runs trusted job processes and kills whatever outlives them."""
 
-    def __init__(self, folder: Path, workdir: Path, scale: float):
+    def __init__(self, folder: Path, workdir: Path, scale: float, options: dict[str, dict]):
         self.folder, self.workdir, self.scale = folder, workdir, scale
+        self.options = options  # job -> its options (run_job)
         self.active: set[int] = set()
         self.lock = threading.Lock()
 
@@ -138,6 +147,7 @@ class _Jobs:
         os.chmod(jobdir, 0o711)  # the student's user reaches its scratch folder, lists nothing
         argv = [sys.executable, "-I", "-m", "doorlab.pset.jobs", "job", job]
         argv += [str(self.folder), str(jobdir), repr(limit), str(os.getpid())]
+        argv.append(json.dumps(self.options.get(job, {})))
         start = time.perf_counter()
         with self.lock:  # no orphan hunt (below) between the spawn and its registration
             proc = subprocess.Popen(
@@ -187,14 +197,57 @@ def _order(jobs: set[str]) -> list[str]:
     return sorted(jobs, key=lambda j: (j.startswith("unit:"), j))
 
 
+def _seed(request: dict, folder: Path, assignment) -> dict:
+    """The grading's seed: ``--seed``'s, or from the assignment's and the graded files'."""
+    from doorlab.pset.assignment import files_digest, grading_seed
+    from doorlab.pset.verdicts import STUDENT_FILES
+
+    digest = files_digest(folder, STUDENT_FILES)
+    if request.get("seed") is not None:
+        return {
+            "grading": int(request["seed"]),
+            "source": "given with --seed",
+            "files_sha256": digest,
+        }
+    return {
+        "grading": grading_seed(assignment.seed, digest),
+        "source": "from the assignment's random seed and your files' SHA-256",
+        "files_sha256": digest,
+    }
+
+
+def _job_options(specs, assignment, seed: int) -> dict[str, dict]:
+    """Each job's options (:func:`run_job`): the grading seed; an episode's helpers."""
+    from doorlab.pset.verdicts import test_settings
+
+    options: dict[str, dict] = {}
+    for spec in specs:
+        settings = test_settings(assignment, spec)
+        for job in spec.needed_jobs(settings):
+            options.setdefault(job, {"seed": seed})
+            if job.startswith("student:") and spec.helpers:
+                student = spec.uses_student_helpers(settings)
+                options[job]["helpers"] = "student" if student else "reference"
+    return options
+
+
 def supervise(request: dict) -> dict:
     """Runs the request's jobs and returns the Gradescope results (or ``{"grader_error"}``)."""
-    from doorlab.pset.verdicts import TESTS, results_from_jobs
+    from doorlab.errors import ConfigError
+    from doorlab.pset.assignment import Assignment, assignment_from_dict
+    from doorlab.pset.verdicts import TESTS, results_from_jobs, test_settings
 
     folder = Path(request["folder"])
+    try:
+        data = request.get("assignment")
+        assignment = assignment_from_dict(data) if data is not None else Assignment()
+    except ConfigError as e:
+        return {"grader_error": f"the assignment: {e}"}
     only = request.get("only")
     specs = [t for t in TESTS if only is None or t.name in only]
-    needed = {j for t in specs for j in t.jobs}
+    drawn = _seed(request, folder, assignment)
+    options = _job_options(specs, assignment, drawn["grading"])
+    needed = {j for t in specs for j in t.needed_jobs(test_settings(assignment, t))}
     results: dict[str, dict] = {}
     reference = request.get("reference") or {}
     results.update({k: v for k, v in reference.items() if k in needed})
@@ -204,7 +257,8 @@ def supervise(request: dict) -> dict:
         workdir = Path(tmp)
         os.chmod(workdir, 0o711)
         os.chdir(workdir)
-        runner = _Jobs(folder, workdir, float(request.get("time_limit_scale", 1.0)))
+        scale = float(request.get("time_limit_scale", 1.0))
+        runner = _Jobs(folder, workdir, scale, options)
         try:
             with ThreadPoolExecutor(max_workers=max(1, int(request.get("jobs", 2)))) as pool:
                 for job, result in zip(todo, pool.map(runner.run, todo), strict=True):
@@ -215,7 +269,8 @@ def supervise(request: dict) -> dict:
     errors = [r["grader_error"] for r in results.values() if "grader_error" in r]
     if errors:
         return {"grader_error": errors[0]}
-    return results_from_jobs(specs, results, time.perf_counter() - start)
+    elapsed = time.perf_counter() - start
+    return results_from_jobs(specs, results, elapsed, assignment, drawn)
 
 
 def _on_signal(signum, frame):

@@ -19,17 +19,23 @@ IK_RADIAL_MARGIN = 2 * math.sqrt(2) * IK_POSITION_TOLERANCE
 """How much more Q's radial error may be with the student's IK than with the reference's [m]:
 each knot may sit anywhere in a +-1 mm box, so two valid IKs can put a knot up to
 2 sqrt(2) mm apart horizontally."""
-ARC_END_MARGIN = math.radians(2.0)
+ARC_END_MARGIN_DEG = 2.0
+ARC_END_MARGIN = math.radians(ARC_END_MARGIN_DEG)
 """Q's angle about the hinge at the arc's end vs the reference's [rad]: a correct plan ends
 within a fraction of a degree of it; a plan that does not follow the whole arc misses by tens."""
 VELOCITY_ORIENTATION_MARGIN = 0.01
 """How much larger L7's orientation error may be than the reference velocity plan's [rad]
 (0.6 deg: a correct plan matches the reference to a small fraction of that; a wrong rotational
 term is off by tenths of a radian)."""
-DOOR_OPENING_MARGIN = math.radians(5.0)
+DOOR_OPENING_MARGIN_DEG = 5.0
+DOOR_OPENING_MARGIN = math.radians(DOOR_OPENING_MARGIN_DEG)
 """Door opening by the arc's end vs the reference impedance plan's [rad]: a correct J^T F
 lands within a degree; a wrong gain, sign or frame leaves the door far behind or loses the
 handle."""
+STUDENT_FILES = ("ik_utils.py", "open_left_door.py", "manip_station_sim/robot_plans.py")
+"""The files a student edits (they hold every stub of the graded functions): the only files
+of a submission that a grading takes (:mod:`doorlab.pset.intake`); the rest of the folder is
+doorlab's. Their SHA-256 seeds the grading's random inputs."""
 MAX_OUTPUT_CHARS = 4000
 """Longest output of one test in the results (the student's printed output is capped
 before that, see :mod:`doorlab.pset.sandbox`)."""
@@ -37,12 +43,40 @@ before that, see :mod:`doorlab.pset.sandbox`)."""
 
 @dataclass(frozen=True)
 class TestSpec:
-    """One graded test: its Gradescope name, points, the jobs it needs and how it is judged."""
+    """One graded test: its Gradescope name, default points, the jobs it needs and how it
+    is judged.
+
+    Attributes:
+        name: Its name in the results.
+        max_score: Its points unless the assignment file says otherwise.
+        jobs: The jobs whose results it is judged on.
+        judge: ``judge(results, settings) -> (passed, output)``: ``results`` by job,
+            ``settings`` its entry of the assignment (:mod:`doorlab.pset.assignment`: its
+            margins).
+        key: Its entry in the assignment file's ``tests``.
+        number: Its Gradescope ``number`` (task.test).
+        helpers: The helper functions (graded by their own unit tests) an episode runs when
+            the assignment gives it the student's helpers: {function: its unit test's job}.
+    """
 
     name: str
     max_score: float
     jobs: tuple[str, ...]
-    judge: Callable[[dict[str, dict]], tuple[bool, str]]
+    judge: Callable[[dict[str, dict], object], tuple[bool, str]]
+    key: str = ""
+    number: str = ""
+    helpers: tuple[tuple[str, str], ...] = ()
+
+    def uses_student_helpers(self, settings: object) -> bool:
+        """Whether this test's episode runs the student's helpers (the assignment's choice)."""
+        return bool(self.helpers) and getattr(settings, "helpers", "reference") == "student"
+
+    def needed_jobs(self, settings: object) -> tuple[str, ...]:
+        """The jobs this test is judged on under ``settings`` (with the student's helpers,
+        their unit tests too: the episode's message says when one failed)."""
+        if not self.uses_student_helpers(settings):
+            return self.jobs
+        return self.jobs + tuple(job for _, job in self.helpers if job not in self.jobs)
 
 
 FIGURES = (
@@ -98,8 +132,8 @@ def _deg(x: float) -> str:
     return f"{math.degrees(x):.2f} deg"
 
 
-def _judge_unit(job: str) -> Callable[[dict[str, dict]], tuple[bool, str]]:
-    def judge(results: dict[str, dict]) -> tuple[bool, str]:
+def _judge_unit(job: str) -> Callable[[dict[str, dict], object], tuple[bool, str]]:
+    def judge(results: dict[str, dict], settings: object = None) -> tuple[bool, str]:
         r = results.get(job)
         r = r if isinstance(r, dict) else {}
         text = str(r.get("output") or "")
@@ -110,41 +144,52 @@ def _judge_unit(job: str) -> Callable[[dict[str, dict]], tuple[bool, str]]:
     return judge
 
 
-def _judge_ik(results: dict[str, dict]) -> tuple[bool, str]:
+def _margin(settings: object, name: str, default: float) -> float:
+    """A margin of the test's assignment entry (``*_deg`` ones in degrees), in SI units."""
+    value = getattr(settings, name, None)
+    if value is None:
+        return default
+    return math.radians(value) if name.endswith("_deg") else float(value)
+
+
+def _judge_ik(results: dict[str, dict], settings: object = None) -> tuple[bool, str]:
     jobs = ("student:ik", "reference:ik")
     if failed := _failed_job(results, jobs):
         return False, failed
     s, r = _figures(results, "student:ik"), _figures(results, "reference:ik")
-    bound = r["max_radial_error_m"] + IK_RADIAL_MARGIN
+    margin = _margin(settings, "radial_margin", IK_RADIAL_MARGIN)
+    bound = r["max_radial_error_m"] + margin
     checks = [
         (
             s["max_radial_error_m"] <= bound,
             f"max radial error of Q {_mm(s['max_radial_error_m'])} (bound {_mm(bound)} = the "
-            f"reference's {_mm(r['max_radial_error_m'])} + {_mm(IK_RADIAL_MARGIN)})",
+            f"reference's {_mm(r['max_radial_error_m'])} + {_mm(margin)})",
         ),
-        _arc_end_check(s, r),
+        _arc_end_check(s, r, _margin(settings, "arc_end_margin_deg", ARC_END_MARGIN)),
     ]
     passed, text = _combine(checks)
     return passed, f"{text}\n({_angle_zero(s, r)})"
 
 
-def _arc_end_check(s: dict, r: dict) -> tuple[bool, str]:
-    """Q's angle about the hinge at the arc's end, the student's (s) against the reference's (r)."""
+def _arc_end_check(s: dict, r: dict, margin: float = ARC_END_MARGIN) -> tuple[bool, str]:
+    """Q's angle about the hinge at the arc's end, the student's (s) against the reference's
+    (r), within ``margin`` [rad]."""
     return (
-        abs(s["q_end_angle_rad"] - r["q_end_angle_rad"]) <= ARC_END_MARGIN,
+        abs(s["q_end_angle_rad"] - r["q_end_angle_rad"]) <= margin,
         f"Q's angle about the hinge at the arc's end {_deg(s['q_end_angle_rad'])} "
-        f"(reference {_deg(r['q_end_angle_rad'])}, margin {_deg(ARC_END_MARGIN)})",
+        f"(reference {_deg(r['q_end_angle_rad'])}, margin {_deg(margin)})",
     )
 
 
-def _judge_velocity(results: dict[str, dict]) -> tuple[bool, str]:
+def _judge_velocity(results: dict[str, dict], settings: object = None) -> tuple[bool, str]:
     jobs = ("student:velocity", "reference:velocity", "reference:ik")
     if failed := _failed_job(results, jobs):
         return False, failed
     s = _figures(results, "student:velocity")
     r = _figures(results, "reference:velocity")
     ik = _figures(results, "reference:ik")
-    o_bound = r["max_orientation_error_rad"] + VELOCITY_ORIENTATION_MARGIN
+    o_margin = _margin(settings, "orientation_margin", VELOCITY_ORIENTATION_MARGIN)
+    o_bound = r["max_orientation_error_rad"] + o_margin
     checks = [
         (
             s["max_radial_error_m"] <= ik["max_radial_error_m"],
@@ -156,9 +201,9 @@ def _judge_velocity(results: dict[str, dict]) -> tuple[bool, str]:
             s["max_orientation_error_rad"] <= o_bound,
             f"max orientation error of L7 {s['max_orientation_error_rad']:.4f} rad (bound "
             f"{o_bound:.4f} = the reference's {r['max_orientation_error_rad']:.4f} + "
-            f"{VELOCITY_ORIENTATION_MARGIN})",
+            f"{o_margin:g})",
         ),
-        _arc_end_check(s, r),
+        _arc_end_check(s, r, _margin(settings, "arc_end_margin_deg", ARC_END_MARGIN)),
     ]
     passed, text = _combine(checks)
     return passed, f"{text}\n({_angle_zero(s, r)})"
@@ -167,17 +212,18 @@ def _judge_velocity(results: dict[str, dict]) -> tuple[bool, str]:
 _DOOR = "door_opening_at_arc_end_rad"
 
 
-def _judge_impedance(results: dict[str, dict]) -> tuple[bool, str]:
+def _judge_impedance(results: dict[str, dict], settings: object = None) -> tuple[bool, str]:
     jobs = ("student:impedance", "reference:impedance")
     if failed := _failed_job(results, jobs):
         return False, failed
     s, r = _figures(results, "student:impedance"), _figures(results, "reference:impedance")
+    margin = _margin(settings, "door_opening_margin_deg", DOOR_OPENING_MARGIN)
     checks = [
         (s["handle_held"] is True, f"handle held at the end: {s['handle_held']}"),
         (
-            abs(s[_DOOR] - r[_DOOR]) <= DOOR_OPENING_MARGIN,
+            abs(s[_DOOR] - r[_DOOR]) <= margin,
             f"door opened {_deg(s[_DOOR])} by the arc's end (from the closed door; "
-            f"reference {_deg(r[_DOOR])}, margin {_deg(DOOR_OPENING_MARGIN)})",
+            f"reference {_deg(r[_DOOR])}, margin {_deg(margin)})",
         ),
     ]
     return _combine(checks)
@@ -188,44 +234,75 @@ def _combine(checks: list[tuple[bool, str]]) -> tuple[bool, str]:
     return all(ok for ok, _ in checks), "\n".join(lines)
 
 
+_HELPERS = (("calc_p_Q", "unit:calc_p_Q"), ("calc_R_WL7_ref", "unit:calc_R_WL7_ref"))
+"""The helpers the task 2 and 3 episodes' plans call, and their unit tests' jobs."""
+
 TESTS: tuple[TestSpec, ...] = (
-    TestSpec("Task 1 unit test: InverseKinPointwise", 2.0, ("unit:ik",), _judge_unit("unit:ik")),
-    TestSpec("Task 2 unit test: calc_p_Q", 1.0, ("unit:calc_p_Q",), _judge_unit("unit:calc_p_Q")),
+    TestSpec(
+        "Task 1 unit test: InverseKinPointwise",
+        2.0,
+        ("unit:ik",),
+        _judge_unit("unit:ik"),
+        key="ik_unit",
+        number="1.1",
+    ),
+    TestSpec(
+        "Task 2 unit test: calc_p_Q",
+        1.0,
+        ("unit:calc_p_Q",),
+        _judge_unit("unit:calc_p_Q"),
+        key="calc_p_Q_unit",
+        number="2.1",
+    ),
     TestSpec(
         "Task 2 unit test: calc_R_WL7_ref",
         1.0,
         ("unit:calc_R_WL7_ref",),
         _judge_unit("unit:calc_R_WL7_ref"),
+        key="calc_R_WL7_ref_unit",
+        number="2.2",
     ),
     TestSpec(
         "Task 2 unit test: IiwaTaskSpaceVelocityPlan.CalcPositionCommand",
         2.0,
         ("unit:velocity",),
         _judge_unit("unit:velocity"),
+        key="velocity_unit",
+        number="2.3",
     ),
     TestSpec(
         "Task 3 unit test: IiwaTaskSpaceImpedancePlan.CalcTorqueCommand",
         2.0,
         ("unit:impedance",),
         _judge_unit("unit:impedance"),
+        key="impedance_unit",
+        number="3.1",
     ),
     TestSpec(
         "Task 1 episode: IK with 10 knots, doors open",
         2.0,
         ("student:ik", "reference:ik"),
         _judge_ik,
+        key="ik_episode",
+        number="1.2",
     ),
     TestSpec(
         "Task 2 episode: velocity plan, doors open",
         2.0,
         ("student:velocity", "reference:velocity", "reference:ik"),
         _judge_velocity,
+        key="velocity_episode",
+        number="2.4",
+        helpers=_HELPERS,
     ),
     TestSpec(
         "Task 3 episode: impedance plan, doors closed",
         2.0,
         ("student:impedance", "reference:impedance"),
         _judge_impedance,
+        key="impedance_episode",
+        number="3.2",
+        helpers=_HELPERS,
     ),
 )
 """Every graded test, in report order."""
@@ -255,29 +332,110 @@ def _sandbox_facts(results: dict[str, dict]) -> dict:
     }
 
 
-def results_from_jobs(
-    specs: Sequence[TestSpec], results: dict[str, dict], execution_time: float
-) -> dict:
-    """The Gradescope results of ``specs`` judged on the jobs' ``results`` (in the
-    supervisor; see :func:`grade` for the format)."""
-    tests = []
-    for spec in specs:
-        passed, output = spec.judge(results)
-        tests.append(
-            {
-                "name": spec.name,
-                "score": spec.max_score if passed else 0.0,
-                "max_score": spec.max_score,
-                "output": _cap(output),
-            }
+def test_settings(assignment: object, spec: TestSpec) -> object:
+    """``spec``'s entry of the assignment (None without one: the defaults)."""
+    tests = getattr(assignment, "tests", None)
+    return getattr(tests, spec.key, None) if tests is not None else None
+
+
+def _unit_passed(results: dict[str, dict], job: str) -> bool:
+    r = results.get(job)
+    return isinstance(r, dict) and r.get("passed") is True and "error" not in r
+
+
+def _helper_note(spec: TestSpec, settings: object, results: dict[str, dict]) -> str:
+    """Which helpers the episode ran, and (the student's) which of them failed their unit
+    test, so a helper's mistake is seen where it is."""
+    if not spec.helpers:
+        return ""
+    names = " and ".join(name for name, _ in spec.helpers)
+    if not spec.uses_student_helpers(settings):
+        return (
+            f"(this episode runs doorlab's {names}, as the assignment sets: it grades your "
+            "plan; your helpers are graded by their unit tests)"
         )
+    failed = [name for name, job in spec.helpers if not _unit_passed(results, job)]
+    lines = [f"this episode uses your {name}, which failed its unit test" for name in failed]
+    return "\n".join(lines) or f"(this episode runs your {names}, as the assignment sets)"
+
+
+def _gradescope_test(spec: TestSpec, settings: object, passed: bool, output: str) -> dict:
+    points = float(getattr(settings, "points", spec.max_score))
+    return {
+        "name": spec.name,
+        "number": spec.number,
+        "score": points if passed else 0.0,
+        "max_score": points,
+        "status": "passed" if passed else "failed",
+        "visibility": getattr(settings, "visibility", "visible"),
+        "output": _cap(output),
+        "output_format": "text",
+    }
+
+
+def _gradescope_results(assignment: object, tests: list[dict], output: str) -> dict:
+    """The top level of Gradescope's results: plain text everywhere (no HTML, Markdown or
+    ANSI is rendered from a student's output), the assignment's visibility."""
     return {
         "score": sum(t["score"] for t in tests),
+        "visibility": getattr(assignment, "visibility", "visible"),
+        "output": output,
+        "output_format": "text",
+        "test_output_format": "text",
+        "test_name_format": "text",
         "tests": tests,
-        "execution_time": round(execution_time, 2),
-        "extra_data": {
-            "max_score": sum(t["max_score"] for t in tests),
-            "reference": {k: v for k, v in results.items() if k.startswith("reference:")},
-            "sandbox": _sandbox_facts(results),
-        },
     }
+
+
+def results_from_jobs(
+    specs: Sequence[TestSpec],
+    results: dict[str, dict],
+    execution_time: float,
+    assignment: object = None,
+    drawn: dict | None = None,
+) -> dict:
+    """The Gradescope results of ``specs`` judged on the jobs' ``results`` (in the
+    supervisor; see :func:`doorlab.pset.grader.grade` for the format).
+
+    Args:
+        specs: The tests.
+        results: The jobs' results.
+        execution_time: The grading's wall time [s].
+        assignment: The assignment (:class:`doorlab.pset.assignment.Assignment`: points,
+            margins, visibility); None: the defaults.
+        drawn: How the unit tests' random inputs were drawn (``extra_data["seed"]``: the
+            grading seed, its source, the graded files' SHA-256), if they were.
+    """
+    tests = []
+    for spec in specs:
+        settings = test_settings(assignment, spec)
+        passed, output = spec.judge(results, settings)
+        if note := _helper_note(spec, settings, results):
+            output = f"{output}\n{note}" if output else note
+        tests.append(_gradescope_test(spec, settings, passed, output))
+    line = ""
+    if drawn is not None:
+        line = (
+            f"The unit tests' random inputs come from grading seed {drawn['grading']} "
+            f"({drawn['source']}); doorlab pset grade --seed {drawn['grading']} replays them."
+        )
+    out = _gradescope_results(assignment, tests, line)
+    out["execution_time"] = round(execution_time, 2)
+    out["extra_data"] = {
+        "max_score": sum(t["max_score"] for t in tests),
+        "seed": drawn,
+        "reference": {k: v for k, v in results.items() if k.startswith("reference:")},
+        "sandbox": _sandbox_facts(results),
+    }
+    return out
+
+
+def results_not_graded(specs: Sequence[TestSpec], reason: str, assignment: object = None) -> dict:
+    """Results for a submission that could not be taken (over an intake bound): every test
+    0 with the reason, in the same format as :func:`results_from_jobs`."""
+    text = f"Not graded: {reason}"
+    tests = [_gradescope_test(s, test_settings(assignment, s), False, text) for s in specs]
+    out = _gradescope_results(assignment, tests, text)
+    out["execution_time"] = 0.0
+    out["extra_data"] = {"max_score": sum(t["max_score"] for t in tests), "not_graded": reason}
+    return out

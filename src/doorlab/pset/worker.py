@@ -91,6 +91,28 @@ def _trajectory(qtraj) -> dict:
     return {"breaks": [float(t) for t in qtraj.get_segment_times()], "coefficients": segments}
 
 
+def _tabulated_helpers(table: dict):
+    """calc_p_Q and calc_R_WL7_ref interpolated from the grader's table of doorlab's values
+    (:func:`doorlab.pset.episodes.reference_helper_table`): the episode's inputs, as numbers."""
+    import numpy as np
+    from pydrake.common.eigen_geometry import Quaternion
+    from pydrake.math import RotationMatrix
+    from pydrake.trajectories import PiecewisePolynomial, PiecewiseQuaternionSlerp
+
+    taus = [float(t) for t in table["taus"]]
+    position = PiecewisePolynomial.FirstOrderHold(taus, np.array(table["p_Q"], dtype=float).T)
+    quaternions = [Quaternion(np.array(q, dtype=float)) for q in table["quaternions"]]
+    orientation = PiecewiseQuaternionSlerp(taus, quaternions)
+
+    def calc_p_Q(tau):
+        return position.value(min(max(float(tau), 0.0), 1.0)).ravel()
+
+    def calc_R_WL7_ref(tau):
+        return RotationMatrix(orientation.orientation(min(max(float(tau), 0.0), 1.0)))
+
+    return calc_p_Q, calc_R_WL7_ref
+
+
 class Server:
     """Answers the grader's requests with the student's functions."""
 
@@ -203,13 +225,17 @@ class Server:
     def op_plan(self, request: dict) -> dict:
         import numpy as np
 
-        old = self.module("open_left_door")
+        if request.get("reference_helpers") is not None:  # the assignment's default
+            calc_p_Q, calc_R_WL7_ref = _tabulated_helpers(request["reference_helpers"])
+        else:
+            old = self.module("open_left_door")
+            calc_p_Q, calc_R_WL7_ref = old.calc_p_Q, old.calc_R_WL7_ref
         cls = self._plan_class(request["kind"])
 
         def make():
             return cls(
-                calc_p_Q=old.calc_p_Q,
-                calc_R_WL7_ref=old.calc_R_WL7_ref,
+                calc_p_Q=calc_p_Q,
+                calc_R_WL7_ref=calc_R_WL7_ref,
                 duration=float(request["duration"]),
                 p_L7Q=np.array(request["p_L7Q"], dtype=float),
             )

@@ -48,7 +48,8 @@ def _main():
             f"run it with {other} test_pset_5a.py"
             if other
             else (
-                f"install doorlab into it ({sys.executable} -m pip install doorlab) or run the "
+                f'install doorlab into it: {sys.executable} -m pip install "./{{ wheel }}[pset]" '
+                "(in this folder; the wheel comes with your course's handout), or run the "
                 "grader with the Python that has doorlab"
             )
         )
