@@ -53,7 +53,10 @@ _UNITS = {
     "position_gap": "rad",
     "joint_speed": "rad/s",
     "feedforward_torque": "N m",
+    "external_torque": "N m",
 }
+"""Units by limit; ``external_torque`` is kuka_driver's freeze, checked on each status
+(:class:`doorlab.arm_cell.ExternalTorqueWatch`), not on commands."""
 
 
 @dataclass(frozen=True)

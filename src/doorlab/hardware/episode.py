@@ -73,6 +73,7 @@ class LinkRecord:
     Attributes:
         status_arrival: Arrival times of the statuses the episode used [s].
         status_utime: Their utimes [us]. status_q_commanded: Their joint_position_commanded.
+        status_q_measured: Their joint_position_measured.
         command_sent: When each command was published [s]. command_t: Its episode time [s].
         command_q: Its q_ref (7,) [rad]. command_utime: The utime it echoed [us].
         skipped: Statuses with a negative utime (skipped, never answered).
@@ -82,6 +83,7 @@ class LinkRecord:
     status_arrival: list[float] = field(default_factory=list)
     status_utime: list[int] = field(default_factory=list)
     status_q_commanded: list[np.ndarray] = field(default_factory=list)
+    status_q_measured: list[np.ndarray] = field(default_factory=list)
     command_sent: list[float] = field(default_factory=list)
     command_t: list[float] = field(default_factory=list)
     command_q: list[np.ndarray] = field(default_factory=list)
@@ -93,6 +95,7 @@ class LinkRecord:
         self.status_arrival.append(status.arrival)
         self.status_utime.append(status.utime)
         self.status_q_commanded.append(status.q_commanded)
+        self.status_q_measured.append(status.q)
 
     def round_trips(self, tolerance: float = 1e-9) -> np.ndarray:
         """Command -> the first status that reflects it (its joint_position_commanded equals
