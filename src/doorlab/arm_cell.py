@@ -79,11 +79,13 @@ STATUS_LAYOUT = (
     ("v_estimated", NUM_JOINTS),
     ("v_measured", NUM_JOINTS),
     ("wsg_commanded", 2),
+    ("door_angles", 2),
 )
 """The status sampler's vector, in order: (name, size). ``q_commanded`` and
 ``tau_feedforward`` (and ``wsg_commanded``: separation [m], force limit [N]) are the command the
-arm tracked up to the cycle; ``v_estimated`` is kuka_driver's filtered velocity, ``v_measured``
-the plant's exact one (not in IIWA_STATUS: the ground truth's)."""
+arm tracked up to the cycle; ``v_estimated`` is kuka_driver's filtered velocity. ``v_measured``
+(the plant's exact velocity) and ``door_angles`` (the hinges, left and right [rad]) are not in
+IIWA_STATUS: the truth at the same instant."""
 STATUS_SIZE = sum(size for _, size in STATUS_LAYOUT)
 APPLIED_LAYOUT = (
     ("q_ref", NUM_JOINTS),
@@ -298,6 +300,7 @@ def build_arm_cell(config: StationConfig, *, q_initial: np.ndarray) -> ArmCell:
         "v_estimated": velocity.get_output_port(),
         "v_measured": plant_v.get_output_port(),
         "wsg_commanded": wsg_commanded.get_output_port(),
+        "door_angles": cell.GetOutputPort("door_angles"),
     }
     sampler_in = add("status_sampler_input", Multiplexer([size for _, size in STATUS_LAYOUT]))
     for i, (name, _) in enumerate(STATUS_LAYOUT):

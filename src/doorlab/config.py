@@ -50,6 +50,8 @@ CONTROLLERS = ("ik", "velocity", "impedance", "adaptive")
 DOOR_STATES = tuple(DOOR_ANGLES)
 INNER_LOOPS = ("stiffness", "implicit_pd", "inverse_dynamics", "kuka_joint_impedance")
 IK_OBJECTIVES = ("feasible", "centered")
+VELOCITY_LEADS = ("control_period", "inner_loop")
+"""``velocity.lead``: what q_dot is multiplied by in q_ref = q + q_dot x lead."""
 CONTACT_APPROXIMATIONS = ("sap", "lagged", "similar", "tamsi")
 LEFT_HINGE_RANGE = (-math.pi / 2, 0.0)
 """Hinge range of the left door [rad] (opening is negative)."""
@@ -232,6 +234,10 @@ class VelocityPlanConfig:
     kv: float = 100.0  # [1/s]
     kw: float = 50.0  # [1/s]
     joint_speed_limit: float = 1.0  # [rad/s] clip on q_dot (the original's)
+    # q_ref = q + q_dot x the lead: "control_period" (the problem set's dt) or "inner_loop"
+    # (Dq / Kq + dt / 2 per joint: what a stiffness loop needs to reach the speed; a change
+    # of the problem set's law for a damped loop such as KUKA's).
+    lead: str = "control_period"
 
 
 @dataclass
@@ -490,9 +496,11 @@ def validate(scenario: Scenario) -> Scenario:
         f"ik.grasp_offset must be three numbers [m] within +-{MAX_GRASP_OFFSET} m, "
         f"got {quote(offset)}",
     )
+    choice("velocity.lead", scenario.velocity.lead, VELOCITY_LEADS)
     for section in ("velocity", "impedance"):
         for f in dataclasses.fields(getattr(scenario, section)):
-            positive(f"{section}.{f.name}", getattr(getattr(scenario, section), f.name))
+            if f.name != "lead":
+                positive(f"{section}.{f.name}", getattr(getattr(scenario, section), f.name))
     adaptive = scenario.adaptive
     for f in dataclasses.fields(adaptive):
         value = getattr(adaptive, f.name)

@@ -120,9 +120,12 @@ class Violation:
         if self.limit == "finite":
             return f"{self.joint_name}: a non-finite command at t = {self.t:.3f} s"
         unit = _UNITS[self.limit]
+        digits = 4
+        while f"{self.value:.{digits}g}" == f"{self.bound:.{digits}g}" and digits < 12:
+            digits += 2  # show where the value passed the bound
         return (
             f"{self.limit} limit broken on {self.joint_name} at t = {self.t:.3f} s: "
-            f"{self.value:.4g} {unit} > {self.bound:.4g} {unit}"
+            f"{self.value:.{digits}g} {unit} > {self.bound:.{digits}g} {unit}"
         )
 
     def to_dict(self) -> dict:
