@@ -108,7 +108,8 @@ def run_case(controller: str, variant: str, overrides: list[str]) -> dict:
     try:
         if variant == "each_step":
             result, dampings = _each_step_episode(scenario)
-            row["damping_range_Nms"] = [dampings.min(axis=0).tolist(), dampings.max(axis=0).tolist()]
+            low, high = dampings.min(axis=0), dampings.max(axis=0)
+            row["damping_range_Nms"] = [low.tolist(), high.tolist()]
         else:
             result, _ = run_controller(scenario)
     except RunStopped as e:

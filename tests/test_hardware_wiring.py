@@ -7,8 +7,10 @@ command carrying its utime; kuka_driver's cycle applies it at the next cycle, an
 after that reports it), every command is applied at the cycle after the status it answers
 (the driver counts none late), and the episode is the one-process run's with the same preset
 bit for bit: every cycle's measured and commanded joint positions, velocity estimate and
-external torques, from the client's first status to the end. Nothing waits for a wall clock
-here; over loopback multicast in real time, test_hardware_two_process.py.
+external torques, from the client's first status to the end. kuka_driver's external-torque
+freeze fires on none of the four plans (their peak |external torque| against its limits).
+Nothing waits for a wall clock here; over loopback multicast in real time,
+test_hardware_two_process.py.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from doorlab.hardware.episode import HardwareOutcome, run_hardware_episode
 from doorlab.hardware.link import DriverLink
 from doorlab.hardware.protocol import IIWA_STATUS_PERIOD
 from doorlab.hardware.sim_driver import SimDriver
-from doorlab.kuka import clamp_command
+from doorlab.kuka import clamp_command, external_torque_limits
 
 PRESET = Path(__file__).resolve().parents[1] / "examples" / "kuka_arm.yaml"
 
@@ -118,6 +120,10 @@ def test_two_processes_and_one_are_the_same_episode_bit_for_bit(memq_runs, contr
     statuses = np.asarray(outcome.record.status_q_measured)
     m = min(len(statuses), n)
     np.testing.assert_array_equal(statuses[:m], one["q_measured"][:m])
+    # kuka_driver's external-torque freeze does not fire on the shipped plans.
+    ratio = np.abs(two["tau_external"]) / external_torque_limits()
+    print(f"{controller}: peak |tau_external| {100 * ratio.max():.1f} % of the freeze limit")
+    assert ratio.max() < 1.0
 
 
 def test_the_run_repeats_bit_for_bit():
@@ -146,5 +152,7 @@ def test_every_controller_runs_on_the_real_cells_path(controller):
     truth = stepped.driver.ground_truth()
     opening = truth.door_angles[0, 0] - truth.door_angles[-1, 0]
     assert math.degrees(opening) > 35.0  # the problem set's sweep is 41.2 deg
+    cycles = stepped.driver.systems.cycle_log(stepped.simulator.get_context())
+    assert np.max(np.abs(cycles["tau_external"]) / external_torque_limits()) < 1.0
     assert truth.wsg_width[-1] > 0.0075
     assert outcome.result.plan_names[-1] == controller

@@ -302,6 +302,25 @@ class Scenario:
         return DOOR_ANGLES[self.doors]
 
 
+ARM_PRESET = """\
+station:
+  time_step: 0.0025
+  inner_loop: {kind: kuka_joint_impedance}
+  driver: {timing: kuka_driver}
+  safety: {enabled: true}
+"""
+"""The lab arm preset's fields (``examples/kuka_arm.yaml`` sets the same on the defaults, with
+KUKA's gains written out): kuka_driver's cycle, KUKA's joint impedance, a 2.5 ms plant step
+(two per cycle) and the real run's safety limits at every tick."""
+
+
+def arm_preset(base: Scenario | None = None) -> Scenario:
+    """``base`` (default: the defaults) as the lab's arm: :data:`ARM_PRESET` on a copy."""
+    import copy
+
+    return update_scenario(copy.deepcopy(base) if base is not None else Scenario(), ARM_PRESET)
+
+
 def load_scenario(path: str | Path, *, defaults: Scenario | None = None) -> Scenario:
     """Loads and validates a scenario from a YAML file.
 

@@ -483,12 +483,18 @@ def _add_statuses(
         0.0,
         wsg_status,
     )
-    # The read tick (module docstring): a simulator step that starts READ_LEAD before every
-    # cycle's events (C++, no output used).
-    tick_input = add("tick_input", ConstantVectorSource([0.0]))
-    tick = add("read_tick", ZeroOrderHold(IIWA_STATUS_PERIOD, 1, offset_sec=arm.offset - READ_LEAD))
-    builder.Connect(tick_input.get_output_port(), tick.get_input_port())
+    _add_read_tick(builder, arm.offset)
     return iiwa_pub, wsg_pub
+
+
+def _add_read_tick(builder: DiagramBuilder, offset: float) -> None:
+    """The read tick (module docstring): a simulator step that starts READ_LEAD before every
+    cycle's events at ``offset`` [s] after k x 5 ms (C++, no output used)."""
+    tick_input = builder.AddNamedSystem("tick_input", ConstantVectorSource([0.0]))
+    tick = builder.AddNamedSystem(
+        "read_tick", ZeroOrderHold(IIWA_STATUS_PERIOD, 1, offset_sec=offset - READ_LEAD)
+    )
+    builder.Connect(tick_input.get_output_port(), tick.get_input_port())
 
 
 def _add_records(builder: DiagramBuilder, arm: ArmCell, arm_system, receiver, scenario):
