@@ -224,6 +224,104 @@ class ArmCell:
         return bool(latched.value()[APPLIED_SLICES["valid"]][0] > 0.5)
 
 
+def _add_command_latch(builder: DiagramBuilder, cell, q_initial: np.ndarray, offset: float):
+    """Commands -> gate -> latch -> the station; returns (latch, its Demultiplexer)."""
+    n = NUM_JOINTS
+    gate_in = builder.AddNamedSystem("command_gate_input", Multiplexer([n, n, 1]))
+    for i, name in enumerate(("iiwa_position", "iiwa_feedforward_torque", "iiwa_command_valid")):
+        builder.ExportInput(gate_in.get_input_port(i), name)
+    gate = builder.AddNamedSystem("command_gate", _command_gate(q_initial))
+    builder.Connect(gate_in.get_output_port(), gate.get_input_port())
+    latch_in = builder.AddNamedSystem("command_latch_input", Multiplexer([2 * n + 1, 1, 1]))
+    builder.Connect(gate.get_output_port(), latch_in.get_input_port(0))
+    for i, name in ((1, "wsg_position"), (2, "wsg_force_limit")):
+        wsg = builder.AddNamedSystem(f"{name}_input", PassThrough(1))
+        builder.ExportInput(wsg.get_input_port(), name)
+        builder.Connect(wsg.get_output_port(), latch_in.get_input_port(i))
+    latch = builder.AddNamedSystem(
+        "command_latch", ZeroOrderHold(CYCLE_PERIOD, APPLIED_SIZE, offset_sec=offset)
+    )
+    builder.Connect(latch_in.get_output_port(), latch.get_input_port())
+    applied = builder.AddNamedSystem("applied_command", Demultiplexer([n, n, 1, 1, 1]))
+    builder.Connect(latch.get_output_port(), applied.get_input_port())
+    for i, name in (
+        (0, "iiwa_position"),
+        (1, "iiwa_feedforward_torque"),
+        (3, "wsg_position"),
+        (4, "wsg_force_limit"),
+    ):
+        builder.Connect(applied.get_output_port(i), cell.GetInputPort(name))
+    builder.ExportOutput(latch.get_output_port(), "applied_command")
+    builder.ExportOutput(applied.get_output_port(0), "applied_iiwa_position")
+    builder.ExportOutput(applied.get_output_port(1), "applied_feedforward_torque")
+    return latch, applied
+
+
+def _add_velocity_filter(builder: DiagramBuilder, q_port, cutoff: float, offset: float):
+    """kuka_driver's velocity filter, v_k = G [q_k; q_{k-1}; v_{k-1}]: returns (its memory,
+    the gain whose output is this cycle's v_k)."""
+    n = NUM_JOINTS
+    memory = builder.AddNamedSystem(
+        "velocity_memory", ZeroOrderHold(CYCLE_PERIOD, 2 * n, offset_sec=offset)
+    )
+    filter_in = builder.AddNamedSystem("velocity_filter_input", Multiplexer([n, 2 * n]))
+    builder.Connect(q_port, filter_in.get_input_port(0))
+    builder.Connect(memory.get_output_port(), filter_in.get_input_port(1))
+    velocity = builder.AddNamedSystem("velocity_filter", MatrixGain(filter_gain(cutoff)))
+    builder.Connect(filter_in.get_output_port(), velocity.get_input_port())
+    memory_in = builder.AddNamedSystem("velocity_memory_input", Multiplexer([n, n]))
+    builder.Connect(q_port, memory_in.get_input_port(0))
+    builder.Connect(velocity.get_output_port(), memory_in.get_input_port(1))
+    builder.Connect(memory_in.get_output_port(), memory.get_input_port())
+    return memory, velocity
+
+
+def _add_status(builder: DiagramBuilder, cell, applied, velocity, offset: float):
+    """Each cycle's status (:data:`STATUS_LAYOUT`) sampled and exported; returns the sampler."""
+    n = NUM_JOINTS
+    plant_v = builder.AddNamedSystem("plant_velocity", PassThrough(n))
+    builder.Connect(cell.GetOutputPort("iiwa_velocity_estimated"), plant_v.get_input_port())
+    wsg_commanded = builder.AddNamedSystem("wsg_commanded", Multiplexer([1, 1]))
+    builder.Connect(applied.get_output_port(3), wsg_commanded.get_input_port(0))
+    builder.Connect(applied.get_output_port(4), wsg_commanded.get_input_port(1))
+    sources = {
+        "q_measured": cell.GetOutputPort("iiwa_position_measured"),
+        "q_commanded": applied.get_output_port(0),
+        "tau_feedforward": applied.get_output_port(1),
+        "tau_commanded": cell.GetOutputPort("iiwa_torque_commanded"),
+        "tau_external": cell.GetOutputPort("iiwa_torque_external"),
+        "v_estimated": velocity.get_output_port(),
+        "v_measured": plant_v.get_output_port(),
+        "wsg_commanded": wsg_commanded.get_output_port(),
+        "door_angles": cell.GetOutputPort("door_angles"),
+    }
+    sizes = [size for _, size in STATUS_LAYOUT]
+    sampler_in = builder.AddNamedSystem("status_sampler_input", Multiplexer(sizes))
+    for i, (name, _) in enumerate(STATUS_LAYOUT):
+        builder.Connect(sources[name], sampler_in.get_input_port(i))
+    sampler = builder.AddNamedSystem(
+        "status_sampler", ZeroOrderHold(CYCLE_PERIOD, STATUS_SIZE, offset_sec=offset)
+    )
+    builder.Connect(sampler_in.get_output_port(), sampler.get_input_port())
+    status = builder.AddNamedSystem("status", Demultiplexer(sizes))
+    builder.Connect(sampler.get_output_port(), status.get_input_port())
+    fields = {name: status.get_output_port(i) for i, (name, _) in enumerate(STATUS_LAYOUT)}
+    builder.ExportOutput(sampler.get_output_port(), "status")
+    for name, port_name in (
+        ("q_measured", "iiwa_position_measured"),
+        ("v_estimated", "iiwa_velocity_estimated"),
+        ("q_commanded", "iiwa_position_commanded"),
+        ("tau_commanded", "iiwa_torque_commanded"),
+        ("tau_external", "iiwa_torque_external"),
+    ):
+        builder.ExportOutput(fields[name], port_name)
+    state = builder.AddNamedSystem("iiwa_state", Multiplexer([n, n]))
+    builder.Connect(fields["q_measured"], state.get_input_port(0))
+    builder.Connect(fields["v_estimated"], state.get_input_port(1))
+    builder.ExportOutput(state.get_output_port(), "iiwa_state")
+    return sampler
+
+
 def build_arm_cell(config: StationConfig, *, q_initial: np.ndarray) -> ArmCell:
     """The station behind kuka_driver's cycle (module docstring).
 
@@ -237,98 +335,18 @@ def build_arm_cell(config: StationConfig, *, q_initial: np.ndarray) -> ArmCell:
     station = build_station(config, gripper_period=CYCLE_PERIOD)
     cell = builder.AddNamedSystem("station", station.diagram)
     offset = cycle_offset(config.time_step)
-    n = NUM_JOINTS
-
-    def add(name: str, system):
-        return builder.AddNamedSystem(name, system)
-
-    def export(port, name: str) -> None:
-        builder.ExportOutput(port, name)
-
-    # Commands -> gate -> latch -> station.
-    gate_in = add("command_gate_input", Multiplexer([n, n, 1]))
-    for i, name in enumerate(("iiwa_position", "iiwa_feedforward_torque", "iiwa_command_valid")):
-        builder.ExportInput(gate_in.get_input_port(i), name)
-    gate = add("command_gate", _command_gate(q_initial))
-    builder.Connect(gate_in.get_output_port(), gate.get_input_port())
-    latch_in = add("command_latch_input", Multiplexer([2 * n + 1, 1, 1]))
-    builder.Connect(gate.get_output_port(), latch_in.get_input_port(0))
-    for i, name in ((1, "wsg_position"), (2, "wsg_force_limit")):
-        wsg = add(f"{name}_input", PassThrough(1))
-        builder.ExportInput(wsg.get_input_port(), name)
-        builder.Connect(wsg.get_output_port(), latch_in.get_input_port(i))
-    latch = add("command_latch", ZeroOrderHold(CYCLE_PERIOD, APPLIED_SIZE, offset_sec=offset))
-    builder.Connect(latch_in.get_output_port(), latch.get_input_port())
-    applied = add("applied_command", Demultiplexer([n, n, 1, 1, 1]))
-    builder.Connect(latch.get_output_port(), applied.get_input_port())
-    for i, name in (
-        (0, "iiwa_position"),
-        (1, "iiwa_feedforward_torque"),
-        (3, "wsg_position"),
-        (4, "wsg_force_limit"),
-    ):
-        builder.Connect(applied.get_output_port(i), cell.GetInputPort(name))
-    export(latch.get_output_port(), "applied_command")
-    export(applied.get_output_port(0), "applied_iiwa_position")
-    export(applied.get_output_port(1), "applied_feedforward_torque")
-
-    # kuka_driver's velocity filter: v_k = G [q_k; q_{k-1}; v_{k-1}].
-    q_port = cell.GetOutputPort("iiwa_position_measured")
-    memory = add("velocity_memory", ZeroOrderHold(CYCLE_PERIOD, 2 * n, offset_sec=offset))
-    filter_in = add("velocity_filter_input", Multiplexer([n, 2 * n]))
-    builder.Connect(q_port, filter_in.get_input_port(0))
-    builder.Connect(memory.get_output_port(), filter_in.get_input_port(1))
-    velocity = add("velocity_filter", MatrixGain(filter_gain(config.driver.velocity_filter_cutoff)))
-    builder.Connect(filter_in.get_output_port(), velocity.get_input_port())
-    memory_in = add("velocity_memory_input", Multiplexer([n, n]))
-    builder.Connect(q_port, memory_in.get_input_port(0))
-    builder.Connect(velocity.get_output_port(), memory_in.get_input_port(1))
-    builder.Connect(memory_in.get_output_port(), memory.get_input_port())
-
-    # The status of each cycle.
-    plant_v = add("plant_velocity", PassThrough(n))
-    builder.Connect(cell.GetOutputPort("iiwa_velocity_estimated"), plant_v.get_input_port())
-    wsg_commanded = add("wsg_commanded", Multiplexer([1, 1]))
-    builder.Connect(applied.get_output_port(3), wsg_commanded.get_input_port(0))
-    builder.Connect(applied.get_output_port(4), wsg_commanded.get_input_port(1))
-    sources = {
-        "q_measured": q_port,
-        "q_commanded": applied.get_output_port(0),
-        "tau_feedforward": applied.get_output_port(1),
-        "tau_commanded": cell.GetOutputPort("iiwa_torque_commanded"),
-        "tau_external": cell.GetOutputPort("iiwa_torque_external"),
-        "v_estimated": velocity.get_output_port(),
-        "v_measured": plant_v.get_output_port(),
-        "wsg_commanded": wsg_commanded.get_output_port(),
-        "door_angles": cell.GetOutputPort("door_angles"),
-    }
-    sampler_in = add("status_sampler_input", Multiplexer([size for _, size in STATUS_LAYOUT]))
-    for i, (name, _) in enumerate(STATUS_LAYOUT):
-        builder.Connect(sources[name], sampler_in.get_input_port(i))
-    sampler = add("status_sampler", ZeroOrderHold(CYCLE_PERIOD, STATUS_SIZE, offset_sec=offset))
-    builder.Connect(sampler_in.get_output_port(), sampler.get_input_port())
-    status = add("status", Demultiplexer([size for _, size in STATUS_LAYOUT]))
-    builder.Connect(sampler.get_output_port(), status.get_input_port())
-    fields = {name: status.get_output_port(i) for i, (name, _) in enumerate(STATUS_LAYOUT)}
-    export(sampler.get_output_port(), "status")
-    for name, port_name in (
-        ("q_measured", "iiwa_position_measured"),
-        ("v_estimated", "iiwa_velocity_estimated"),
-        ("q_commanded", "iiwa_position_commanded"),
-        ("tau_commanded", "iiwa_torque_commanded"),
-        ("tau_external", "iiwa_torque_external"),
-    ):
-        export(fields[name], port_name)
-    state = add("iiwa_state", Multiplexer([n, n]))
-    builder.Connect(fields["q_measured"], state.get_input_port(0))
-    builder.Connect(fields["v_estimated"], state.get_input_port(1))
-    export(state.get_output_port(), "iiwa_state")
-
+    latch, applied = _add_command_latch(builder, cell, q_initial, offset)
+    memory, velocity = _add_velocity_filter(
+        builder,
+        cell.GetOutputPort("iiwa_position_measured"),
+        config.driver.velocity_filter_cutoff,
+        offset,
+    )
+    sampler = _add_status(builder, cell, applied, velocity, offset)
     for name in ("plant_state", "door_angles", "wsg_state_measured", "wsg_force_measured"):
-        export(cell.GetOutputPort(name), name)
+        builder.ExportOutput(cell.GetOutputPort(name), name)
     for name in ("torque_commanded", "torque_external", "position_measured"):
-        export(cell.GetOutputPort(f"iiwa_{name}"), f"station_{name}")
-
+        builder.ExportOutput(cell.GetOutputPort(f"iiwa_{name}"), f"station_{name}")
     diagram = builder.Build()
     diagram.set_name("doorlab_arm_cell")
     return ArmCell(diagram, station, q_initial, config, offset, latch, memory, sampler)
