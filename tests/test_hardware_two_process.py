@@ -8,7 +8,8 @@ in a one-process run with the same preset (``examples/kuka_arm.yaml``, on both s
 with the client's answers held back (the test-only knob ``DOORLAB_TEST_ANSWER_DELAY_MS``: each
 command leaves that long after its status arrived) by 0, 1.5 and 3 ms, the episode is the
 one-process run's: the door at the arc's end within 0.05 deg and Q's max radial error within
-0.01 mm (measured: the same to the last bit when no command is late). A client 6 ms slow
+0.01 mm (with no command late it is the same bit for bit, as on memq: test_hardware_wiring.py;
+here the host makes a few late, README "A rehearsal on one machine"). A client 6 ms slow
 misses every cycle: each command acts a cycle later, the driver counts them all late
 (driver.json), and the door ends elsewhere (the test prints how far).
 
@@ -264,9 +265,10 @@ def test_a_client_slower_than_the_period_acts_a_cycle_later(alone, lcm_url, tmp_
         f"{radial * 1e3:+.3f} mm; {measured}"
     )
     applied, late = facts["iiwa_commands_applied"], facts["iiwa_commands_late"]
-    assert late == applied > 0.95 * metrics["link"]["commands"], measured
-    if facts["iiwa_command_cycles_late_max"] > 1 and not explained:
-        pytest.fail(f"commands more than a cycle late, not explained by the host: {measured}")
+    assert late == applied > 0, measured  # an answer 6 ms after its status is never on time
+    if not explained:
+        assert applied > 0.95 * metrics["link"]["commands"], measured
+        assert facts["iiwa_command_cycles_late_max"] == 1, measured
     assert abs(door) > 1e-6  # a different episode
 
 

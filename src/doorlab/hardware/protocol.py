@@ -29,9 +29,13 @@ The iiwa driver (``kuka_driver``, FRI in position or position-and-torque mode):
   within guard time. Aborting.") and exit: it guards against a controller left running from
   an earlier session. A client waits (doorlab's waits 0.3 s) before its first command.
 - **Commands.** The driver keeps only the newest command (subscription queue 1) and applies
-  it at the next FRI step. In position mode a command never expires: the arm holds the last
-  one when commands stop; before the first command it holds the position measured when FRI
-  entered command mode. ``joint_position`` is clamped to the joint limits less
+  it at the next FRI cycle: each cycle it handles the commands that arrived, reads the robot
+  state, hands FRI the newest command and then publishes that cycle's status, so the command
+  that answers status k acts from cycle k + 1 (one period after its state) and the status
+  after that reports it as commanded (:mod:`doorlab.kuka`). In position mode a command never
+  expires: the arm holds the last one when commands stop; before the first command it holds
+  the position measured when FRI entered command mode. ``joint_position`` is clamped to the
+  joint limits less
   :data:`JOINT_LIMIT_MARGIN` (1 deg); in position-and-torque mode ``joint_torque`` is the
   feed-forward torque (zero when ``num_torques`` is 0). The joint impedance that tracks the
   position is KUKA's, set in the robot's Java application, not over LCM.
