@@ -265,10 +265,16 @@ def test_a_client_slower_than_the_period_acts_a_cycle_later(alone, lcm_url, tmp_
         f"{radial * 1e3:+.3f} mm; {measured}"
     )
     applied, late = facts["iiwa_commands_applied"], facts["iiwa_commands_late"]
-    assert late == applied > 0, measured  # an answer 6 ms after its status is never on time
-    if not explained:
-        assert applied > 0.95 * metrics["link"]["commands"], measured
-        assert facts["iiwa_command_cycles_late_max"] == 1, measured
+    every_one_late = (
+        late == applied > 0.95 * metrics["link"]["commands"]
+        and facts["iiwa_command_cycles_late_max"] == 1
+    )
+    if not every_one_late:
+        # An answer 6 ms after its status is never on time, unless the driver itself fell a
+        # cycle behind (a status sent late, the next cycle later still): the host's.
+        if explained:
+            pytest.skip(f"the host could not keep real time ({measured})")
+        pytest.fail(f"not every command a cycle late, and the host does not explain it: {measured}")
     assert abs(door) > 1e-6  # a different episode
 
 
