@@ -15,9 +15,9 @@ own (``udpm://239.255.76.67:PORT?ttl=0``, a random port):
 ``paced_idle``
     The same driver, the client listening only (no commands): what commands cost.
 ``no_tick``
-    The paced driver and client, the driver without its read and status ticks (the C++
-    ZeroOrderHolds that start a simulator step 1 us before each plant step and at each status
-    slot, ``doorlab.hardware.sim_cell``): what the ticks buy in timing.
+    The paced driver and client, the driver without its read tick (the C++ ZeroOrderHold that
+    starts a simulator step 1 us before each cycle's events, ``doorlab.hardware.sim_cell``):
+    the bus is then read at the plant step before them, what the tick buys in timing.
 ``unpaced``
     ``SimDriver.run(duration=D, realtime_rate=0)`` with no client: the simulation's own cost
     of D seconds of the cell, the floor the paced CPU share is compared with.
@@ -30,11 +30,12 @@ Measured:
 - driver CPU share: the driver process's CPU time (``/proc/PID/stat``, user + system) between
   the client's first and last status, over that wall time [cores];
 - real-time rate: statuses sent (from utime) times 5 ms over the wall span they arrived in;
-- commands late: of the commands the driver applied, how many acted a plant step or more
-  later than in one process, and the mean delay (``driver.json``: the drivers record their
-  ground truth, ``--out``);
+- commands late: of the commands the driver applied, how many it applied a cycle or more
+  after the one following the status they answer (kuka_driver's timing), and the mean delay
+  (``driver.json``: the drivers record their ground truth, ``--out``);
 - round trip: from sending command k to receiving the first status whose
-  ``joint_position_commanded`` reports it (median, p99, max) [ms];
+  ``joint_position_commanded`` reports it (median, p99, max) [ms]: applied at the next cycle,
+  it shows in the status after that one;
 - command interval: between consecutive commands sent (the client's jitter: median, std,
   p1, p99, max) [ms], and status intervals as received;
 - the machine's load: other processes' cores while the variant ran (``/proc/stat``) and the
@@ -63,16 +64,11 @@ sys.path.insert(0, str(BENCH_DIR))
 from common import CpuWatch, subprocess_env  # noqa: E402
 
 NO_TICK_SCRIPT = """
-import math, sys
+import sys
 import json
 import doorlab.hardware.sim_cell as cell
 from doorlab.hardware.sim_driver import SimDriver
-from pydrake.systems.primitives import ZeroOrderHold
-def hold(period, size, offset_sec):  # the two ticks (size 1) never fire; the truth's hold does
-    if size == 1:
-        return ZeroOrderHold(1e9, 1, offset_sec=1e9)
-    return ZeroOrderHold(period, size, offset_sec=offset_sec)
-cell.ZeroOrderHold = hold
+cell._add_read_tick = lambda builder, offset: None  # the bus read at whatever step comes first
 from doorlab.config import Scenario
 driver = SimDriver(Scenario(), lcm_url=sys.argv[1], record=True)
 print(driver.run(duration=float(sys.argv[2])), flush=True)

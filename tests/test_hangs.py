@@ -245,6 +245,7 @@ def test_a_signal_to_a_reports_workers_leaves_nothing(user, signum, code, settle
             "--jobs",
             "2",
             "--no-robustness",
+            "--no-arm",
             "--out",
             "rep",
             *SHORT_SET,

@@ -1,49 +1,39 @@
 """``doorlab sim-driver`` and ``doorlab run --hardware`` as two processes on loopback multicast
 (a port of each test's own, tests/lcm_fixtures.py), in real time: the velocity and impedance
-plans against the same episode simulated in one process, and the faults.
+plans on the arm preset against the same episode in one process, and the faults.
 
-How far two processes may be from one: by when each command acts. In one process the plan's
-command, computed at its tick from the plant as it stands, acts from the first plant step after
-the tick. ``doorlab sim-driver`` keeps that timing (doorlab.hardware.sim_driver): a status at
-slot t_k reports the plant after the step at t_k, and a command that arrives before the next
-plant step's read (1 or 2 ms after the status) acts from that step. One that arrives later
-(the client's answer, two trips over loopback, and the three processes' scheduling on 2 cores)
-acts a plant step h = 2 ms later; the driver counts those (driver.json:
-``iiwa_command_delay_mean_s``, delta, the mean over the commands applied).
+kuka_driver's cycle makes the episode independent of the client's speed: a command that
+answers status k and reaches the driver before cycle k + 1 acts from cycle k + 1, exactly as
+in a one-process run with the same preset (``examples/kuka_arm.yaml``, on both sides). So
+with the client's answers held back (the test-only knob ``DOORLAB_TEST_ANSWER_DELAY_MS``: each
+command leaves that long after its status arrived) by 0, 1.5 and 3 ms, the episode is the
+one-process run's: the door at the arc's end within 0.05 deg and Q's max radial error within
+0.01 mm (with no command late it is the same bit for bit, as on memq: test_hardware_wiring.py;
+here the host makes a few late, README "A rehearsal on one machine"). A client 6 ms slow
+misses every cycle: each command acts a cycle later, the driver counts them all late
+(driver.json), and the door ends elsewhere (the test prints how far).
 
-A command delta late adds, to first order, joint damping Kq delta: the inner loop's spring
-Kq (q(t - delta) - q(t)) = -Kq delta qdot (the impedance plan sends q_ref = q, the velocity plan
-q_ref = q + qdot dt). Dq = Kq x 10 ms on every joint (config.InnerLoopConfig), so delta is
-worth dq_scale = 1 + delta / 10 ms. The radial-error tolerances are the changes of the
-one-process run's figures under that damping (a second one-process run) plus ``MODEL_MARGIN``
-of them (below), plus ``RADIAL_FLOOR``: with no late command (test_hardware_wiring.py, on
-memq) the two paths differ by up to 0.52 um (the driver's clamp of q_home's joint 4 in the
-hold), so 1 um.
+Q's radial error and the door are taken from the driver's ground truth (each 5 ms status's
+joint positions, the hinge at the same instant) and from the one-process run's per-cycle log
+at the same instants, through the same kinematics.
 
-The door at the arc's end: within the issue's 1 deg, or, where delta is larger than that
-allows, within the damping's change plus ``MODEL_MARGIN`` of it. The velocity plan commands
-positions and stays within 0.01 deg whatever delta. The impedance plan, whose q_ref = q has
-nothing but the damping to work against, moves its door by 0.94 deg per millisecond of delta
-(one-process runs at delta = 0.5, 1, 1.66, 2 ms); measured over LCM on this 2-core host: the
-client answers a status in 1.0-1.4 ms (median; its plan tick and checks in Python), so most
-commands miss the 1 ms a status between two plant steps leaves, delta = 1.64-1.66 ms, and the
-door is +1.76 and +1.99 deg from the one-process run's in two runs, where the damping model
-gives +1.54-1.56 deg (13 % and 29 % less: it is first order, and the delays are 0, 1 or 2
-plant steps, not their mean), hence a margin of 50 % (the impedance plan's max radial error
-likewise: +1.09 mm against the model's +0.89 mm). On a host where the client answers
-within about 0.8 ms, delta falls under 1 ms and the door within 1 deg.
+A loaded host (2 cores, shared) can make a client miss a cycle without the knob: a status or
+its answer descheduled for milliseconds. A run whose episode differs from the one-process
+run's, with late commands that the host explains (the client's slowest answer plus the
+latest status came within 0.5 ms of the period, or the host dropped a stale answer, or the
+driver fell behind real time) is skipped with those measurements; late commands the host
+does not explain, or a different episode with no late command, fail.
 
-The timelines are shortened before the arc (hold 0.5 s, move 3 s) where a property does not
-need the whole episode; the arc keeps its 10 s. These are real-time runs of three processes on
-2 cores: a run that the host could not keep in real time (the client's watchdog stopped it,
-statuses missing for 50 ms, which a driver on its own machine does not do) is repeated once; a
-second such run fails.
+The timelines are short (hold 0.2 s, move 2 s with the position-gap limit relaxed to 80 ms,
+grasp 0.5 s, arc 3 s, no extra time): what is compared is the arc's, and 7 real-time runs
+of 10 s cost over a minute already.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 import signal
 import subprocess
 import sys
@@ -62,17 +52,26 @@ from lcm_fixtures import (  # noqa: F401
 )
 from realtime_host import host_watch
 
-from doorlab.config import Scenario, validate
+from doorlab.config import Scenario, load_scenario, validate
 from doorlab.episode import EpisodeResult
 from doorlab.hardware.ground_truth import GROUND_TRUTH_FILE, GroundTruth
-from doorlab.hardware.protocol import START_COMMAND_GUARD
 from doorlab.safety import SafetyLimits, check_command
 
 PRE_ARC = ["timeline.hold_duration=0.5", "timeline.approach_duration=3.0"]
-DAMPING_TIME = 0.010  # [s] Dq / Kq of every joint (config.InnerLoopConfig)
-DOOR_TOLERANCE = 1.0  # [deg] the issue's bound on the door at the arc's end
-MODEL_MARGIN = 0.5  # the damping model's first-order error, measured 13-29 % (docstring)
-RADIAL_FLOOR = 1e-6  # [m] the two paths' difference with no late command (docstring)
+PRESET = Path(__file__).resolve().parents[1] / "examples" / "kuka_arm.yaml"
+ARM_TIMELINE = [
+    "timeline.hold_duration=0.2",
+    "timeline.approach_duration=2.0",
+    "station.safety.gap_time=0.08",
+    "timeline.grasp_duration=0.5",
+    "timeline.arc_duration=3.0",
+    "timeline.extra_time=0.0",
+    "timeline.log_period=0.005",
+]
+DOOR_TOLERANCE = 0.05  # [deg] the issue's bound
+RADIAL_TOLERANCE = 1e-5  # [m] the issue's bound (0.01 mm)
+PERIOD_MS = 5.0
+HOST_MARGIN_MS = 0.5  # a client answer this close to the period may miss it on a busy host
 
 
 def scenario(controller: str, sets=PRE_ARC) -> Scenario:
@@ -84,11 +83,21 @@ def scenario(controller: str, sets=PRE_ARC) -> Scenario:
     return validate(s)
 
 
-def client(url: str, out: Path, controller: str, *extra: str) -> subprocess.Popen:
+def arm_scenario(controller: str) -> Scenario:
+    from doorlab.commands import apply_overrides
+
+    s = apply_overrides(load_scenario(PRESET), ARM_TIMELINE)
+    s.controller, s.doors = controller, "closed"
+    return validate(s)
+
+
+def client(url: str, out: Path, controller: str, *extra: str, env=None) -> subprocess.Popen:
     command = [sys.executable, "-m", "doorlab.cli", "run", "--hardware", "--yes"]
     command += ["--lcm-url", url, "--controller", controller, "--out", str(out), "--no-replay"]
     command += [a for s in PRE_ARC for a in ("--set", s)] + list(extra)
-    return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+    )
 
 
 def listener(url: str) -> BusListener:
@@ -106,99 +115,168 @@ def follow(process: subprocess.Popen, bus: BusListener, timeout: float = 120.0) 
     return time.monotonic()
 
 
-def in_process(controller: str, dq_scale: float = 1.0):
-    from doorlab.controllers import run_controller
+_ONE_PROCESS: dict[str, EpisodeResult] = {}
+
+
+def one_process(controller: str) -> EpisodeResult:
+    """The one-process run with the same preset and timeline (once per controller)."""
+    if controller not in _ONE_PROCESS:
+        from doorlab.controllers import run_controller
+
+        _ONE_PROCESS[controller], _ = run_controller(arm_scenario(controller))
+    return _ONE_PROCESS[controller]
+
+
+def arc_figures(t: np.ndarray, q: np.ndarray, door: np.ndarray, window, s: Scenario):
+    """(Q's max |radial error| over the arc [m], the left door opened at the arc's end [rad])
+    from per-cycle joint positions q and hinge angles ``door`` at times t (episode time)."""
+    from doorlab.frames import p_L7Q
     from doorlab.geometry import true_door_geometry
-    from doorlab.metrics import compute_metrics
+    from doorlab.metrics import Kinematics
 
-    s = scenario(controller)
-    s.station.inner_loop.dq_scale = dq_scale
-    result, _ = run_controller(s)
-    return result, compute_metrics(result, s, true_door_geometry(s))
-
-
-def ground_truth_at(gt: GroundTruth, t: float) -> int:
-    i = int(np.argmin(np.abs(gt.t - t)))
-    assert abs(gt.t[i] - t) < 0.006
-    return i
+    inside = (t >= window[0] - 1e-6) & (t <= window[1] + 1e-6)
+    poses = Kinematics().poses(q[inside])
+    radial = true_door_geometry(s).radial_error(np.array([X @ p_L7Q for X in poses]))
+    i_end = int(np.argmin(np.abs(t - window[1])))
+    assert abs(t[i_end] - window[1]) < 1e-6
+    return float(np.max(np.abs(radial))), float(door[0] - door[i_end])
 
 
-@pytest.mark.parametrize("controller", ["velocity", "impedance"])
-def test_two_processes_open_the_door_as_one(alone, lcm_url, tmp_path, controller):  # noqa: F811
-    """The handle is held; the door at the arc's end and Q's radial error within the
-    tolerances derived from the measured latency (module docstring); no command within
-    0.25 s of the driver's first status (a listener's view)."""
-    reference, ref_metrics = in_process(controller)
-    for attempt in (1, 2):
-        bus = listener(lcm_url)
-        gt_dir, out = tmp_path / f"gt{attempt}", tmp_path / f"run{attempt}"
-        with (
-            alone(),
-            host_watch() as host,
-            sim_driver_process(lcm_url, "--doors", "closed", out=gt_dir) as driver,
-        ):
-            bus.wait_for("IIWA_STATUS", timeout=60)
-            run = client(lcm_url, out, controller)
-            follow(run, bus)
-            stdout, stderr = run.communicate()
-            code, _, driver_err = stop(driver)
-            assert code == 143, driver_err
-        if run.returncode != 7 or attempt == 2:  # 7: the host did not keep real time
-            break
-    with host.excuse("the client's watchdog stopped both runs (statuses missing for 50 ms)"):
-        assert run.returncode != 7, stderr.strip().splitlines()[-1:]
-    assert run.returncode == 0, (stdout, stderr)
+def run_arm_pair(url: str, tmp: Path, controller: str, delay_ms: float, alone):
+    """The driver and the client with the preset, the client's answers held ``delay_ms``.
+
+    Returns (client exit code, its stderr, metrics.json, driver.json, the ground truth, the
+    client's log)."""
+    sets = [a for s in ARM_TIMELINE for a in ("--set", s)]
+    config = ["--config", str(PRESET)]
+    gt_dir, out = tmp / "gt", tmp / "run"
+    env = {**os.environ, "DOORLAB_TEST_ANSWER_DELAY_MS": f"{delay_ms:g}"}
+    with alone(), sim_driver_process(url, "--doors", "closed", *config, *sets, out=gt_dir) as d:
+        command = [sys.executable, "-m", "doorlab.cli", "run", "--hardware", "--yes", "--wait"]
+        command += ["60", "--lcm-url", url, "--controller", controller, "--out", str(out)]
+        command += ["--no-replay", *config, *sets]
+        run = subprocess.Popen(
+            command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+        )
+        stdout, stderr = run.communicate(timeout=180)
+        code, _, driver_err = stop(d)
+        assert code == 143, driver_err
+    if run.returncode != 0:
+        return run.returncode, stdout + stderr, None, None, None, None
     metrics = json.loads((out / "metrics.json").read_text())
-    log = EpisodeResult.load(out / "log.npz")
-    gt = GroundTruth.load(gt_dir / GROUND_TRUTH_FILE)
-
-    # The driver's view: the first command came no sooner than 0.25 s after its first status.
-    statuses, commands = bus.messages["IIWA_STATUS"], bus.messages["IIWA_COMMAND"]
-    first_command = commands[0][1].utime * 1e-6  # the utime of the status it answers
-    assert first_command >= START_COMMAND_GUARD + 0.05  # doorlab waits 0.3 s
-    assert commands[0][0] - statuses[0][0] >= START_COMMAND_GUARD
-    # The protocol, as an independent listener sees it: every command decoded, 7 joints and
-    # 7 torques, answering a status the driver sent (utime k x 5000 us, up to its last; the
-    # listener, whose subscription keeps one message, may itself miss some on a busy host);
-    # 200 Hz within 2 % over the run, from the client's count.
-    assert all(m.num_joints == 7 and m.num_torques == 7 for _, m in commands)
-    utimes = np.array([m.utime for _, m in commands])
-    sent = json.loads((gt_dir / "driver.json").read_text())["iiwa_statuses_sent"]
-    assert np.all(utimes % 5000 == 0) and utimes.max() < 5000 * sent
-    assert np.all(np.diff(utimes) > 0)
-    seen = {m.utime for _, m in statuses}
-    answered = metrics["link"]["commands"] / (log.t[-1] - log.t[0])
-    with host.excuse("statuses missed, the client's rate"):
-        seen_fraction = np.mean([u in seen for u in utimes])
-        assert seen_fraction > 0.9, f"the listener saw {seen_fraction:.0%} of the statuses"
-        assert abs(answered - 200.0) <= 4.0, f"the client answered at {answered:.1f} Hz"
-
-    # The handle is held (the driver's truth: Q at the handle at the end, fingers apart).
-    assert metrics["status"] == "ok" and metrics["fingers_on_handle"]
-    assert gt.wsg_width[-1] > 0.0075  # still on the 10 mm handle at the end
-
-    # The tolerances: the one-process run's change under the damping the late commands add.
     facts = json.loads((gt_dir / "driver.json").read_text())
-    delta = facts["iiwa_command_delay_mean_s"]
-    damped_result, damped = in_process(controller, dq_scale=1.0 + delta / DAMPING_TIME)
-    t0 = log.status_time[0]  # the client's t = 0 on the driver's clock
-    i_end = ground_truth_at(gt, t0 + log.arc_window[1])
-    j_end = int(np.argmin(np.abs(reference.t - reference.arc_window[1])))
-    door = math.degrees(gt.door_angles[i_end, 0] - reference.door_angles[j_end, 0])
-    late = facts["iiwa_commands_late"] / facts["iiwa_commands_applied"]
-    model = math.degrees(damped_result.door_angles[j_end, 0] - reference.door_angles[j_end, 0])
-    door_tolerance = max(DOOR_TOLERANCE, (1 + MODEL_MARGIN) * abs(model))
-    print(
-        f"{controller}: {late:.1%} of the commands late, delta {1e3 * delta:.3f} ms, "
-        f"door {door:+.3f} deg (damping model {model:+.3f}, tolerance {door_tolerance:.3f})"
+    gt = GroundTruth.load(gt_dir / GROUND_TRUTH_FILE)
+    return 0, stderr, metrics, facts, gt, EpisodeResult.load(out / "log.npz")
+
+
+def host_explains(metrics: dict, facts: dict, delay_ms: float) -> tuple[bool, str]:
+    """Whether the host, not the product, can explain commands missing their cycle."""
+    link = metrics["link"]
+    slowest = link["answer_max_ms"] + link["status_lateness_max_ms"]
+    measured = (
+        f"client answers median {link['answer_median_ms']:.2f} ms, max {link['answer_max_ms']:.2f}"
+        f" ms (held {delay_ms:g} ms), statuses up to {link['status_lateness_max_ms']:.2f} ms "
+        f"late, {link['stale_commands_dropped']} stale answers dropped, {link['statuses']} "
+        f"statuses / {link['commands']} commands; driver real-time rate "
+        f"{facts['realtime_rate']:.4f}, {facts['iiwa_commands_late']} of "
+        f"{facts['iiwa_commands_applied']} commands late (up to "
+        f"{facts['iiwa_command_cycles_late_max']} cycles), "
+        f"{facts['iiwa_commands_superseded']} superseded"
     )
-    assert abs(door) <= door_tolerance, (door, model, delta)
-    for key in ("max_radial_error_m", "rms_radial_error_m"):
-        change = abs(getattr(damped, key) - getattr(ref_metrics, key))
-        tolerance = (1 + MODEL_MARGIN) * change + RADIAL_FLOOR
-        difference = abs(metrics[key] - getattr(ref_metrics, key))
-        print(f"  {key}: {1e3 * difference:.4f} mm (<= {1e3 * tolerance:.4f} mm)")
-        assert difference <= tolerance, (key, metrics[key], getattr(ref_metrics, key), delta)
+    explained = (
+        slowest >= PERIOD_MS - HOST_MARGIN_MS
+        or link["stale_commands_dropped"] > 0
+        or facts["realtime_rate"] < 0.999
+    )
+    return explained, measured
+
+
+def compare(controller: str, metrics, facts, gt: GroundTruth, log: EpisodeResult):
+    """(door difference [deg], radial difference [m], door two-process [deg]) against the
+    one-process run, from per-cycle positions on both sides."""
+    s = arm_scenario(controller)
+    reference = one_process(controller)
+    window = reference.arc_window
+    cycles = reference.cycle_log
+    radial_one, door_one = arc_figures(
+        cycles["t"], cycles["q_measured"], cycles["door_angles"][:, 0], window, s
+    )
+    t0 = log.status_time[0]  # the client's t = 0 on the driver's clock
+    radial_two, door_two = arc_figures(gt.t - t0, gt.q_measured, gt.door_angles[:, 0], window, s)
+    return (
+        math.degrees(door_two - door_one),
+        radial_two - radial_one,
+        math.degrees(door_two),
+        math.degrees(door_one),
+    )
+
+
+@pytest.mark.parametrize(
+    ("controller", "delay_ms"),
+    [(c, d) for c in ("velocity", "impedance") for d in (0.0, 1.5, 3.0)],
+)
+def test_any_client_within_the_period_gets_the_same_episode(
+    alone,
+    lcm_url,  # noqa: F811
+    tmp_path,
+    controller,
+    delay_ms,
+):
+    """With the arm preset on both sides and the answers held 0, 1.5 or 3 ms: no command
+    late, the door at the arc's end within 0.05 deg and Q's max radial error within 0.01 mm
+    of the one-process run (module docstring: a host that could not keep real time skips)."""
+    one_process(controller)  # before the real-time section
+    code, stderr, metrics, facts, gt, log = run_arm_pair(
+        lcm_url, tmp_path, controller, delay_ms, alone
+    )
+    if code == 7:  # the client's watchdog: statuses missing for 50 ms
+        pytest.skip(f"the host did not keep real time: {stderr.strip()}")
+    assert code == 0, stderr
+    door, radial, door_two, door_one = compare(controller, metrics, facts, gt, log)
+    explained, measured = host_explains(metrics, facts, delay_ms)
+    print(
+        f"{controller}, answers held {delay_ms:g} ms: door {door_two:.3f} deg at the arc's end "
+        f"({door:+.5f} against one process), max radial error {radial * 1e6:+.4f} um; {measured}"
+    )
+    same = abs(door) <= DOOR_TOLERANCE and abs(radial) <= RADIAL_TOLERANCE
+    if facts["iiwa_commands_late"] == 0:
+        assert same, (door, radial, measured)
+        return
+    if same:
+        return  # a few late commands, the same episode within the bounds
+    if explained:
+        pytest.skip(f"the host could not keep real time ({measured}); door {door:+.3f} deg")
+    pytest.fail(f"late commands the host does not explain: {measured}; door {door:+.3f} deg")
+
+
+def test_a_client_slower_than_the_period_acts_a_cycle_later(alone, lcm_url, tmp_path):  # noqa: F811
+    """Answers held 6 ms, past the 5 ms period: every command is applied one cycle later than
+    kuka_driver's timing (all counted late in driver.json), a different episode; the test
+    prints what the 5 ms more of delay does to the impedance plan's door."""
+    one_process("impedance")
+    code, stderr, metrics, facts, gt, log = run_arm_pair(lcm_url, tmp_path, "impedance", 6.0, alone)
+    if code == 7:
+        pytest.skip(f"the host did not keep real time: {stderr.strip()}")
+    assert code == 0, stderr
+    door, radial, door_two, door_one = compare("impedance", metrics, facts, gt, log)
+    explained, measured = host_explains(metrics, facts, 6.0)
+    print(
+        f"impedance, answers held 6 ms: door {door_two:.3f} deg at the arc's end against "
+        f"{door_one:.3f} in one process ({door:+.3f} deg), max radial error "
+        f"{radial * 1e3:+.3f} mm; {measured}"
+    )
+    applied, late = facts["iiwa_commands_applied"], facts["iiwa_commands_late"]
+    every_one_late = (
+        late == applied > 0.95 * metrics["link"]["commands"]
+        and facts["iiwa_command_cycles_late_max"] == 1
+    )
+    if not every_one_late:
+        # An answer 6 ms after its status is never on time, unless the driver itself fell a
+        # cycle behind (a status sent late, the next cycle later still): the host's.
+        if explained:
+            pytest.skip(f"the host could not keep real time ({measured})")
+        pytest.fail(f"not every command a cycle late, and the host does not explain it: {measured}")
+    assert abs(door) > 1e-6  # a different episode
 
 
 def test_the_driver_killed_mid_arc_stops_the_client_within_0_2_s(alone, lcm_url, tmp_path):  # noqa: F811

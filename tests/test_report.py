@@ -213,7 +213,9 @@ def test_run_report_reports_a_failed_experiment_and_keeps_the_others(tmp_path: P
     broken.controller = "teleport"  # rejected by validate() inside the worker
     experiments = [short_experiment("velocity_open"), ("broken", broken)]
     out = tmp_path / "report"
-    code = run_report(out, jobs=2, experiments=experiments, progress=False, robustness=False)
+    code = run_report(
+        out, jobs=2, experiments=experiments, progress=False, robustness=False, arm=False
+    )
     assert code == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report"]
     good = json.loads((out / "runs" / "velocity_open" / "metrics.json").read_text())
@@ -228,16 +230,20 @@ def test_run_report_reports_a_failed_experiment_and_keeps_the_others(tmp_path: P
     assert (out / "figures").is_dir()
 
     with pytest.raises(OutputError, match="already exists"):
-        run_report(out, jobs=1, experiments=[], progress=False, robustness=False)
+        run_report(out, jobs=1, experiments=[], progress=False, robustness=False, arm=False)
 
 
 def test_run_report_rejects_bad_arguments(tmp_path: Path):
     """jobs < 1 and duplicate experiment names raise ConfigError before anything is written."""
     with pytest.raises(ConfigError, match="jobs"):
-        run_report(tmp_path / "a", jobs=0, experiments=[], progress=False, robustness=False)
+        run_report(
+            tmp_path / "a", jobs=0, experiments=[], progress=False, robustness=False, arm=False
+        )
     twice = [short_experiment("velocity_open"), short_experiment("velocity_open")]
     with pytest.raises(ConfigError, match="unique"):
-        run_report(tmp_path / "b", jobs=1, experiments=twice, progress=False, robustness=False)
+        run_report(
+            tmp_path / "b", jobs=1, experiments=twice, progress=False, robustness=False, arm=False
+        )
     assert list(tmp_path.iterdir()) == []
 
 
@@ -263,6 +269,7 @@ def test_run_report_on_a_dask_cluster(tmp_path: Path):
             progress=False,
             scheduler=address,
             robustness=False,
+            arm=False,
         )
     folder = out / "runs" / "ik_2_open"
     metrics = json.loads((folder / "metrics.json").read_text())

@@ -117,7 +117,7 @@ def test_failing_robustness_runs_do_not_fail_the_report(tmp_path: Path, monkeypa
         lambda base, given: ((case,), (("robust_broken", broken),)),
     )
     out = tmp_path / "with"
-    assert run_report(out, jobs=1, experiments=[], progress=False) == 0
+    assert run_report(out, jobs=1, experiments=[], progress=False, arm=False) == 0
     section = _section((out / "index.html").read_text(encoding="utf-8"))
     assert re.search(r'<tr data-run="robust_broken" class="warn">.*?error', section, re.S)
     assert (
@@ -126,27 +126,30 @@ def test_failing_robustness_runs_do_not_fail_the_report(tmp_path: Path, monkeypa
     )
 
     out = tmp_path / "without"
-    assert run_report(out, jobs=1, experiments=[], progress=False, robustness=False) == 0
+    assert run_report(out, jobs=1, experiments=[], progress=False, robustness=False, arm=False) == 0
     page = (out / "index.html").read_text(encoding="utf-8")
     assert 'id="robustness"' not in page
     assert "robustness" not in json.loads((out / "summary.json").read_text())
 
 
 def test_cli_no_robustness_reaches_run_report(tmp_path: Path, monkeypatch, capsys):
-    """``doorlab report --no-robustness`` asks run_report for no robustness runs; the default
-    asks for them; --help names the flag."""
+    """``doorlab report --no-robustness`` asks run_report for no robustness runs, ``--no-arm``
+    for no runs on the arm; the default asks for both; --help names the flags."""
     import doorlab.report
     from doorlab.cli import main
 
-    calls = []
+    calls, arms = [], []
 
     def fake(out, **kwargs):
         calls.append(kwargs["robustness"])
+        arms.append(kwargs["arm"])
         return 0
 
     monkeypatch.setattr(doorlab.report, "run_report", fake)
     assert main(["report", "--out", str(tmp_path / "a"), "--no-robustness"]) == 0
     assert main(["report", "--out", str(tmp_path / "b")]) == 0
-    assert calls == [False, True]
+    assert main(["report", "--out", str(tmp_path / "c"), "--no-arm"]) == 0
+    assert calls == [False, True, True] and arms == [True, True, False]
     assert main(["report", "--help"]) == 0
-    assert "--no-robustness" in capsys.readouterr().out
+    help_text = capsys.readouterr().out
+    assert "--no-robustness" in help_text and "--no-arm" in help_text

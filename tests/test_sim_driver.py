@@ -1,5 +1,7 @@
 """The simulated driver in one process on ``memq://`` (deterministic, no real-time pacing):
-command timing, hold, clamp, start guard, status contents, utime; and its CLI's errors.
+kuka_driver's cycle (a command acts from the cycle after the status it answers), hold, clamp,
+start guard, status contents (the filtered velocity), the external-torque stop, utime; and
+its CLI's errors.
 
 The two-process tests on loopback multicast are in ``test_sim_driver_bus.py``.
 """
@@ -31,7 +33,7 @@ from doorlab.hardware.protocol import (
     WSG_STATUS_CHANNEL,
     resolve_lcm_url,
 )
-from doorlab.hardware.sim_cell import STATUS_DELAY, add_sim_driver
+from doorlab.hardware.sim_cell import add_sim_driver
 from doorlab.hardware.sim_driver import SimDriver
 from doorlab.runs import write_manifest
 
@@ -66,8 +68,8 @@ class InProcessCell:
 
     def advance(self, t: float):
         """Advances to just past t [s] and delivers what the driver published up to then (a
-        status at t goes out STATUS_DELAY later; memq delivers a message at the next poll)."""
-        status = self.simulator.AdvanceTo(t + STATUS_DELAY)
+        status at t goes out status_offset later; memq delivers a message at the next poll)."""
+        status = self.driver.advance_to(self.simulator, t + self.driver.status_offset)
         self.lcm.HandleSubscriptions(0)
         return status
 
@@ -93,44 +95,79 @@ def fine_log() -> Scenario:
     return scenario
 
 
-def test_command_acts_from_the_next_plant_step_and_is_held():
-    """A command read between plant steps shows as commanded at once, moves the arm from the
-    next plant step, is reported by the next status, and is held when commands stop."""
+def test_a_command_acts_from_the_next_cycle_and_is_held():
+    """kuka_driver's cycle: a command that answers status k (read before cycle k + 1) is
+    applied from cycle k + 1 on and reported by status k + 2 (a status reports the command the
+    arm tracked up to it); the arm stands still, locked, until then; the command is held when
+    commands stop; one read after cycle k + 1's events is applied a cycle later, and counted."""
     cell = InProcessCell(fine_log())
-    t_read = 0.0203  # the command is on the bus when the simulator continues from here
-    cell.advance(t_read)
+    cell.advance(0.3)
     q = Q_HOME.copy()
     q[0] = 0.1
     tau = np.array([0, 0, 0, 0, 0, 0, 0.5])
-    cell.command(q, tau, utime=20000)
+    cell.command(q, tau, utime=300_000)  # answers the status of 0.3 s
     cell.advance(3.5)
     truth = cell.truth()
-    before, after = truth.t < t_read, truth.t > t_read
-    assert np.abs(truth.q_commanded[before] - Q_HOME).max() < 1e-12
-    assert np.all(truth.q_commanded[after, 0] == 0.1)
-    assert np.all(truth.tau_feedforward[before] == 0)
-    assert np.all(truth.tau_feedforward[after] == tau)
-    # The plant steps at 0.020 and 0.022: the first that sees the command is 0.022, whose
-    # result is the state from 0.022 on (the truth at a step's time follows the step, as the
-    # status at that time does).
-    first_step = math.ceil(t_read / H) * H
-    unmoved = truth.t < first_step - 1e-9
-    assert np.abs(truth.q_measured[unmoved, 0]).max() < 1e-15  # at rest: round-off only
-    assert truth.q_measured[np.searchsorted(truth.t, first_step - 1e-9), 0] > 1e-5
-    # The status at 20 ms (before the read) reports the old command, the next one the new.
-    assert cell.status_at(20000).joint_position_commanded[0] == 0.0
-    assert cell.status_at(25000).joint_position_commanded[0] == 0.1
-    # Held: no command after t_read, and every later status still reports it.
-    assert all(s.joint_position_commanded[0] == 0.1 for s in cell.statuses if s.utime > 20000)
+    applied = 0.305  # cycle k + 1; the next plant step (2 ms grid) is at 0.306
+    before = truth.t < applied + 1e-9
+    np.testing.assert_array_equal(truth.q_measured[before], np.tile(Q_HOME, (before.sum(), 1)))
+    assert np.all(truth.v_measured[before] == 0)  # locked: exactly at rest
+    assert truth.q_measured[np.searchsorted(truth.t, 0.306 - 1e-9), 0] > 1e-6
+    # The status of a cycle carries the command tracked up to it.
+    assert np.all(truth.q_commanded[truth.t < 0.310 - 1e-9, 0] == 0.0)
+    assert np.all(truth.q_commanded[truth.t > 0.310 - 1e-9, 0] == 0.1)
+    assert np.all(truth.tau_feedforward[truth.t < 0.310 - 1e-9] == 0)
+    assert np.all(truth.tau_feedforward[truth.t > 0.310 - 1e-9] == tau)
+    assert cell.status_at(305_000).joint_position_commanded[0] == 0.0
+    assert cell.status_at(310_000).joint_position_commanded[0] == 0.1
+    assert all(s.joint_position_commanded[0] == 0.1 for s in cell.statuses if s.utime > 305_000)
     # The arm settles on it: the loop's damping ratio is about 0.12 at wn = 20 rad/s, so
-    # 3.5 s leave exp(-0.12 * 20 * 3.5) = 2e-4 of the 0.1 rad step (2e-5 rad); 1e-4 allows
+    # 3.2 s leave exp(-0.12 * 20 * 3.2) = 5e-4 of the 0.1 rad step (5e-5 rad); 1e-4 allows
     # for the coupling of the other joints.
     assert abs(truth.q_measured[-1, 0] - 0.1) < 1e-4
+    # A late answer: the command for the status of 3.5 s read after the cycle of 3.505 s.
+    cell.advance(3.505)
+    q[0] = 0.2
+    cell.command(q, tau, utime=3_500_000)
+    cell.advance(3.6)
+    assert cell.status_at(3_510_000).joint_position_commanded[0] == 0.1
+    assert cell.status_at(3_515_000).joint_position_commanded[0] == 0.2
+    delays = cell.driver.command_delays(cell.simulator.get_context())
+    np.testing.assert_array_equal(delays, [0, 1])
+
+
+def test_the_status_velocity_is_kuka_drivers_filter():
+    """joint_velocity_estimated matches a reference implementation of kuka_driver's filter
+    written here from its published constants (low_pass_filter.h: val = alpha val + (1 -
+    alpha) input, alpha = 1 - dt / (dt + RC), RC = 1 / (2 pi 40 Hz); the input the finite
+    difference of the measured positions over the 5 ms step), to round-off; it lags the
+    plant's exact velocity, which the ground truth keeps."""
+    cell = InProcessCell()
+    cell.advance(0.3)
+    q = Q_HOME.copy()
+    q[[0, 2]] = [0.1, -0.05]
+    cell.command(q, utime=300_000)
+    cell.advance(1.0)
+    statuses = cell.statuses
+    measured = np.array([s.joint_position_measured for s in statuses])
+    reported = np.array([s.joint_velocity_estimated for s in statuses])
+    dt, rc = 0.005, 1.0 / (2.0 * math.pi * 40.0)
+    alpha = 1.0 - dt / (dt + rc)  # 0.443
+    expected = np.zeros_like(measured)
+    for k in range(1, len(measured)):
+        difference = (measured[k] - measured[k - 1]) / dt
+        expected[k] = alpha * expected[k - 1] + (1.0 - alpha) * difference
+    assert np.abs(expected).max() > 0.5  # the joints moved
+    np.testing.assert_allclose(reported, expected, rtol=0, atol=1e-12)
+    truth = cell.truth()
+    on_status = np.isin(np.rint(truth.t * 1e6).astype(int), [s.utime for s in statuses])
+    exact = truth.v_measured[on_status]
+    assert np.abs(exact - reported[: len(exact)]).max() > 0.05  # the filter lags
 
 
 def test_start_pose_held_unclamped_and_commands_clamped():
     """Before any command the arm holds q_home exactly (joint 4 is within 1 deg of its
-    limit); a command of q_home is clamped to the limit less 1 deg, as kuka_driver does."""
+    limit); a command is clamped to the limits less 1 deg, as kuka_driver does."""
     cell = InProcessCell()
     cell.advance(0.3)
     truth = cell.truth()
@@ -138,7 +175,7 @@ def test_start_pose_held_unclamped_and_commands_clamped():
     assert Q_HOME[3] < -(np.deg2rad(120) - np.deg2rad(1))  # the premise
     q = Q_HOME.copy()
     q[6] = 4.0  # beyond joint 7's 175 deg
-    cell.command(q)
+    cell.command(q, utime=300_000)
     cell.advance(0.4)
     commanded = cell.truth().q_commanded[-1]
     expected = q.copy()
@@ -158,7 +195,7 @@ def test_start_guard_monitor_stops_before_the_command_acts():
     status = cell.advance(1.0)
     assert status.reason() == status.ReturnReason.kReachedTerminationCondition
     assert status.FormatMessage().count("start guard")
-    assert cell.simulator.get_context().get_time() < 0.1 + H
+    assert cell.simulator.get_context().get_time() < 0.1 + cell.driver.status_offset + H
     truth = cell.truth()
     np.testing.assert_allclose(truth.q_commanded, np.tile(Q_HOME, (len(truth.t), 1)), atol=1e-12)
     assert all(s.joint_position_commanded[0] == 0.0 for s in cell.statuses)
@@ -188,7 +225,7 @@ def test_sim_driver_run_start_guard(utime, status):
     assert outcome.status == status
     if status == "aborted":
         assert outcome.exit_code == 1 and outcome.message.startswith("start guard")
-        assert outcome.sim_time_s < 0.1 + 2 * H
+        assert outcome.sim_time_s < 0.1 + 2 * H  # read at the driver's next step
         np.testing.assert_allclose(driver.ground_truth().q_commanded[:, 0], 0.0, atol=1e-12)
     else:
         assert outcome.exit_code == 0 and outcome.sim_time_s == 0.5
@@ -202,7 +239,7 @@ def test_statuses_carry_the_plant_state():
     cell.advance(0.3)
     q = Q_HOME.copy()
     q[1] += 0.2
-    cell.command(q, [0.0, 2.0, 0, 0, 0, 0, 0])
+    cell.command(q, [0.0, 2.0, 0, 0, 0, 0, 0], utime=300_000)
     wsg = lcmt_schunk_wsg_command()
     wsg.target_position_mm = 10.0
     wsg.force = 12.0
@@ -217,7 +254,7 @@ def test_statuses_carry_the_plant_state():
         fields = {
             "joint_position_measured": truth.q_measured[i],
             "joint_position_commanded": truth.q_commanded[i],
-            "joint_velocity_estimated": truth.v_measured[i],
+            "joint_velocity_estimated": truth.v_estimated[i],
             "joint_torque_commanded": truth.tau_commanded[i],
             "joint_torque_measured": truth.tau_commanded[i],
             "joint_torque_external": truth.tau_external[i],
@@ -342,7 +379,7 @@ def _one_process_episode(q_target: np.ndarray, t_final: float):
     simulator.set_monitor(driver.start_guard_monitor())
     simulator.AdvanceTo(0.3)
     simulator.clear_monitor()
-    simulator.AdvanceTo(t_final)
+    driver.advance_to(simulator, t_final)
     measured = status.get_position_measured_output_port().Eval(status.GetMyContextFromRoot(context))
     return driver.ground_truth(context), measured
 
@@ -355,8 +392,10 @@ def test_one_process_with_a_drake_client_is_deterministic():
     first, measured = _one_process_episode(q_target, 2.0)
     second, _ = _one_process_episode(q_target, 2.0)
     np.testing.assert_array_equal(first.plant_state, second.plant_state)
-    assert np.abs(first.q_commanded[first.t < 0.3] - Q_HOME).max() < 1e-12
-    assert np.all(first.q_commanded[first.t > 0.3 + 1e-9] == q_target)
+    # The command sent at 0.3 s reaches the bus before that cycle's events (a quarter
+    # millisecond later): applied from the cycle of 0.3 s, reported from 0.305 s on.
+    assert np.abs(first.q_commanded[first.t < 0.305 - 1e-9] - Q_HOME).max() < 1e-12
+    assert np.all(first.q_commanded[first.t > 0.305 - 1e-9] == q_target)
     # The client has read the status of 1.995 s (the one of 2.0 s is read at the next step):
     # it carries the plant's state at that instant.
     np.testing.assert_array_equal(measured, first.q_measured[np.isclose(first.t, 1.995)][0])
@@ -405,3 +444,47 @@ def test_a_command_with_utime_minus_one_means_no_command():
     np.testing.assert_array_equal(truth.tau_feedforward[at(0.45)], np.zeros(7))
     np.testing.assert_array_equal(truth.q_commanded[at(0.55)], q)
     np.testing.assert_array_equal(truth.tau_feedforward[at(0.55)], tau)
+
+
+def test_the_external_torque_stop():
+    """kuka_driver's freeze: the gripper closed on the handle of a door whose hinge is damped
+    at 1e5 N m s/rad, the arm told to turn joint 1 by 0.1 rad (the spring's 133 N m against a
+    door that barely moves): at the first cycle whose |tau_external| exceeds 60 N m x (1, 1,
+    1, 0.5, 0.2, 0.2, 0.1) the driver stops (SimDriver.run: aborted, exit 1, one line naming
+    the joint, the torque and the limit); that cycle's status is not sent and the torques of
+    every status sent are within the limits; the ground truth is written."""
+    from doorlab.constants import Q_GRASP
+    from doorlab.hardware.protocol import EXTERNAL_TORQUE_LIMITS
+
+    scenario = Scenario()
+    scenario.station.hinge_damping = 1e5
+    driver = SimDriver(scenario, lcm_url="memq://", record=True, q_initial=Q_GRASP)
+    statuses = []
+
+    def handle(data: bytes) -> None:
+        status = lcmt_iiwa_status.decode(data)
+        statuses.append(status)
+        if status.utime >= 300_000:  # after the start guard: hold, grip, then turn
+            q = Q_GRASP.copy()
+            q[0] += 0.1 if status.utime >= 800_000 else 0.0
+            message = lcmt_iiwa_command()
+            message.utime = status.utime
+            message.num_joints = 7
+            message.joint_position = list(q)
+            driver.lcm.Publish(IIWA_COMMAND_CHANNEL, message.encode())
+            wsg = lcmt_schunk_wsg_command()
+            wsg.target_position_mm, wsg.force = 5.0, 15.0
+            driver.lcm.Publish(WSG_COMMAND_CHANNEL, wsg.encode())
+
+    driver.lcm.Subscribe(IIWA_STATUS_CHANNEL, handle)
+    outcome = driver.run(duration=3.0, realtime_rate=0.0)
+    assert (outcome.status, outcome.exit_code) == ("aborted", 1), outcome.message
+    message = outcome.message
+    assert "\n" not in message and message.startswith("external torque")
+    assert "iiwa_joint_" in message and "kuka_driver's limit" in message
+    assert 0.8 < outcome.sim_time_s < 3.0
+    sent = np.array([s.joint_torque_external for s in statuses])
+    assert np.all(np.abs(sent) <= EXTERNAL_TORQUE_LIMITS)
+    assert statuses[-1].utime * 1e-6 < outcome.sim_time_s  # the stopping cycle's is not sent
+    truth = driver.ground_truth()
+    assert truth.t[-1] > 0.8 and np.abs(truth.tau_external).max() > 1.0

@@ -31,6 +31,7 @@ from doorlab.frames import L7_FRAME, p_L7Q
 from doorlab.hinge_estimation import HingeEstimator, estimate_contact_wrench, signed_angle
 from doorlab.laws import adaptive_law, orientation_error
 from doorlab.plans import ArmState, Command
+from doorlab.station import STIFFNESS_LOOPS, loop_gains
 
 LOG_CHANNELS = (
     "t",  # [s] time since the plan started (the episode's time in EpisodeResult.plan_log)
@@ -52,12 +53,13 @@ LOG_CHANNELS = (
 def velocity_lead(inner_loop: InnerLoopConfig, control_period: float) -> np.ndarray:
     """Per-joint lead (7,) [s] turning a desired joint speed into q_ref (AdaptivePlan).
 
-    Stiffness loop: Dq dq_scale / Kq + dt / 2. The inverse-dynamics PID differentiates q_ref
-    itself, so there the lead is the control period (as in the velocity plan).
+    Stiffness loops (doorlab's, KUKA's): Dq / Kq + dt / 2 (:func:`doorlab.station.loop_gains`).
+    The inverse-dynamics PID differentiates q_ref itself, so there the lead is the control
+    period (as in the velocity plan).
     """
-    if inner_loop.kind == "stiffness":
-        dq = np.asarray(inner_loop.dq) * inner_loop.dq_scale
-        return dq / np.asarray(inner_loop.kq) + control_period / 2
+    if inner_loop.kind in STIFFNESS_LOOPS:
+        kq, dq = loop_gains(inner_loop)
+        return dq / kq + control_period / 2
     return np.full(NUM_JOINTS, control_period)
 
 

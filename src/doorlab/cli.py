@@ -116,6 +116,11 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="skip the robustness runs and section (yaw error sweep)",
     )
+    report.add_argument(
+        "--no-arm",
+        action="store_true",
+        help="skip the 'On the arm' runs and section (the lab's iiwa: kuka_driver, KUKA's loop)",
+    )
     _scheduler(report)
     _common(report)
 

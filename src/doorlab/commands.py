@@ -338,6 +338,7 @@ def report(args: argparse.Namespace) -> int:
         scheduler=args.scheduler,
         scheduler_timeout_s=args.scheduler_timeout,
         robustness=not args.no_robustness,
+        arm=not args.no_arm,
     )
     if args.pdf:
         from doorlab.pdf import print_pdf

@@ -21,15 +21,37 @@ from pathlib import Path
 
 from pydrake.common.yaml import yaml_load_typed
 
-from doorlab.constants import DOOR_ANGLES, NUM_JOINTS
+from doorlab.config_checks import (  # noqa: F401 (the bounds, named here too)
+    COMMAND_TIMINGS,
+    MAX_EPISODE_DURATION,
+    MAX_LOG_SAMPLES,
+    MIN_ARC_SAMPLES,
+    check,
+    choice,
+    gains,
+    non_negative,
+    positive,
+    validate_kuka,
+    validate_safety,
+    validate_timeline,
+)
+from doorlab.constants import DOOR_ANGLES
 from doorlab.errors import ConfigError
 from doorlab.inputs import load_yaml, quote, quote_text, read_text_file, yaml_float_spelling
+from doorlab.kuka import (
+    EXTERNAL_TORQUE_LIMIT,
+    KUKA_DAMPING,
+    KUKA_STIFFNESS,
+    VELOCITY_FILTER_CUTOFF,
+)
 
 CONTROLLERS = ("ik", "velocity", "impedance", "adaptive")
 """Names of the door-opening controllers: the problem set's tasks 1-3, then the adaptive plan."""
 DOOR_STATES = tuple(DOOR_ANGLES)
-INNER_LOOPS = ("stiffness", "implicit_pd", "inverse_dynamics")
+INNER_LOOPS = ("stiffness", "implicit_pd", "inverse_dynamics", "kuka_joint_impedance")
 IK_OBJECTIVES = ("feasible", "centered")
+VELOCITY_LEADS = ("control_period", "inner_loop")
+"""``velocity.lead``: what q_dot is multiplied by in q_ref = q + q_dot x lead."""
 CONTACT_APPROXIMATIONS = ("sap", "lagged", "similar", "tamsi")
 LEFT_HINGE_RANGE = (-math.pi / 2, 0.0)
 """Hinge range of the left door [rad] (opening is negative)."""
@@ -37,21 +59,9 @@ RIGHT_HINGE_RANGE = (0.0, math.pi / 2)
 MAX_CUPBOARD_YAW_ERROR = math.pi / 4
 """Largest |station.cupboard_yaw_error| [rad]: beyond 45 deg the handle faces away from the arm."""
 
-MAX_EPISODE_DURATION = 600.0
-"""Longest timeline [s]: the sum of its durations (hold, approach, grasp, arc, extra_time; each
-plan also settles 1 s). 25x the problem set's 24 s episode: the logs are kept in memory, and every
-metric, plot and replay covers the whole episode; a longer one is surely a typo."""
 MIN_TIME_STEP = 1e-5
 """Finest ``station.time_step`` [s]: 200x finer than the original's 2 ms (the default episode
 is then 2.4 million plant steps)."""
-MIN_ARC_SAMPLES = 10
-"""The arc plan must tick and be logged at least this often: its metrics (tracking errors,
-door lag) come from those samples, so ``control_period`` and ``log_period`` are at most
-``arc_duration`` / 10."""
-MAX_LOG_SAMPLES = 300_000
-"""Most log samples of an episode (its length / ``log_period``): 600 s at 2 ms; each holds
-about 50 numbers, ~120 MB kept in memory before the metrics' copies."""
-
 MAX_GRASP_OFFSET = 0.01
 """Largest |ik.grasp_offset| per axis [m]: the handle is 10 mm thick, so a centimetre off
 the fingers no longer close on it."""
@@ -66,6 +76,11 @@ class InnerLoopConfig:
     joints' own viscous damping, integrated implicitly by the plant. ``implicit_pd`` is the same law
     through the plant's PD actuators (the design before issue 9, kept for comparison: slower,
     same physics). ``inverse_dynamics`` is the original station's PID through M(q).
+    ``kuka_joint_impedance`` is the lab arm's loop (``DrakeFRITorqueDriver``: KUKA's
+    ``JointImpedanceControlMode``, :mod:`doorlab.kuka`): the ``stiffness`` law with Kq =
+    ``kuka_stiffness`` and Dq = 2 d sqrt(Kq M_ii), d = ``kuka_damping`` (KUKA's dimensionless
+    value), M_ii the model's joint inertia at the problem set's grasp pose
+    (:data:`doorlab.constants.Q_GRASP`); ``kq``, ``dq`` and ``dq_scale`` do not apply to it.
 
     What ``dq`` means: the problem set's (and the PD actuators') Dq. The damping that acts is
     Dq dq_scale + h Kq, h = ``station.time_step``: SAP evaluates a PD actuator's spring at the
@@ -92,6 +107,10 @@ class InnerLoopConfig:
     # Multiplier on every Dq [-] (>= 0): one knob for the position-tracking vs impedance-lag
     # trade-off (benchmarks/inner_loop_sweep.py).
     dq_scale: float = 1.0
+    # KUKA's joint impedance (kind kuka_joint_impedance; DrakeFRITorqueDriver's values):
+    # stiffness [N m/rad] and KUKA's dimensionless damping [-] (0.1-1.0) per joint.
+    kuka_stiffness: list[float] = field(default_factory=lambda: list(KUKA_STIFFNESS))
+    kuka_damping: list[float] = field(default_factory=lambda: list(KUKA_DAMPING))
     # Inverse-dynamics PID gains of the original station (act through M(q)).
     id_kp: float = 100.0  # [1/s^2] proportional gain
     id_ki: float = 1.0  # [1/s^3] integral gain
@@ -126,6 +145,27 @@ class SafetyConfig:
 
 
 @dataclass
+class DriverConfig:
+    """How commands reach the arm and what the plans read back (:mod:`doorlab.kuka`).
+
+    ``timing`` is for one-process runs; ``doorlab sim-driver`` always keeps kuka_driver's
+    cycle and reads the other fields. ``next_step`` (doorlab's cell): the command a plan
+    computes at its tick acts from the next plant step, and the plan reads the plant's exact
+    state. ``kuka_driver`` (the lab arm): the plan reads a status sampled at each 5 ms cycle,
+    with kuka_driver's filtered velocity; its command acts from the next cycle (one period
+    after the state it was computed from), clamped to the joint limits less 1 deg; the arm
+    stands still until the first command; an external torque over kuka_driver's limits stops
+    the run (``safety_stop``, limit ``external_torque``), as the driver exits.
+    """
+
+    timing: str = "next_step"  # one of COMMAND_TIMINGS
+    velocity_filter_cutoff: float = VELOCITY_FILTER_CUTOFF  # [Hz] low-pass of the status velocity
+    # [N m] kuka_driver's --ext_trq_limit: |tau_external| over it x (1, 1, 1, 0.5, 0.2, 0.2,
+    # 0.1) per joint stops the driver.
+    external_torque_limit: float = EXTERNAL_TORQUE_LIMIT
+
+
+@dataclass
 class StationConfig:
     """Physics of the cell."""
 
@@ -149,6 +189,7 @@ class StationConfig:
     inner_loop: InnerLoopConfig = field(default_factory=InnerLoopConfig)
     gripper: GripperConfig = field(default_factory=GripperConfig)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
+    driver: DriverConfig = field(default_factory=DriverConfig)
 
 
 @dataclass
@@ -195,6 +236,10 @@ class VelocityPlanConfig:
     kv: float = 100.0  # [1/s] gain from Q's position error to its desired velocity
     kw: float = 50.0  # [1/s] gain from L7's orientation error to its angular velocity
     joint_speed_limit: float = 1.0  # [rad/s] clip on q_dot (the original's)
+    # q_ref = q + q_dot x the lead: "control_period" (the problem set's dt) or "inner_loop"
+    # (Dq / Kq + dt / 2 per joint: what a stiffness loop needs to reach the speed; a change
+    # of the problem set's law for a damped loop such as KUKA's).
+    lead: str = "control_period"
 
 
 @dataclass
@@ -257,6 +302,25 @@ class Scenario:
         if self.door_angles is not None:
             return (float(self.door_angles[0]), float(self.door_angles[1]))
         return DOOR_ANGLES[self.doors]
+
+
+ARM_PRESET = """\
+station:
+  time_step: 0.0025
+  inner_loop: {kind: kuka_joint_impedance}
+  driver: {timing: kuka_driver}
+  safety: {enabled: true}
+"""
+"""The lab arm preset's fields (``examples/kuka_arm.yaml`` sets the same on the defaults, with
+KUKA's gains written out): kuka_driver's cycle, KUKA's joint impedance, a 2.5 ms plant step
+(two per cycle) and the real run's safety limits at every tick."""
+
+
+def arm_preset(base: Scenario | None = None) -> Scenario:
+    """``base`` (default: the defaults) as the lab's arm: :data:`ARM_PRESET` on a copy."""
+    import copy
+
+    return update_scenario(copy.deepcopy(base) if base is not None else Scenario(), ARM_PRESET)
 
 
 def load_scenario(path: str | Path, *, defaults: Scenario | None = None) -> Scenario:
@@ -349,101 +413,6 @@ def _check_shape(data: object, schema: object, path: str) -> None:
         raise ConfigError(f"{name} must be {_type_name(schema)}, got {quote(data)}{hint}")
 
 
-def _check(condition: bool, message: str) -> None:
-    if not condition:
-        raise ConfigError(message)
-
-
-def _positive(name: str, value: float) -> None:
-    _check(
-        isinstance(value, (int, float)) and math.isfinite(value) and value > 0,
-        f"{name} must be a finite number > 0, got {quote(value)}",
-    )
-
-
-def _non_negative(name: str, value: float) -> None:
-    _check(
-        isinstance(value, (int, float)) and math.isfinite(value) and value >= 0,
-        f"{name} must be a finite number >= 0, got {quote(value)}",
-    )
-
-
-def _choice(name: str, value: str, choices: tuple[str, ...]) -> None:
-    _check(value in choices, f"{name} must be one of {', '.join(choices)}; got {quote(value)}")
-
-
-def _gains(name: str, values: list[float], *, allow_zero: bool) -> None:
-    _check(
-        isinstance(values, (list, tuple)) and len(values) == NUM_JOINTS,
-        f"{name} must be a list of {NUM_JOINTS} numbers, got {quote(values)}",
-    )
-    for i, v in enumerate(values):
-        (_non_negative if allow_zero else _positive)(f"{name}[{i}]", v)
-
-
-def _validate_timeline(scenario: Scenario) -> None:
-    """Every duration and period finite, positive and bounded (see MAX_EPISODE_DURATION)."""
-    timeline, time_step = scenario.timeline, scenario.station.time_step
-    for f in dataclasses.fields(timeline):
-        value = getattr(timeline, f.name)
-        if f.name == "extra_time":
-            _non_negative(f"timeline.{f.name}", value)
-        else:
-            _positive(f"timeline.{f.name}", value)
-    durations = [f.name for f in dataclasses.fields(timeline) if not f.name.endswith("_period")]
-    total = sum(getattr(timeline, name) for name in durations)
-    _check(
-        total <= MAX_EPISODE_DURATION,
-        f"the timeline's durations ({', '.join(f'timeline.{n}' for n in durations)}) add up "
-        f"to {quote(total)} s; at most {MAX_EPISODE_DURATION:g} s (25x the problem set's "
-        "episode: the logs are kept in memory and every metric, plot and replay covers the "
-        "whole episode)",
-    )
-    _check(
-        time_step <= timeline.control_period,
-        f"station.time_step ({time_step} s) must not exceed timeline.control_period "
-        f"({timeline.control_period} s)",
-    )
-    _check(
-        timeline.log_period >= time_step,
-        f"timeline.log_period ({timeline.log_period} s) must be >= station.time_step "
-        f"({time_step} s)",
-    )
-    arc = timeline.arc_duration
-    for name in ("control_period", "log_period"):
-        value = getattr(timeline, name)
-        _check(
-            value <= arc / MIN_ARC_SAMPLES,
-            f"timeline.{name} ({quote(value)} s) must be at most timeline.arc_duration / "
-            f"{MIN_ARC_SAMPLES} ({arc / MIN_ARC_SAMPLES:g} s): the arc plan must "
-            + ("act" if name == "control_period" else "be logged")
-            + f" at least {MIN_ARC_SAMPLES} times, its metrics come from those samples",
-        )
-    samples = (total + 4.0) / timeline.log_period  # + the plans' settle times
-    _check(
-        samples <= MAX_LOG_SAMPLES,
-        f"timeline.log_period ({timeline.log_period} s) gives {samples:.0f} log samples over "
-        f"the episode; at most {MAX_LOG_SAMPLES} (about 50 numbers each, kept in memory)",
-    )
-
-
-def _validate_safety(safety: SafetyConfig) -> None:
-    _check(isinstance(safety.enabled, bool), "station.safety.enabled must be true or false")
-    _check(
-        isinstance(safety.joint_limit_margin, (int, float))
-        and 0.0 <= safety.joint_limit_margin <= 0.5,
-        f"station.safety.joint_limit_margin must be in [0, 0.5] rad, got "
-        f"{quote(safety.joint_limit_margin)}",
-    )
-    _positive("station.safety.gap_time", safety.gap_time)
-    for name in ("speed_fraction", "torque_fraction"):
-        value = getattr(safety, name)
-        _check(
-            isinstance(value, (int, float)) and 0.0 < value <= 1.0,
-            f"station.safety.{name} must be in (0, 1], got {quote(value)}",
-        )
-
-
 def validate(scenario: Scenario) -> Scenario:
     """Checks every field's type and range.
 
@@ -453,12 +422,12 @@ def validate(scenario: Scenario) -> Scenario:
     Raises:
         ConfigError: Naming the first offending field and its valid range.
     """
-    _check(isinstance(scenario, Scenario), f"expected a Scenario, got {type(scenario).__name__}")
-    _choice("controller", scenario.controller, CONTROLLERS)
-    _choice("doors", scenario.doors, DOOR_STATES)
+    check(isinstance(scenario, Scenario), f"expected a Scenario, got {type(scenario).__name__}")
+    choice("controller", scenario.controller, CONTROLLERS)
+    choice("doors", scenario.doors, DOOR_STATES)
     if scenario.door_angles is not None:
         angles = scenario.door_angles
-        _check(
+        check(
             isinstance(angles, (list, tuple))
             and len(angles) == 2
             and all(isinstance(a, (int, float)) and math.isfinite(a) for a in angles),
@@ -468,76 +437,77 @@ def validate(scenario: Scenario) -> Scenario:
             ("door_angles[0] (left)", angles[0], LEFT_HINGE_RANGE),
             ("door_angles[1] (right)", angles[1], RIGHT_HINGE_RANGE),
         ):
-            _check(
+            check(
                 lo <= value <= hi, f"{name} must be in [{lo:.4f}, {hi:.4f}] rad, got {quote(value)}"
             )
 
     station = scenario.station
-    _positive("station.time_step", station.time_step)
-    _choice("station.contact_approximation", station.contact_approximation, CONTACT_APPROXIMATIONS)
+    positive("station.time_step", station.time_step)
+    choice("station.contact_approximation", station.contact_approximation, CONTACT_APPROXIMATIONS)
     position = station.cupboard_position
-    _check(
+    check(
         isinstance(position, (list, tuple))
         and len(position) == 3
         and all(isinstance(v, (int, float)) and abs(v) <= 10.0 for v in position),
         f"station.cupboard_position must be three numbers [m] within +-10 m, got {quote(position)}",
     )
     yaw = station.cupboard_yaw_error
-    _check(
+    check(
         isinstance(yaw, (int, float)) and math.isfinite(yaw) and abs(yaw) <= MAX_CUPBOARD_YAW_ERROR,
         f"station.cupboard_yaw_error must be a number in [-{MAX_CUPBOARD_YAW_ERROR:.4f}, "
         f"{MAX_CUPBOARD_YAW_ERROR:.4f}] rad (+-45 deg), got {quote(yaw)}",
     )
-    _non_negative("station.hinge_damping", station.hinge_damping)
-    _non_negative("station.friction", station.friction)
+    non_negative("station.hinge_damping", station.hinge_damping)
+    non_negative("station.friction", station.friction)
     loop = station.inner_loop
-    _choice("station.inner_loop.kind", loop.kind, INNER_LOOPS)
-    _gains("station.inner_loop.kq", loop.kq, allow_zero=False)
-    _gains("station.inner_loop.dq", loop.dq, allow_zero=True)
-    _non_negative("station.inner_loop.dq_scale", loop.dq_scale)
+    choice("station.inner_loop.kind", loop.kind, INNER_LOOPS)
+    gains("station.inner_loop.kq", loop.kq, allow_zero=False)
+    gains("station.inner_loop.dq", loop.dq, allow_zero=True)
+    non_negative("station.inner_loop.dq_scale", loop.dq_scale)
     for name in ("id_kp", "id_kd"):
-        _positive(f"station.inner_loop.{name}", getattr(loop, name))
-    _non_negative("station.inner_loop.id_ki", loop.id_ki)
-    _check(
+        positive(f"station.inner_loop.{name}", getattr(loop, name))
+    non_negative("station.inner_loop.id_ki", loop.id_ki)
+    check(
         not (station.contact_approximation == "tamsi" and loop.kind == "implicit_pd"),
         "station.contact_approximation 'tamsi' cannot integrate PD actuators (implicit_pd); "
         "use sap, lagged or similar, or station.inner_loop.kind: stiffness or inverse_dynamics",
     )
     gripper = station.gripper
     for name in ("kp", "force_limit"):
-        _positive(f"station.gripper.{name}", getattr(gripper, name))
-    _non_negative("station.gripper.kd", gripper.kd)
+        positive(f"station.gripper.{name}", getattr(gripper, name))
+    non_negative("station.gripper.kd", gripper.kd)
     for name in ("initial_width", "approach_width", "grasp_width"):
         value = getattr(gripper, name)
-        _check(
+        check(
             isinstance(value, (int, float)) and 0.0 <= value <= 0.11,
             f"station.gripper.{name} must be in [0, 0.11] m (finger travel), got {quote(value)}",
         )
 
-    _validate_safety(station.safety)
+    validate_safety(station.safety)
+    validate_kuka(loop, station.driver, scenario.timeline)
 
-    _check(
+    check(
         station.time_step >= MIN_TIME_STEP,
         f"station.time_step must be >= {MIN_TIME_STEP} s, got {quote(station.time_step)} "
         "(200x finer than the original's 2 ms; the default episode would be 2.4 million steps)",
     )
-    _validate_timeline(scenario)
+    validate_timeline(scenario)
 
     angle_end = scenario.arc.angle_end_deg
-    _check(
+    check(
         isinstance(angle_end, (int, float)) and 15.0 <= angle_end <= 90.0,
         f"arc.angle_end_deg must be in [15, 90] deg, got {quote(angle_end)}",
     )
     ik = scenario.ik
-    _check(
+    check(
         isinstance(ik.knots, int) and not isinstance(ik.knots, bool) and 2 <= ik.knots <= 100,
         f"ik.knots must be an integer in [2, 100], got {quote(ik.knots)}",
     )
-    _choice("ik.objective", ik.objective, IK_OBJECTIVES)
+    choice("ik.objective", ik.objective, IK_OBJECTIVES)
     for name in ("position_tolerance", "theta_bound", "grasp_position_tolerance"):
-        _positive(f"ik.{name}", getattr(ik, name))
+        positive(f"ik.{name}", getattr(ik, name))
     offset = ik.grasp_offset
-    _check(
+    check(
         isinstance(offset, (list, tuple))
         and len(offset) == 3
         and all(
@@ -547,27 +517,29 @@ def validate(scenario: Scenario) -> Scenario:
         f"ik.grasp_offset must be three numbers [m] within +-{MAX_GRASP_OFFSET} m, "
         f"got {quote(offset)}",
     )
+    choice("velocity.lead", scenario.velocity.lead, VELOCITY_LEADS)
     for section in ("velocity", "impedance"):
         for f in dataclasses.fields(getattr(scenario, section)):
-            _positive(f"{section}.{f.name}", getattr(getattr(scenario, section), f.name))
+            if f.name != "lead":
+                positive(f"{section}.{f.name}", getattr(getattr(scenario, section), f.name))
     adaptive = scenario.adaptive
     for f in dataclasses.fields(adaptive):
         value = getattr(adaptive, f.name)
         if f.name == "force_target":
-            _check(
+            check(
                 isinstance(value, (int, float)) and math.isfinite(value),
                 f"adaptive.force_target must be a finite number [N], got {quote(value)}",
             )
         else:
-            _positive(f"adaptive.{f.name}", value)
+            positive(f"adaptive.{f.name}", value)
     for name in ("ramp_time", "velocity_time_constant"):  # durations within the arc plan
         value = getattr(adaptive, name)
-        _check(
+        check(
             value <= MAX_EPISODE_DURATION,
             f"adaptive.{name} must be at most {MAX_EPISODE_DURATION:g} s (the longest "
             f"timeline), got {quote(value)}",
         )
-    _check(
+    check(
         adaptive.target_angle < 90.0,
         f"adaptive.target_angle must be in (0, 90) deg, got {quote(adaptive.target_angle)}",
     )

@@ -17,6 +17,10 @@ JOINT_TORQUE_LIMITS = np.array([176.0, 176.0, 110.0, 110.0, 110.0, 40.0, 40.0])
 # Poses of the problem set (station facts §4).
 Q_HOME = np.array([0.0, -0.2136, 0.0, -2.094, 0.0, 0.463, 0.0])
 """Every task starts here [rad]."""
+Q_GRASP = np.array([0.0525, 0.3043, -0.0165, -1.5161, -0.0437, 0.5366, 0.0670])
+"""The problem set's grasp pose [rad]: the one-shot IK to the left handle of the shipped
+cupboard (Q at the handle, L7 at the arc's initial orientation; tests/test_kuka.py solves it
+again). KUKA's joint impedance is tuned for the joint inertia here (:mod:`doorlab.kuka`)."""
 Q_STATION_DEFAULT = np.array([0.0, 0.6, 0.0, -1.75, 0.0, 1.0, 0.0])
 """The original station's default pose [rad]."""
 

@@ -86,13 +86,14 @@ def build_ik_plan(scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPl
 def build_velocity_plan(
     scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPlant
 ) -> ArcPlan:
-    """Task 2: differential IK, q_ref = q + J^+ V_des dt."""
+    """Task 2: differential IK, q_ref = q + J^+ V_des dt (``velocity.lead: inner_loop``: the
+    inner loop's lead instead of dt)."""
+    period = scenario.timeline.control_period
+    lead = None
+    if scenario.velocity.lead == "inner_loop":
+        lead = velocity_lead(scenario.station.inner_loop, period)
     plan = TaskSpaceVelocityPlan(
-        geometry,
-        scenario.timeline.arc_duration,
-        plant,
-        scenario.velocity,
-        scenario.timeline.control_period,
+        geometry, scenario.timeline.arc_duration, plant, scenario.velocity, period, lead
     )
     return ArcPlan(plan, _grasp_configuration(scenario, geometry, plant))
 

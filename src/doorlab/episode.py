@@ -87,6 +87,10 @@ class EpisodeResult:
         status_time: The real cell's ``utime`` of the status each sample shows, as seconds
             (n,) [s]; None in simulation.
         cell: ``simulation`` or ``hardware`` (the real cell over LCM).
+        cycle_log: With ``station.driver.timing: kuka_driver``, the status of every 5 ms
+            cycle, as the arm's driver would send it: ``t`` (m,) [s] and
+            :data:`doorlab.arm_cell.STATUS_LAYOUT`'s channels (m, size); kept in memory,
+            not saved.
     """
 
     t: np.ndarray
@@ -108,6 +112,7 @@ class EpisodeResult:
     door_angle_estimated: np.ndarray | None = None
     status_time: np.ndarray | None = None
     cell: str = "simulation"
+    cycle_log: dict[str, np.ndarray] = field(default_factory=dict, compare=False)
 
     @property
     def sim_time_s(self) -> float:
@@ -124,7 +129,7 @@ class EpisodeResult:
         arrays = {}
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name == "plan_log" or value is None:  # None: not measured on this cell
+            if f.name in ("plan_log", "cycle_log") or value is None:  # None: not measured
                 continue
             arrays[f.name] = np.asarray(value)
         for name, column in self.plan_log.items():
@@ -139,6 +144,8 @@ class EpisodeResult:
         with np.load(path, allow_pickle=False) as data:
             values = {}
             for f in fields(cls):
+                if f.name == "cycle_log":
+                    continue
                 if f.name == "plan_log":
                     values[f.name] = {
                         key[len(_PLAN_LOG_PREFIX) :]: data[key]
@@ -185,6 +192,7 @@ def wire_commands(
     q_initial: np.ndarray,
     t_final: float,
     lag: float,
+    gripper_link: tuple[float, float] | None = None,
 ) -> CommandWiring:
     """Adds the systems that command ``cell`` through ``schedule`` and connects its inputs.
 
@@ -204,6 +212,8 @@ def wire_commands(
         t_final: The episode's end [s].
         lag: How long after each tick its command switches on [s]
             (:func:`doorlab.schedule.tick_lag` in simulation).
+        gripper_link: (period, delay) [s]: the gripper's setpoint reaches the cell as a
+            client sends it to the arm's drivers (:func:`gripper_as_sent`); None: at once.
     """
 
     def add(system, name: str):
@@ -251,7 +261,9 @@ def wire_commands(
     builder.Connect(q_ref_runner, q_ref_sum.get_input_port(1))
     builder.Connect(q_ref_sum.get_output_port(), cell.GetInputPort("iiwa_position"))
     builder.Connect(tau_ff_port, cell.GetInputPort("iiwa_feedforward_torque"))
-    wsg = _wire_gripper(builder, cell, schedule, scenario, t_final=t_final, lag=lag)
+    wsg = _wire_gripper(
+        builder, cell, schedule, scenario, t_final=t_final, lag=lag, link=gripper_link
+    )
     return CommandWiring(runner, q_ref_sum.get_output_port(), tau_ff_port, wsg)
 
 
@@ -263,25 +275,54 @@ def _wire_gripper(
     *,
     t_final: float,
     lag: float,
+    link: tuple[float, float] | None = None,
 ) -> OutputPort:
     """The gripper's setpoint: a C++ zero-order hold switching ``lag`` after the tick that
-    starts each plan (as the runner's state did); the force limit a constant."""
+    starts each plan (as the runner's state did), or as sent over ``link``
+    (:func:`gripper_as_sent`); the force limit a constant."""
     period = scenario.timeline.control_period
     widths = [s.gripper_width for s in schedule]
     switches = [first_tick(s.t_start, period) + lag for s in schedule[1:]]
-    wsg = builder.AddSystem(
-        TrajectorySource(
-            PiecewisePolynomial.ZeroOrderHold(
-                [0.0, *switches, t_final + 1.0], np.array([[*widths, widths[-1]]])
-            )
-        )
+    setpoint = PiecewisePolynomial.ZeroOrderHold(
+        [0.0, *switches, t_final + 1.0], np.array([[*widths, widths[-1]]])
     )
+    if link is not None:
+        setpoint = gripper_as_sent(
+            setpoint, scenario.station.gripper.initial_width, *link, t_final=t_final
+        )
+    wsg = builder.AddSystem(TrajectorySource(setpoint))
     wsg.set_name("wsg_position")
     builder.Connect(wsg.get_output_port(), cell.GetInputPort("wsg_position"))
     force_limit = builder.AddSystem(ConstantVectorSource([scenario.station.gripper.force_limit]))
     force_limit.set_name("wsg_force_limit")
     builder.Connect(force_limit.get_output_port(), cell.GetInputPort("wsg_force_limit"))
     return wsg.get_output_port()
+
+
+def gripper_as_sent(
+    setpoint: PiecewisePolynomial,
+    initial_width: float,
+    period: float,
+    delay: float,
+    *,
+    t_final: float,
+) -> PiecewisePolynomial:
+    """The gripper's setpoint as a hardware client sends it and the arm's drivers apply it: the
+    client publishes the setpoint at j x ``period`` (its 20 Hz ``SCHUNK_WSG_COMMAND``), each
+    value acts ``delay`` later (the driver's next cycle); before the first, ``initial_width``.
+
+    Args:
+        setpoint: The episode's setpoint [m] as a function of time.
+        initial_width: What the gripper holds before the first command [m].
+        period: The client's publish period [s]. delay: From a publish to its effect [s].
+        t_final: The episode's end [s].
+    """
+    sends = np.arange(int(np.floor((t_final + 1.0) / period)) + 1) * period
+    values = [initial_width, *(float(setpoint.value(t)[0, 0]) for t in sends)]
+    breaks = [0.0, *(sends + delay)]
+    return PiecewisePolynomial.ZeroOrderHold(
+        [*breaks, breaks[-1] + period], np.array([[*values, values[-1]]])
+    )
 
 
 class EpisodeLogger:

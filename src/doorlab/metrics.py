@@ -32,7 +32,7 @@ from doorlab.errors import ConfigError
 from doorlab.frames import L7_FRAME, p_L7Q
 from doorlab.geometry import DoorGeometry
 from doorlab.simulation import EpisodeResult
-from doorlab.station import make_controller_plant
+from doorlab.station import STIFFNESS_LOOPS, loop_gains, make_controller_plant
 
 HANDLE_CAPTURE_RADIUS = 0.02
 """Q is "at the handle" while its horizontal distance to the handle axis is below this [m]:
@@ -345,15 +345,15 @@ def joint_damping_ratios(scenario: Scenario, q: np.ndarray) -> np.ndarray | None
     """Damping ratio of each joint's stiffness loop at configuration q, shape (7,) [-].
 
     zeta_i = Dq_i dq_scale / (2 sqrt(Kq_i M_ii(q))), with M(q) of the controllers' arm model
-    (links, lumped gripper and the motors' reflected inertia). None for the
-    ``inverse_dynamics`` inner loop, which has no joint stiffness.
+    (links, lumped gripper and the motors' reflected inertia), Kq and Dq of
+    :func:`doorlab.station.loop_gains`. None for the ``inverse_dynamics`` and ``implicit_pd``
+    inner loops.
     """
-    loop = scenario.station.inner_loop
-    if loop.kind != "stiffness":
+    if scenario.station.inner_loop.kind not in STIFFNESS_LOOPS:
         return None
     plant = make_controller_plant()
     context = plant.CreateDefaultContext()
     plant.SetPositions(context, np.asarray(q, dtype=float))
     inertia = np.diag(plant.CalcMassMatrix(context))
-    kq, dq = np.asarray(loop.kq), np.asarray(loop.dq) * loop.dq_scale
+    kq, dq = loop_gains(scenario.station.inner_loop)
     return dq / (2.0 * np.sqrt(kq * inertia))

@@ -134,7 +134,11 @@ class _TaskSpacePlan:
 
 
 class TaskSpaceVelocityPlan(_TaskSpacePlan):
-    """Task 2: q_ref = q + J^+ V_des dt, tau_ff = 0 (dt = the control period)."""
+    """Task 2: q_ref = q + J^+ V_des dt, tau_ff = 0 (dt = the control period).
+
+    ``lead`` replaces dt per joint (``velocity.lead: inner_loop``: the lead a stiffness loop
+    needs to reach a joint speed, :func:`doorlab.adaptive.velocity_lead`).
+    """
 
     def __init__(
         self,
@@ -143,17 +147,19 @@ class TaskSpaceVelocityPlan(_TaskSpacePlan):
         controller_plant: MultibodyPlant,
         config: VelocityPlanConfig,
         control_period: float,
+        lead: np.ndarray | None = None,
     ):
         super().__init__(geometry, duration, controller_plant, "velocity")
         self.config = config
         self.control_period = control_period
+        self.lead = control_period if lead is None else np.asarray(lead, dtype=float)
 
     def command(self, t: float, state: ArmState) -> Command:
         """Maps the pose error to joint velocities through the pseudo-inverse."""
         error, J = self.error_and_jacobian(t, state.q)
         c = self.config
         qdot = velocity_law(error, J, kv=c.kv, kw=c.kw, joint_speed_limit=c.joint_speed_limit)
-        return Command(state.q + qdot * self.control_period, _ZERO_TORQUE)
+        return Command(state.q + qdot * self.lead, _ZERO_TORQUE)
 
 
 class TaskSpaceImpedancePlan(_TaskSpacePlan):

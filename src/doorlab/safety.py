@@ -53,7 +53,10 @@ _UNITS = {
     "position_gap": "rad",
     "joint_speed": "rad/s",
     "feedforward_torque": "N m",
+    "external_torque": "N m",
 }
+"""Units by limit; ``external_torque`` is kuka_driver's freeze, checked on each status
+(:class:`doorlab.arm_cell.ExternalTorqueWatch`), not on commands."""
 
 
 @dataclass(frozen=True)
@@ -117,9 +120,12 @@ class Violation:
         if self.limit == "finite":
             return f"{self.joint_name}: a non-finite command at t = {self.t:.3f} s"
         unit = _UNITS[self.limit]
+        digits = 4
+        while f"{self.value:.{digits}g}" == f"{self.bound:.{digits}g}" and digits < 12:
+            digits += 2  # show where the value passed the bound
         return (
             f"{self.limit} limit broken on {self.joint_name} at t = {self.t:.3f} s: "
-            f"{self.value:.4g} {unit} > {self.bound:.4g} {unit}"
+            f"{self.value:.{digits}g} {unit} > {self.bound:.{digits}g} {unit}"
         )
 
     def to_dict(self) -> dict:

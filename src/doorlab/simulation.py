@@ -17,13 +17,22 @@ from pydrake.common.yaml import yaml_dump_typed
 from pydrake.geometry import Meshcat
 from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import LogVectorOutput
+from pydrake.systems.primitives import LogVectorOutput, TrajectorySource, VectorLogSink
+from pydrake.trajectories import PiecewisePolynomial
 
+from doorlab.arm_cell import (
+    WATCH_DELAY,
+    ArmCell,
+    ExternalTorqueWatch,
+    build_arm_cell,
+    read_cycle_log,
+)
 from doorlab.config import Scenario
 from doorlab.constants import Q_HOME
 from doorlab.episode import EpisodeLogger, EpisodeResult, schedule_fields, wire_commands
-from doorlab.errors import SafetyStop, SimulationError
+from doorlab.errors import ConfigError, SafetyStop, SimulationError
 from doorlab.frames import FINGER_JOINTS, LEFT_HINGE, RIGHT_HINGE
+from doorlab.kuka import CYCLE_PERIOD, WSG_COMMAND_PERIOD
 from doorlab.plan_runner import PlanRunner
 from doorlab.plans import Plan
 from doorlab.safety import SafetyLimits, SafetyMonitor
@@ -67,13 +76,17 @@ _SEPARATE_LOG_PORTS = (
 
 @dataclass(frozen=True)
 class SimulatedEpisode:
-    """A built simulated episode: the diagram, the station in it, the logger, the schedule."""
+    """A built simulated episode: the diagram, the station in it, the logger, the schedule;
+    with ``station.driver.timing: kuka_driver`` the arm cell around the station and its
+    per-cycle status log."""
 
     diagram: Diagram
     station: Station
     logger: EpisodeLogger
     schedule: list[ScheduledPlan]
     t_final: float
+    arm: ArmCell | None = None
+    cycle_logger: VectorLogSink | None = None
 
 
 def _initialize(station: Station, context, q_initial: np.ndarray, scenario: Scenario) -> None:
@@ -143,9 +156,16 @@ def build_simulated_episode(
     wiring (:func:`doorlab.episode.wire_commands`) and the logger."""
     t_final = schedule[-1].t_end + scenario.timeline.extra_time
     builder = DiagramBuilder()
+    lag = tick_lag(scenario.station.time_step, scenario.timeline.control_period)
+    if scenario.station.driver.timing == "kuka_driver":
+        if meshcat is not None:
+            raise ConfigError(
+                "--meshcat draws doorlab's cell only; station.driver.timing kuka_driver "
+                "runs the arm's cell without it"
+            )
+        return _build_arm_episode(builder, scenario, schedule, q_initial, t_final, lag)
     station = build_station(scenario.station, meshcat=meshcat)
     cell = builder.AddSystem(station.diagram)
-    lag = tick_lag(scenario.station.time_step, scenario.timeline.control_period)
     wiring = wire_commands(
         builder, cell, schedule, scenario=scenario, q_initial=q_initial, t_final=t_final, lag=lag
     )
@@ -168,6 +188,59 @@ def build_simulated_episode(
     diagram = builder.Build()
     diagram.set_name("doorlab_episode")
     return SimulatedEpisode(diagram, station, logger, list(schedule), t_final)
+
+
+def _build_arm_episode(
+    builder: DiagramBuilder,
+    scenario: Scenario,
+    schedule: Sequence[ScheduledPlan],
+    q_initial: np.ndarray,
+    t_final: float,
+    lag: float,
+) -> SimulatedEpisode:
+    """The episode on the arm's cell (``station.driver.timing: kuka_driver``,
+    :mod:`doorlab.arm_cell`): the plans read each cycle's status; their commands, and the
+    gripper's as a hardware client sends it (20 Hz), act from the next cycle; no command at
+    the first cycle (t = 0), as for a client's first status; kuka_driver's external-torque
+    stop. The logs are the truth (the plant, the command the arm tracks)."""
+    arm = build_arm_cell(scenario.station, q_initial=q_initial)
+    cell = builder.AddSystem(arm.diagram)
+    wiring = wire_commands(
+        builder,
+        cell,
+        schedule,
+        scenario=scenario,
+        q_initial=q_initial,
+        t_final=t_final,
+        lag=lag,
+        gripper_link=(WSG_COMMAND_PERIOD, CYCLE_PERIOD),
+    )
+    first = PiecewisePolynomial.ZeroOrderHold([0.0, lag, t_final + 1.0], np.array([[0.0, 1, 1]]))
+    valid = builder.AddSystem(TrajectorySource(first))
+    valid.set_name("first_command_at_the_first_tick")
+    builder.Connect(valid.get_output_port(), cell.GetInputPort("iiwa_command_valid"))
+    watch = builder.AddSystem(
+        ExternalTorqueWatch(
+            scenario.station.driver.external_torque_limit, offset=arm.offset + WATCH_DELAY
+        )
+    )
+    builder.Connect(cell.GetOutputPort("iiwa_torque_external"), watch.get_input_port())
+    channels = {
+        "q_commanded": cell.GetOutputPort("applied_iiwa_position"),
+        "tau_feedforward": cell.GetOutputPort("applied_feedforward_torque"),
+        "tau_commanded": cell.GetOutputPort("station_torque_commanded"),
+        "tau_external": cell.GetOutputPort("station_torque_external"),
+        "plant_state": cell.GetOutputPort("plant_state"),
+    }
+    if scenario.station.safety.enabled:
+        _add_safety_monitor(builder, cell, wiring, scenario, q_initial=q_initial, lag=lag)
+    logger = EpisodeLogger(builder, channels, scenario.timeline.log_period)
+    cycle_logger = LogVectorOutput(cell.GetOutputPort("status"), builder, CYCLE_PERIOD)
+    diagram = builder.Build()
+    diagram.set_name("doorlab_arm_episode")
+    return SimulatedEpisode(
+        diagram, arm.station, logger, list(schedule), t_final, arm, cycle_logger
+    )
 
 
 def _add_safety_monitor(
@@ -201,13 +274,20 @@ def _simulate(
     # (the default error-controlled one costs ~10 % of an episode for nothing).
     ResetIntegratorFromFlags(simulator, "explicit_euler", scenario.station.time_step)
     context = simulator.get_mutable_context()
-    _initialize(episode.station, context, q_initial, scenario)
+    if episode.arm is not None:
+        episode.arm.initialize(context, door_angles=scenario.initial_door_angles())
+    else:
+        _initialize(episode.station, context, q_initial, scenario)
     simulator.set_target_realtime_rate(realtime_rate)
     if meshcat is not None:
         meshcat.StartRecording()
     wall_start = time.perf_counter()
     try:
         simulator.Initialize()
+        if episode.arm is not None:  # locked until the first command, applied at 5 ms
+            first = CYCLE_PERIOD + episode.arm.offset + WATCH_DELAY
+            simulator.AdvanceTo(min(first, episode.t_final))
+            episode.arm.unlock(context)
         advance_interruptibly(simulator, episode.t_final, realtime_rate=realtime_rate)
     except RuntimeError as e:
         message = str(e).splitlines()[0]
@@ -304,6 +384,9 @@ def _result(
     plant state is finite."""
     t, data = episode.logger.read(simulator.get_context())
     measured = plant_state_channels(episode.station, data["plant_state"])
+    cycle_log = {}
+    if episode.cycle_logger is not None:
+        cycle_log = read_cycle_log(episode.cycle_logger, simulator.get_context())
     result = EpisodeResult(
         t=t,
         q_commanded=data["q_commanded"],
@@ -317,6 +400,7 @@ def _result(
         plant_positions=measured["plant_positions"],
         wall_time_s=wall_time,
         scenario_yaml=yaml_dump_typed(scenario),
+        cycle_log=cycle_log,
         **schedule_fields(episode.schedule, arc_index),
     )
     return result, bool(np.all(np.isfinite(data["plant_state"])))

@@ -26,6 +26,8 @@ The inner loop is built from Drake's C++ systems only (no Python per simulation 
 - ``implicit_pd`` (the design before issue 9, for comparison): the plant's own PD actuators
   (Kq, Dq) with desired state (q_ref, 0), SAP evaluating the spring at the step's end (so
   they damp with Dq + h Kq), plus g(q) from ``InverseDynamics`` and tau_ff.
+- ``kuka_joint_impedance`` (the lab arm, KUKA's joint impedance): the ``stiffness`` law with
+  KUKA's stiffness and damping (:func:`loop_gains`).
 - ``inverse_dynamics`` (the original station): ``InverseDynamicsController`` PID through M(q),
   the desired velocity from a discrete derivative of q_ref, plus tau_ff, then ``Saturation``.
 
@@ -78,8 +80,8 @@ from pydrake.systems.primitives import (
 )
 
 from doorlab import models
-from doorlab.config import StationConfig
-from doorlab.constants import JOINT_TORQUE_LIMITS, NUM_JOINTS
+from doorlab.config import InnerLoopConfig, StationConfig
+from doorlab.constants import JOINT_TORQUE_LIMITS, NUM_JOINTS, Q_GRASP
 from doorlab.frames import (
     ARM_JOINTS,
     CUPBOARD_MODEL,
@@ -90,6 +92,7 @@ from doorlab.frames import (
     LEFT_HINGE,
     RIGHT_HINGE,
 )
+from doorlab.kuka import kuka_damping
 
 GRIPPER_LUMPED_BODY = "wsg_lumped"
 """Name of the rigid body that stands for the whole gripper in the controller plant."""
@@ -297,23 +300,63 @@ def _set_friction(plant: MultibodyPlant, scene_graph: SceneGraph, friction: floa
         scene_graph.AssignRole(source_id, geometry_id, new_props, RoleAssign.kReplace)
 
 
-def joint_damping(config: StationConfig) -> np.ndarray:
-    """The damping that acts on each arm joint with the stiffness loop, (7,) [N m s/rad].
+STIFFNESS_LOOPS = ("stiffness", "kuka_joint_impedance")
+"""Inner loops of the law tau = Kq (q_ref - q) - Dq qdot + g(q) + tau_ff (:func:`loop_gains`)."""
 
-    Dq dq_scale + h Kq (see :class:`doorlab.config.InnerLoopConfig`): the h Kq term is what
-    SAP's implicit PD actuators added by evaluating the spring at the step's end.
+
+@cache
+def grasp_pose_inertia() -> np.ndarray:
+    """The controllers' model's joint inertia M_ii at the grasp pose Q_GRASP (7,) [kg m^2]
+    (links, lumped gripper, the motors' reflected inertia)."""
+    plant = make_controller_plant()
+    context = plant.CreateDefaultContext()
+    plant.SetPositions(context, Q_GRASP)
+    inertia = np.diag(plant.CalcMassMatrix(context)).copy()
+    inertia.flags.writeable = False
+    return inertia
+
+
+def loop_gains(loop: InnerLoopConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Kq [N m/rad] and Dq [N m s/rad] (7,) of a :data:`STIFFNESS_LOOPS` inner loop.
+
+    ``stiffness``: ``kq`` and ``dq`` x ``dq_scale``. ``kuka_joint_impedance``:
+    ``kuka_stiffness`` and KUKA's damping in N m s/rad, 2 d sqrt(K M_ii) with M_ii at the grasp
+    pose (:func:`doorlab.kuka.kuka_damping`, :func:`grasp_pose_inertia`).
     """
-    loop = config.inner_loop
-    dq = np.asarray(loop.dq, float) * loop.dq_scale
-    return dq + config.time_step * np.asarray(loop.kq, float)
+    if loop.kind == "kuka_joint_impedance":
+        kq = np.asarray(loop.kuka_stiffness, float)
+        return kq, kuka_damping(kq, loop.kuka_damping, grasp_pose_inertia())
+    return np.asarray(loop.kq, float), np.asarray(loop.dq, float) * loop.dq_scale
 
 
-def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> Station:
+def joint_damping(config: StationConfig) -> np.ndarray:
+    """The damping that acts on each arm joint with a stiffness loop, (7,) [N m s/rad].
+
+    Dq + h Kq (:func:`loop_gains`; see :class:`doorlab.config.InnerLoopConfig`): the h Kq term
+    is what SAP's implicit PD actuators added by evaluating the spring at the step's end.
+    """
+    kq, dq = loop_gains(config.inner_loop)
+    return dq + config.time_step * kq
+
+
+WSG_FIRMWARE_PERIOD = 0.05
+"""The WSG controller's setpoint derivative period [s] (Drake's default: the WSG firmware's
+update rate)."""
+
+
+def build_station(
+    config: StationConfig,
+    *,
+    meshcat: Meshcat | None = None,
+    gripper_period: float = WSG_FIRMWARE_PERIOD,
+) -> Station:
     """Builds the station Diagram.
 
     Args:
         config: Physics, inner loop and gripper settings (validated by the caller).
         meshcat: When given, a MeshcatVisualizer draws the illustration geometry live.
+        gripper_period: The gripper controller differentiates its setpoint at this period
+            [s] (:mod:`doorlab.arm_cell` uses its 5 ms cycle).
 
     Returns:
         The built station.
@@ -331,13 +374,12 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
     for hinge in (LEFT_HINGE, RIGHT_HINGE):
         plant.GetJointByName(hinge, cupboard).set_default_damping(config.hinge_damping)
     kind = config.inner_loop.kind
-    kq = np.asarray(config.inner_loop.kq, float)
-    dq = np.asarray(config.inner_loop.dq, float) * config.inner_loop.dq_scale
+    kq, dq = loop_gains(config.inner_loop)
     damping = joint_damping(config)
     arm_actuators = [plant.GetJointActuatorByName(name, iiwa) for name in ARM_JOINTS]
     for actuator, limit in zip(arm_actuators, JOINT_TORQUE_LIMITS, strict=True):
         actuator.set_effort_limit(float(limit))
-    if kind == "stiffness":
+    if kind in STIFFNESS_LOOPS:
         # The damping half of the law is the joints' own viscous damping: SAP integrates it
         # implicitly (stable at any step), and no PD constraint is left for the solver.
         for name, d in zip(ARM_JOINTS, damping, strict=True):
@@ -370,7 +412,7 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
     builder.ExportOutput(q_ref.get_output_port(), "iiwa_position_commanded")
 
     interpolator = None
-    if kind == "stiffness":
+    if kind in STIFFNESS_LOOPS:
         # tau = sat(Kq (q_ref - q) + g(q) + tau_ff) [actuation input, explicit: evaluated at
         # the step's start] - Dq qdot [joint damping, implicit in SAP].
         desired = add(Multiplexer([NUM_JOINTS, NUM_JOINTS]), "desired_state")
@@ -455,7 +497,9 @@ def build_station(config: StationConfig, *, meshcat: Meshcat | None = None) -> S
     # Gripper: PD on the finger separation, force-limited (C++).
     gripper = config.gripper
     wsg_controller = add(
-        SchunkWsgPositionController(kp_command=gripper.kp, kd_command=gripper.kd),
+        SchunkWsgPositionController(
+            time_step=gripper_period, kp_command=gripper.kp, kd_command=gripper.kd
+        ),
         "wsg_controller",
     )
     builder.Connect(plant.get_state_output_port(wsg), wsg_controller.get_state_input_port())

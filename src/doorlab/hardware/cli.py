@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import atexit
+import math
 import os
 import sys
 from pathlib import Path
@@ -30,6 +31,30 @@ def _confirm(yes: bool):
     return confirm
 
 
+ANSWER_DELAY_ENV = "DOORLAB_TEST_ANSWER_DELAY_MS"
+"""A test's knob: each command leaves this many milliseconds after its status arrived (a
+client that slow to answer), 0-20 ms. Not for the arm: a real run leaves it unset."""
+
+
+def _answer_delay() -> float:
+    """The test knob's delay [s] (0 when unset)."""
+    text = os.environ.get(ANSWER_DELAY_ENV)
+    if not text:
+        return 0.0
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0.0 <= value <= 20.0:
+        raise ConfigError(f"{ANSWER_DELAY_ENV} must be a number of ms in [0, 20], got {text!r}")
+    print(
+        f"doorlab run --hardware: test knob {ANSWER_DELAY_ENV}: each answer leaves "
+        f"{value:g} ms after its status",
+        flush=True,
+    )
+    return 1e-3 * value
+
+
 def run_hardware_command(args: argparse.Namespace, scenario: Scenario) -> int:
     """``doorlab run --hardware``; returns the exit code."""
     from doorlab.hardware.link import DriverLink
@@ -40,6 +65,7 @@ def run_hardware_command(args: argparse.Namespace, scenario: Scenario) -> int:
             "--meshcat and --realtime do not apply to --hardware (it runs on the arm)"
         )
     url = resolve_lcm_url(args.lcm_url)  # a second process: not memq
+    answer_delay = _answer_delay()
     out = args.out or Path("doorlab_out") / f"{scenario.controller}_{scenario.doors}_hardware"
     check_out_dir(out, force=args.force)
     link = DriverLink(url=url)
@@ -58,6 +84,7 @@ def run_hardware_command(args: argparse.Namespace, scenario: Scenario) -> int:
             force=args.force,
             replay=not args.no_replay,
             first=first,
+            answer_delay=answer_delay,
         )
     except NoDriver as e:
         print(f"doorlab run: error: {e}", file=sys.stderr)

@@ -73,6 +73,7 @@ class LinkRecord:
     Attributes:
         status_arrival: Arrival times of the statuses the episode used [s].
         status_utime: Their utimes [us]. status_q_commanded: Their joint_position_commanded.
+        status_q_measured: Their joint_position_measured.
         command_sent: When each command was published [s]. command_t: Its episode time [s].
         command_q: Its q_ref (7,) [rad]. command_utime: The utime it echoed [us].
         skipped: Statuses with a negative utime (skipped, never answered).
@@ -82,6 +83,7 @@ class LinkRecord:
     status_arrival: list[float] = field(default_factory=list)
     status_utime: list[int] = field(default_factory=list)
     status_q_commanded: list[np.ndarray] = field(default_factory=list)
+    status_q_measured: list[np.ndarray] = field(default_factory=list)
     command_sent: list[float] = field(default_factory=list)
     command_t: list[float] = field(default_factory=list)
     command_q: list[np.ndarray] = field(default_factory=list)
@@ -93,6 +95,7 @@ class LinkRecord:
         self.status_arrival.append(status.arrival)
         self.status_utime.append(status.utime)
         self.status_q_commanded.append(status.q_commanded)
+        self.status_q_measured.append(status.q)
 
     def round_trips(self, tolerance: float = 1e-9) -> np.ndarray:
         """Command -> the first status that reflects it (its joint_position_commanded equals
@@ -204,8 +207,16 @@ def _build(scenario: Scenario, schedule: list[ScheduledPlan], link: DriverLink, 
 class _Runner:
     """The status loop of one episode (see the module docstring)."""
 
-    def __init__(self, scenario: Scenario, episode: _Episode, link: DriverLink, limits):
+    def __init__(
+        self,
+        scenario: Scenario,
+        episode: _Episode,
+        link: DriverLink,
+        limits,
+        answer_delay: float = 0.0,
+    ):
         self.scenario = scenario
+        self.answer_delay = answer_delay
         self.episode = episode
         self.link = link
         self.limits = limits
@@ -266,6 +277,8 @@ class _Runner:
         if self.link.clock() - status.arrival > STALE_ANSWER:
             self.record.stale += 1  # the driver holds the last command; the next is fresh
             return None
+        if self.answer_delay > 0:  # a test's knob: a client this slow to answer
+            hold_until(self.link.clock, status.arrival + self.answer_delay)
         # Echo the status's utime exactly (the sender truncates seconds x 1e6).
         sender = self.episode.cell.command_sender
         sender.get_time_input_port().FixValue(self._sender_context, [(status.utime + 0.5) * 1e-6])
@@ -316,6 +329,13 @@ class _Runner:
                 return "ok", "", None
 
 
+def hold_until(clock, t: float) -> None:
+    """Waits until ``clock()`` reaches ``t`` [s]: sleeps, then yields for the last 0.3 ms
+    (a sleep's wake-up is late by up to a few tenths of a millisecond)."""
+    while (remaining := t - clock()) > 0:
+        time.sleep(remaining - 3e-4 if remaining > 6e-4 else 0.0)
+
+
 def start_status(link: DriverLink, wait: float) -> Status:
     """After a pause (the confirmation): forgets the stale statuses and returns a fresh valid
     one, no sooner than ``FIRST_COMMAND_DELAY`` after the first status the link received.
@@ -345,6 +365,7 @@ def run_hardware_episode(
     link: DriverLink,
     wait: float,
     arc_plan_index: int | None = None,
+    answer_delay: float = 0.0,
 ) -> HardwareOutcome:
     """Runs one episode on the real cell: hold the arm where it is, move to ``q_start``, run
     ``plans``, then ``extra_time``, answering each status with a checked command.
@@ -356,6 +377,9 @@ def run_hardware_episode(
             :func:`doorlab.simulation.run_episode`.
         link: The LCM link (a status already received: :meth:`DriverLink.wait_first_status`).
         wait: How long to wait for a fresh status at the start [s].
+        answer_delay: For tests: each command leaves no sooner than this after its status
+            arrived [s] (a client that slow; 0: as soon as it is ready). The stale-answer
+            check still reads when the command was ready.
 
     Returns:
         How it ended, with the logs up to then.
@@ -373,7 +397,7 @@ def run_hardware_episode(
     scenario_yaml = yaml_dump_typed(scenario)
     np.percentile(np.arange(3.0), [50, 99])  # numpy imports its helpers on first use
     episode = _build(scenario, schedule, link, q_initial)
-    runner = _Runner(scenario, episode, link, limits)
+    runner = _Runner(scenario, episode, link, limits, answer_delay)
     # Statuses that came while the diagram was built reached the link but not the cell's new
     # subscribers: forget them; the next one reaches both.
     link.drain()

@@ -32,11 +32,16 @@ class GroundTruth:
             as the status at t (utime t * 1e6) reports it.
         utime: The utime a status at t carries (n,) [us] (-1 in the warm-up).
         plant_state: The whole plant's [q; v] (n, nx). plant_positions: Its q (n, nq).
-        q_measured: Arm joint positions (n, 7) [rad]. v_measured: Their rates (n, 7) [rad/s].
-        q_commanded: The command the inner loop tracks (after the driver's clamp) (n, 7) [rad].
-        tau_feedforward: The commanded feed-forward torque (n, 7) [N m].
+        q_measured: Arm joint positions (n, 7) [rad]. v_measured: Their rates (n, 7) [rad/s]
+            (the plant's, exact).
+        v_estimated: The status's velocity, kuka_driver's filter (n, 7) [rad/s].
+        q_commanded: The command the arm tracked up to the status (after the driver's
+            clamp; the status's joint_position_commanded) (n, 7) [rad].
+        tau_feedforward: The feed-forward torque it tracked with it (n, 7) [N m].
         tau_commanded: The torque the joints receive (n, 7) [N m] (status torque commanded
             and measured). tau_external: Contact torques on the arm's joints (n, 7) [N m].
+            These come from the last status at or before t (at t itself when the log period
+            is a multiple of 5 ms).
         door_angles: Hinge angles (n, 2) [rad], columns (left, right).
         wsg_width: Finger separation (n,) [m]. wsg_speed: Its rate (n,) [m/s].
         wsg_force: Grip force (n,) [N].
@@ -50,6 +55,7 @@ class GroundTruth:
     plant_positions: np.ndarray
     q_measured: np.ndarray
     v_measured: np.ndarray
+    v_estimated: np.ndarray
     q_commanded: np.ndarray
     tau_feedforward: np.ndarray
     tau_commanded: np.ndarray
@@ -75,7 +81,7 @@ class GroundTruth:
         Args:
             station: The station whose plant the state belongs to.
             t: Sample times (n,) [s].
-            channels: (n, size) arrays: ``plant_state``, ``q_commanded``,
+            channels: (n, size) arrays: ``plant_state``, ``v_estimated``, ``q_commanded``,
                 ``tau_feedforward``, ``tau_commanded``, ``tau_external``, ``wsg_state``,
                 ``wsg_force``, ``wsg_position_commanded``, ``wsg_force_limit``.
             utime_warmup: Whether the driver sent utime -1 in its first 200 statuses.
@@ -99,6 +105,7 @@ class GroundTruth:
             plant_positions=q_all,
             q_measured=q_all[:, arm_q],
             v_measured=v_all[:, arm_v],
+            v_estimated=channels["v_estimated"],
             q_commanded=channels["q_commanded"],
             tau_feedforward=channels["tau_feedforward"],
             tau_commanded=channels["tau_commanded"],

@@ -29,9 +29,13 @@ The iiwa driver (``kuka_driver``, FRI in position or position-and-torque mode):
   within guard time. Aborting.") and exit: it guards against a controller left running from
   an earlier session. A client waits (doorlab's waits 0.3 s) before its first command.
 - **Commands.** The driver keeps only the newest command (subscription queue 1) and applies
-  it at the next FRI step. In position mode a command never expires: the arm holds the last
-  one when commands stop; before the first command it holds the position measured when FRI
-  entered command mode. ``joint_position`` is clamped to the joint limits less
+  it at the next FRI cycle: each cycle it handles the commands that arrived, reads the robot
+  state, hands FRI the newest command and then publishes that cycle's status, so the command
+  that answers status k acts from cycle k + 1 (one period after its state) and the status
+  after that reports it as commanded (:mod:`doorlab.kuka`). In position mode a command never
+  expires: the arm holds the last one when commands stop; before the first command it holds
+  the position measured when FRI entered command mode. ``joint_position`` is clamped to the
+  joint limits less
   :data:`JOINT_LIMIT_MARGIN` (1 deg); in position-and-torque mode ``joint_torque`` is the
   feed-forward torque (zero when ``num_torques`` is 0). The joint impedance that tracks the
   position is KUKA's, set in the robot's Java application, not over LCM.
@@ -60,16 +64,20 @@ import sys
 import time
 from collections.abc import Iterator
 
-import numpy as np
-
 from doorlab.errors import ConfigError
+from doorlab.kuka import (  # noqa: F401 (the protocol's facts, named here too)
+    CYCLE_PERIOD,
+    DRIVER_JOINT_LIMITS,
+    JOINT_LIMIT_MARGIN,
+    external_torque_limits,
+)
 
 IIWA_STATUS_CHANNEL = "IIWA_STATUS"
 IIWA_COMMAND_CHANNEL = "IIWA_COMMAND"
 WSG_STATUS_CHANNEL = "SCHUNK_WSG_STATUS"
 WSG_COMMAND_CHANNEL = "SCHUNK_WSG_COMMAND"
 
-IIWA_STATUS_PERIOD = 0.005
+IIWA_STATUS_PERIOD = CYCLE_PERIOD
 """The iiwa driver's status period [s] (kuka_driver ``--time_step``, FRI's 5 ms)."""
 WSG_STATUS_PERIOD = 0.05
 """The gripper driver's status period [s] (schunk_driver sleeps 50 ms between tasks)."""
@@ -81,13 +89,9 @@ UTIME_WARMUP_STATUSES = 200
 NO_COMMAND_UTIME = -1
 """utime of a status before the clock filter is ready, and of a command meaning "none"."""
 
-DRIVER_JOINT_LIMITS = np.deg2rad([170.0, 120.0, 170.0, 120.0, 170.0, 120.0, 175.0])
-"""The joint limits kuka_driver clamps commands to, before the margin [rad]."""
-JOINT_LIMIT_MARGIN = np.deg2rad(1.0)
-"""kuka_driver clamps ``joint_position`` to the joint limits less this [rad]."""
-EXTERNAL_TORQUE_LIMITS = 60.0 * np.array([1.0, 1.0, 1.0, 0.5, 0.2, 0.2, 0.1])
+EXTERNAL_TORQUE_LIMITS = external_torque_limits()
 """|external torque| per joint above which kuka_driver stops [N m] (``--ext_trq_limit`` 60
-times its per-joint scale)."""
+times its per-joint scale); ``station.driver.external_torque_limit`` sets the 60."""
 
 DEFAULT_LCM_URL = "udpm://239.255.76.67:7667?ttl=0"
 """LCM's default URL (used when neither --lcm-url nor ``LCM_DEFAULT_URL`` is set)."""

@@ -115,6 +115,7 @@ def run_hardware_to_folder(
     replay: bool = True,
     plots: bool = True,
     first: Status | None = None,
+    answer_delay: float = 0.0,
 ) -> HardwareRunOutcome:
     """Runs ``scenario``'s controller on the real cell behind ``link`` and writes its folder.
 
@@ -126,6 +127,8 @@ def run_hardware_to_folder(
         confirm: Shown the plan; True lets the arm move (``--yes``: always True).
         replay, plots: Write ``replay.html`` and the PNG plots (a completed run only).
         first: The driver's first status if the caller already waited for it.
+        answer_delay: For tests: hold each command until this long after its status [s]
+            (:func:`doorlab.hardware.episode.run_hardware_episode`).
 
     Raises:
         NoDriver: No status within ``wait`` (nothing written).
@@ -150,7 +153,13 @@ def run_hardware_to_folder(
     staging = prepare_output(out_dir, force=force)
     try:
         outcome = run_hardware_episode(
-            scenario, plans, widths, q_start=arc.q_start, link=link, wait=wait
+            scenario,
+            plans,
+            widths,
+            q_start=arc.q_start,
+            link=link,
+            wait=wait,
+            answer_delay=answer_delay,
         )
         metrics = compute_hardware_metrics(outcome, scenario, lcm_url=link.url)
         _write(staging, outcome, metrics, scenario, plots=plots, replay=replay)

@@ -95,7 +95,7 @@ def serve(
         f"{outcome.realtime_rate:.3f}"
         + (
             f"; {facts['iiwa_commands_late']} of {facts['iiwa_commands_applied']} iiwa commands "
-            "acted a plant step or more later than in one process"
+            "applied a cycle or more after the one following their status"
             if "iiwa_commands_late" in facts
             else ""
         )

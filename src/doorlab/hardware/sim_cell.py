@@ -1,67 +1,56 @@
-"""doorlab's simulated cell behind the real drivers' LCM protocol, as a diagram
-(``doorlab sim-driver`` runs it as a process: :mod:`doorlab.hardware.sim_driver`).
+"""doorlab's simulated arm behind the real drivers' LCM protocol, as a diagram (``doorlab
+sim-driver`` runs it as a process: :mod:`doorlab.hardware.sim_driver`).
 
-The same station as an episode (:func:`doorlab.station.build_station`: plant, inner loop,
-gripper controller), started as an episode starts (q_home, the gripper's initial width, the
-doors open or closed), speaking the protocol of :mod:`doorlab.hardware.protocol` as the
-drivers behave:
+The arm is :func:`doorlab.arm_cell.build_arm_cell`'s: the station (the scenario's physics and
+inner loop: ``kuka_joint_impedance`` for KUKA's loop) behind kuka_driver's cycle, the same
+cell a one-process run with ``station.driver.timing: kuka_driver`` builds, from the same
+scenario fields. Around it, the protocol as the drivers speak it (:mod:`doorlab.kuka`, read
+from drake-iiwa-driver's ``kuka-driver/kuka_driver.cc``):
 
-- ``IIWA_STATUS`` every 5 ms of simulated time (slots k x 5 ms, the first at t = 0, each
-  sent just after the plant step at its slot, see below), paced to real time (a status goes
-  out when the wall clock reaches its slot): ``joint_position_measured`` and
-  ``joint_velocity_estimated`` (the plant's; exact, where the real driver filters),
-  ``joint_position_commanded`` (the command the inner loop tracks, after the clamp below),
-  ``joint_torque_commanded`` (the station's ``iiwa_torque_commanded``: what the joints
-  receive), ``joint_torque_measured`` (the same: a perfect joint torque sensor),
+- each cycle t_k = k x 5 ms (events ``c`` after it, :func:`doorlab.arm_cell.cycle_offset`):
+  the newest ``IIWA_COMMAND`` read before the cycle is applied from it on (``joint_position``
+  clamped to the joint limits less 1 deg, ``joint_torque`` the feed-forward torque); then the
+  external torques are checked (over kuka_driver's limits the driver stops, as it exits); then
+  ``IIWA_STATUS`` goes out with this cycle's state: ``joint_position_measured``,
+  ``joint_velocity_estimated`` (kuka_driver's 40 Hz low-pass of the finite difference),
+  ``joint_position_commanded`` (the command the arm tracked up to this cycle),
+  ``joint_torque_commanded`` = ``joint_torque_measured`` (what the joints receive),
   ``joint_torque_external`` (the contact torques on the arm's joints); ``joint_position_ipo``
-  is zero (Drake's IiwaStatusSender fills it so).
-- **utime** is its slot's simulation time in microseconds (0 at the first status, exact
+  is zero (Drake's IiwaStatusSender). A client that answers status k before cycle k + 1 gets
+  exactly the same episode however fast it is; a later answer acts a cycle (or more) later,
+  and the driver counts those (:meth:`SimDriverSystems.command_delays`).
+- **utime** is the cycle's simulation time in microseconds (0 at the first status, exact
   multiples of 5000), not the epoch; with ``utime_warmup`` the first 200 statuses carry -1,
   as the real driver's do until its clock filter is ready.
-- ``SCHUNK_WSG_STATUS`` every 50 ms (20 Hz; the real driver is a little slower), utime the
-  simulation time [us]: finger separation [mm], its rate [mm/s], grip force [N].
-- ``IIWA_COMMAND`` (position and torque): ``joint_position`` (clamped to the joint limits less
-  1 deg) -> the station's ``iiwa_position``, ``joint_torque`` -> ``iiwa_feedforward_torque``.
-  ``SCHUNK_WSG_COMMAND``: ``target_position_mm`` / 1000 -> ``wsg_position``, ``force`` ->
-  ``wsg_force_limit``. The newest command is applied from the next plant step after it is
-  read and held when commands stop; until the first command the arm holds its start pose
-  (not clamped: q_home's joint 4, -2.094 rad, is within 1 deg of its limit, so a command of
-  q_home moves that joint to -2.077 rad, as on the real arm) and the gripper its initial
-  width at the scenario's force limit.
+- No command yet, or one whose utime is negative (kuka_driver: -1, "no command"): the arm
+  holds its start pose (not clamped: q_home's joint 4, -2.094 rad, is within 1 deg of its
+  limit, so a command of q_home moves it to -2.077 rad, as on the arm) with no torque. Until
+  the first command is applied the arm and fingers stand still (locked joints,
+  :meth:`SimDriverSystems.advance_to`).
+- ``SCHUNK_WSG_COMMAND``: ``target_position_mm`` / 1000 and ``force``, applied at the arm's
+  next cycle; until the first, the gripper's initial width and force limit.
+  ``SCHUNK_WSG_STATUS`` every 50 ms (20 Hz; the real driver is a little slower): finger
+  separation [mm], its rate [mm/s], grip force [N].
 - **Start guard**: a command within 0.25 s of the first status aborts the driver before the
   command reaches the plant, as kuka_driver throws and exits.
 
-- A command whose utime is negative (kuka_driver: -1) means "no command": the arm holds its
-  start pose with zero feed-forward torque until a valid command comes.
-
-Not modelled: the real driver's external-torque stop (doorlab's contact torques stay far below
-its limits, :data:`~doorlab.hardware.protocol.EXTERNAL_TORQUE_LIMITS`), KUKA's own joint
-impedance (the station's inner loop with the scenario's Kq, Dq tracks the commands), and
-``joint_position_ipo``.
+Not modelled: ``joint_position_ipo``; the schunk driver's own 50 ms loop (its commands act at
+the arm's next cycle).
 
 How it runs. Only Drake's C++ systems act per plant step:
 
-    LcmSubscriberSystem(IIWA_COMMAND) -> IiwaCommandReceiver -> gate (clamp, hold) -> station
-    LcmSubscriberSystem(SCHUNK_WSG_COMMAND) -> SchunkWsgCommandReceiver -> station
-    station -> IiwaStatusSender -> LcmPublisherSystem(IIWA_STATUS, 5 ms)
-    station -> SchunkWsgStatusSender -> LcmPublisherSystem(SCHUNK_WSG_STATUS, 50 ms)
+    LcmSubscriberSystem(IIWA_COMMAND) -> IiwaCommandReceiver -> the arm cell
+    LcmSubscriberSystem(SCHUNK_WSG_COMMAND) -> SchunkWsgCommandReceiver -> the arm cell
+    the arm cell's status -> IiwaStatusSender -> LcmPublisherSystem(IIWA_STATUS, 5 ms)
+    the arm cell -> SchunkWsgStatusSender -> LcmPublisherSystem(SCHUNK_WSG_STATUS, 50 ms)
 
-The timing matches an episode in one process, where the plan's command, computed at its tick
-from the plant as it stands, acts from the next plant step. An ``LcmInterfaceSystem`` reads
-the bus at every simulator step, and Drake's simulator sleeps at the *start* of a step to keep
-pace; two C++ ticks (``ZeroOrderHold`` systems, no output used) place those steps:
-
-- a **read tick** ``READ_LEAD`` (1 us) before every plant step: the read after its sleep
-  catches every command that arrived before the step is due, and that step applies it;
-- a **status tick** at each status's slot t_k (every 5 ms): the status goes out when the wall
-  clock reaches t_k, ``STATUS_DELAY`` (1 us of simulation time) later, so a status on a plant
-  step reports the plant after that step's update, as the one-process plan sees it.
-
-A command for the status at t_k therefore acts from the first plant step after t_k, as in
-one process, if it arrives before that step (1 ms for a status between two 2 ms steps, 2 ms
-for one on a step); later, it acts a plant step (or more) later. Python runs only per
-simulator call: during the start guard (0.25 s) a monitor per step checks the command count;
-after it one ``AdvanceTo`` runs until the end (Drake checks for signals between steps).
+An ``LcmInterfaceSystem`` reads the bus at every simulator step, and Drake's simulator sleeps
+at the *start* of a step to keep pace; a **read tick** (a C++ ``ZeroOrderHold``, no output
+used) places a step ``READ_LEAD`` (1 us) before each cycle's events, so the read after its
+sleep catches every command that arrived before the cycle is due. Each status leaves
+``STATUS_DELAY`` (1 us) after the cycle's events. Python runs once per simulator call (per
+cycle until the first command is applied, and per cycle in the external-torque check: 200 Hz,
+not per plant step); during the start guard (0.25 s) a monitor checks each step.
 
 Add it to a diagram with :func:`add_sim_driver`, e.g. next to a client on one
 ``DrakeLcm("memq://")``, deterministic (no real-time pacing)::
@@ -73,11 +62,11 @@ Add it to a diagram with :func:`add_sim_driver`, e.g. next to a client on one
     ...  # the client's LcmSubscriberSystem(IIWA_STATUS), its publisher of IIWA_COMMAND
     simulator = Simulator(builder.Build())  # realtime rate 0: as fast as it computes
     ResetIntegratorFromFlags(simulator, "explicit_euler", scenario.station.time_step)
-    driver.initialize(simulator.get_mutable_context())  # q_home, gripper, doors
+    driver.initialize(simulator.get_mutable_context())  # q_home, gripper, doors; locked
     simulator.set_monitor(driver.start_guard_monitor())  # optional: the 0.25 s abort,
     simulator.AdvanceTo(0.25)                             # Python per step while it is set
     simulator.clear_monitor()
-    simulator.AdvanceTo(24.0)
+    driver.advance_to(simulator, 24.0)  # frees the arm at the first command's cycle
     truth = driver.ground_truth(simulator.get_context())
 
 (``tests/test_sim_driver.py`` runs this with a client of Drake's C++ LCM systems.) On memq a
@@ -105,11 +94,11 @@ from pydrake.manipulation import (
     SchunkWsgCommandReceiver,
     SchunkWsgStatusSender,
 )
+from pydrake.systems.analysis import Simulator, SimulatorStatus
 from pydrake.systems.framework import Context, DiagramBuilder, EventStatus
 from pydrake.systems.lcm import LcmInterfaceSystem, LcmPublisherSystem, LcmSubscriberSystem
 from pydrake.systems.primitives import (
     ConstantVectorSource,
-    Demultiplexer,
     Multiplexer,
     SymbolicVectorSystem,
     TrajectorySource,
@@ -118,44 +107,48 @@ from pydrake.systems.primitives import (
 )
 from pydrake.trajectories import PiecewisePolynomial
 
+from doorlab.arm_cell import (
+    STATUS_SIZE,
+    STATUS_SLICES,
+    WATCH_DELAY,
+    ArmCell,
+    ExternalTorqueWatch,
+    build_arm_cell,
+    read_cycle_log,
+)
 from doorlab.config import Scenario
 from doorlab.constants import NUM_JOINTS, Q_HOME
 from doorlab.errors import ConfigError
-from doorlab.hardware.ground_truth import (
-    GroundTruth,
-)
+from doorlab.hardware.ground_truth import GroundTruth
 from doorlab.hardware.protocol import (
-    DRIVER_JOINT_LIMITS,
     IIWA_COMMAND_CHANNEL,
     IIWA_STATUS_CHANNEL,
     IIWA_STATUS_PERIOD,
-    JOINT_LIMIT_MARGIN,
     START_COMMAND_GUARD,
     UTIME_WARMUP_STATUSES,
     WSG_COMMAND_CHANNEL,
     WSG_STATUS_CHANNEL,
     WSG_STATUS_PERIOD,
 )
-from doorlab.station import Station, build_station, initialize_cell
+from doorlab.station import Station
 
 _UTIME_HORIZON = 1e8
 """The utime source is defined up to this simulation time [s] (three years)."""
 READ_LEAD = 1e-6
-"""The bus is read this long before each plant step [s] (the read tick)."""
+"""The bus is read this long before each cycle's events [s] (the read tick)."""
 STATUS_DELAY = 1e-6
-"""Each IIWA_STATUS is published this long after its slot k x 5 ms [s]: after the plant step
-at that time, whose update it reports."""
+"""Each IIWA_STATUS is published this long after its cycle's events [s]."""
 
 
-def _utime_source(utime_warmup: bool) -> PiecewisePolynomial:
+def _utime_source(utime_warmup: bool, publish_offset: float) -> PiecewisePolynomial:
     """IiwaStatusSender's ``time_measured`` [s] as a function of simulation time.
 
-    A status is sent at t = k * 5 ms + ``STATUS_DELAY`` and carries utime k * 5000: the
-    sender truncates time_measured * 1e6 to an integer, and k * 0.005 * 1e6 is often a hair
-    under k * 5000, so half a microsecond added makes the truncation a rounding. The warm-up
-    holds -1e-6 (utime -1) until half a period before the 201st status.
+    The status of cycle k is sent at t = k * 5 ms + ``publish_offset`` and carries utime
+    k * 5000: the sender truncates time_measured * 1e6 to an integer, and k * 0.005 * 1e6 is
+    often a hair under k * 5000, so half a microsecond added makes the truncation a rounding.
+    The warm-up holds -1e-6 (utime -1) until half a period before the 201st status.
     """
-    offset = 0.5e-6 - STATUS_DELAY
+    offset = 0.5e-6 - publish_offset
     if not utime_warmup:
         return PiecewisePolynomial.FirstOrderHold(
             [0.0, _UTIME_HORIZON], np.array([[offset, _UTIME_HORIZON + offset]])
@@ -168,18 +161,13 @@ def _utime_source(utime_warmup: bool) -> PiecewisePolynomial:
     )
 
 
-_LOG_PORTS = (
-    ("plant_state", "station", "plant_state"),
-    ("q_commanded", "station", "iiwa_position_commanded"),
-    ("tau_feedforward", "iiwa_command_applied", "y1"),
-    ("tau_commanded", "station", "iiwa_torque_commanded"),
-    ("tau_external", "station", "iiwa_torque_external"),
-    ("wsg_state", "station", "wsg_state_measured"),
-    ("wsg_force", "station", "wsg_force_measured"),
-    ("wsg_position_commanded", "wsg_command", "position"),
-    ("wsg_force_limit", "wsg_command", "force_limit"),
+_GROUND_TRUTH_PORTS = (
+    ("plant_state", "plant_state"),
+    ("status", "status"),
+    ("wsg_state", "wsg_state_measured"),
+    ("wsg_force", "wsg_force_measured"),
 )
-"""(channel, system, output port) of the ground-truth logger's multiplexed input."""
+"""(channel, the arm cell's output port) of the ground-truth logger's multiplexed input."""
 
 
 @dataclass(frozen=True)
@@ -187,39 +175,73 @@ class SimDriverSystems:
     """The simulated driver's systems in a diagram (returned by :func:`add_sim_driver`).
 
     Attributes:
-        station: The station (its diagram is a subsystem named ``station``).
+        arm: The arm cell (:class:`doorlab.arm_cell.ArmCell`; a subsystem named ``arm``).
         iiwa_command_subscriber, wsg_command_subscriber: The command subscribers.
         iiwa_status_publisher, wsg_status_publisher: The status publishers.
         logger: The ground-truth logger (None unless ``record``).
-        command_logger: The log of the applied command's utime at each plant step (None
-            unless ``record``; see :meth:`command_delays`).
-        scenario: The scenario the station and its initial state come from.
-        q_initial: The arm's start pose (7,) [rad].
+        command_logger: The applied command's utime at each cycle (None unless ``record``;
+            see :meth:`command_delays`).
+        cycle_logger: Every cycle's status (None unless ``record``; :meth:`cycle_log`).
+        scenario: The scenario the arm and its initial state come from.
         utime_warmup: Whether the first 200 statuses carry utime -1.
-        log_sizes: Sizes of the logger's channels, in the order of its input.
+        log_sizes: Sizes of the ground-truth logger's channels, in the order of its input.
     """
 
-    station: Station
+    arm: ArmCell
     iiwa_command_subscriber: LcmSubscriberSystem
     wsg_command_subscriber: LcmSubscriberSystem
     iiwa_status_publisher: LcmPublisherSystem
     wsg_status_publisher: LcmPublisherSystem
     logger: VectorLogSink | None
     command_logger: VectorLogSink | None
+    cycle_logger: VectorLogSink | None
     scenario: Scenario
-    q_initial: np.ndarray
     utime_warmup: bool
     log_sizes: tuple[int, ...] = ()
 
+    @property
+    def station(self) -> Station:
+        """The station inside the arm cell."""
+        return self.arm.station
+
+    @property
+    def q_initial(self) -> np.ndarray:
+        """The arm's start pose (7,) [rad]."""
+        return self.arm.q_initial
+
+    @property
+    def status_offset(self) -> float:
+        """The status of cycle k goes out at k x 5 ms + this [s]."""
+        return self.arm.offset + STATUS_DELAY
+
     def initialize(self, root_context: Context) -> None:
-        """Sets the cell's initial state as an episode's: q_initial, gripper, doors."""
-        initialize_cell(
-            self.station,
-            root_context,
-            q_initial=self.q_initial,
-            gripper_width=self.scenario.station.gripper.initial_width,
-            door_angles=self.scenario.initial_door_angles(),
-        )
+        """Sets the cell's initial state as an episode's: q_initial, gripper, doors, no
+        command, the arm and fingers locked until the first command."""
+        self.arm.initialize(root_context, door_angles=self.scenario.initial_door_angles())
+
+    def advance_to(self, simulator: Simulator, t: float) -> SimulatorStatus | None:
+        """``simulator.AdvanceTo(t)``; while the arm is locked, one cycle at a time, freeing it
+        right after the cycle that applied the first command (before the next plant step).
+
+        Returns:
+            The last call's status (it stops early when a monitor ends the simulation), or
+            None when the simulator already stood at ``t``.
+        """
+        context = simulator.get_mutable_context()
+        status = None
+        while self.arm.locked(context) and context.get_time() < t:
+            k = np.floor((context.get_time() - self.status_offset) / IIWA_STATUS_PERIOD + 1e-9)
+            status = simulator.AdvanceTo(min(t, (k + 1) * IIWA_STATUS_PERIOD + self.status_offset))
+            if (
+                not status.succeeded()
+                or status.reason() != status.ReturnReason.kReachedBoundaryTime
+            ):
+                return status
+            if self.arm.command_applied(context):
+                self.arm.unlock(context)
+        if context.get_time() < t:
+            status = simulator.AdvanceTo(t)
+        return status
 
     def iiwa_commands_received(self) -> int:
         """How many IIWA_COMMAND messages the driver has read from the bus so far."""
@@ -251,9 +273,9 @@ class SimDriverSystems:
         return monitor
 
     def command_delays(self, root_context: Context) -> np.ndarray:
-        """For each IIWA_COMMAND the plant applied (needs ``record=True``): how many plant
-        steps after the first step following its status (the command's utime) it first acted
-        (0: as in one process; 1: it arrived after that step's read tick).
+        """For each IIWA_COMMAND the arm applied (needs ``record=True``): how many cycles
+        after the one following its status (the command's utime) it was first applied (0:
+        kuka_driver's timing, the answer came within the period; 1: a cycle late, ...).
 
         Returns:
             (m,) int: one entry per command, in the order applied.
@@ -262,18 +284,25 @@ class SimDriverSystems:
             raise ConfigError("the driver was built without record=True: no command log")
         log = self.command_logger.FindLog(root_context)
         t, utime = log.sample_times(), log.data()[0]
-        h = self.scenario.station.time_step
-        # Before any message the receiver's time is 0: a new command is a change of it
-        # (so one answering the first status, utime 0, is not told apart: the start guard
-        # aborts on it anyway); a negative utime is "no command".
+        # Entry j (at j x 5 ms) holds the utime [s] latched at cycle j - 1; before any
+        # message the receiver's time is 0, so a new command is a change of it (one
+        # answering the first status, utime 0, is not told apart: the start guard aborts on
+        # it anyway); a negative utime is "no command".
+        cycle = np.rint(t / IIWA_STATUS_PERIOD).astype(int) - 1
         first = np.flatnonzero(np.diff(utime) != 0) + 1
         first = first[utime[first] >= 0]
-        due = (np.floor(utime[first] / h + 1e-6) + 1) * h
-        return np.rint((t[first] - due) / h).astype(int)
+        answered = np.rint(utime[first] / IIWA_STATUS_PERIOD).astype(int)
+        return cycle[first] - (answered + 1)
+
+    def cycle_log(self, root_context: Context) -> dict[str, np.ndarray]:
+        """Every cycle's status (needs ``record=True``; :func:`doorlab.arm_cell.read_cycle_log`)."""
+        if self.cycle_logger is None:
+            raise ConfigError("the driver was built without record=True: no cycle log")
+        return read_cycle_log(self.cycle_logger, root_context)
 
     def ground_truth(self, root_context: Context) -> GroundTruth:
         """The logged ground truth up to the context's time (needs ``record=True``): at each
-        log slot T, the cell just after the plant step at T (as a status at T reports it),
+        log slot T, the plant just after its step at T and the last status at or before T,
         up to the last slot a log period before the context's time."""
         if self.logger is None:
             raise ConfigError("the driver was built without record=True: no ground truth")
@@ -283,10 +312,17 @@ class SimDriverSystems:
         t = log.sample_times()[1:] - self.scenario.timeline.log_period
         samples = log.data().T[1:]
         columns = np.cumsum([0, *self.log_sizes])
-        data = {
+        raw = {
             name: samples[:, start:end]
-            for (name, _, _), start, end in zip(_LOG_PORTS, columns[:-1], columns[1:], strict=True)
+            for (name, _), start, end in zip(
+                _GROUND_TRUTH_PORTS, columns[:-1], columns[1:], strict=True
+            )
         }
+        status = raw.pop("status")
+        data = {name: status[:, columns] for name, columns in STATUS_SLICES.items()}
+        data["wsg_position_commanded"] = data["wsg_commanded"][:, :1]
+        data["wsg_force_limit"] = data["wsg_commanded"][:, 1:]
+        data.update(raw)
         return GroundTruth.from_channels(self.station, t, data, utime_warmup=self.utime_warmup)
 
 
@@ -310,39 +346,22 @@ _NO_MESSAGE_THRESHOLD = 100.0
 """A receiver position above this [rad] is the no-message marker."""
 
 
-def _command_gate(q_initial: np.ndarray) -> SymbolicVectorSystem:
-    """u = [p (7), tau (7), t_cmd (1)] -> [q_ref (7), tau_ff (7)], as kuka_driver applies a
-    command: p clamped to the joint limits less 1 deg, tau as sent; while there is no command
-    (p is the receiver's no-message marker, or the command's utime is negative: -1 means
-    "no command") the start pose ``q_initial``, unclamped, and zero torque.
-
-    A ``SymbolicVectorSystem``: its expressions are evaluated in C++.
-    """
-    u = sym.MakeVectorVariable(2 * NUM_JOINTS + 1, "u")
-    p, tau, t_cmd = u[:NUM_JOINTS], u[NUM_JOINTS : 2 * NUM_JOINTS], u[-1]
-    limit = DRIVER_JOINT_LIMITS - JOINT_LIMIT_MARGIN
-    none = sym.logical_or(p[0] > _NO_MESSAGE_THRESHOLD, t_cmd < 0)
-    q_ref = [
-        sym.if_then_else(none, float(q0), sym.min(sym.max(p_i, -float(lim)), float(lim)))
-        for p_i, q0, lim in zip(p, q_initial, limit, strict=True)
-    ]
-    tau_ff = [sym.if_then_else(none, 0.0, tau_i) for tau_i in tau]
-    return SymbolicVectorSystem(input=u, output=np.array(q_ref + tau_ff))
+def _command_valid() -> SymbolicVectorSystem:
+    """[p (7), utime] -> 1 for a command, 0 for none (the receiver's no-message marker in p,
+    or a negative utime: kuka_driver's -1, "no command")."""
+    u = sym.MakeVectorVariable(NUM_JOINTS + 1, "u")
+    none = sym.logical_or(u[0] > _NO_MESSAGE_THRESHOLD, u[NUM_JOINTS] < 0)
+    return SymbolicVectorSystem(input=u, output=[sym.if_then_else(none, 0.0, 1.0)])
 
 
-def _add_iiwa_command(builder: DiagramBuilder, lcm: DrakeLcm, station_system, q_initial):
-    """IIWA_COMMAND -> the station's q_ref and tau_ff, as kuka_driver applies commands.
-
-    The newest message, decoded in C++ (IiwaCommandReceiver, position and torque), then
-    :func:`_command_gate`. kuka_driver clamps only what it answers LCM with: until the first
-    command the arm holds ``q_initial`` unclamped (q_home's joint 4, -2.094 rad, lies within
-    1 deg of its limit). The receiver's position before any message is its "measured
-    position" input, here :data:`_NO_MESSAGE_POSITION`: that is how the gate tells "no
-    command yet" from a command.
+def _add_iiwa_command(builder: DiagramBuilder, lcm: DrakeLcm, arm_system):
+    """IIWA_COMMAND -> the arm cell's command inputs: the newest message, decoded in C++
+    (IiwaCommandReceiver, position and torque), and whether it is a command. The receiver's
+    position before any message is its "measured position" input, here
+    :data:`_NO_MESSAGE_POSITION`: that is how "no command yet" is told from a command.
 
     Returns:
-        (the subscriber, the receiver, the applied command: a Demultiplexer, outputs q_ref
-        and tau_ff).
+        (the subscriber, the receiver).
     """
 
     def add(name: str, system):
@@ -362,25 +381,24 @@ def _add_iiwa_command(builder: DiagramBuilder, lcm: DrakeLcm, station_system, q_
         "no_command_marker", ConstantVectorSource(np.full(NUM_JOINTS, _NO_MESSAGE_POSITION))
     )
     builder.Connect(marker.get_output_port(), receiver.get_position_measured_input_port())
-    inputs = add("iiwa_command_gate_input", Multiplexer([NUM_JOINTS, NUM_JOINTS, 1]))
-    builder.Connect(receiver.get_commanded_position_output_port(), inputs.get_input_port(0))
-    builder.Connect(receiver.get_commanded_torque_output_port(), inputs.get_input_port(1))
-    builder.Connect(receiver.GetOutputPort("time"), inputs.get_input_port(2))
-    gate = add("iiwa_command_gate", _command_gate(np.asarray(q_initial, float)))
-    builder.Connect(inputs.get_output_port(), gate.get_input_port())
-    applied = add("iiwa_command_applied", Demultiplexer([NUM_JOINTS, NUM_JOINTS]))
-    builder.Connect(gate.get_output_port(), applied.get_input_port())
-    builder.Connect(applied.get_output_port(0), station_system.GetInputPort("iiwa_position"))
+    position = receiver.get_commanded_position_output_port()
+    builder.Connect(position, arm_system.GetInputPort("iiwa_position"))
     builder.Connect(
-        applied.get_output_port(1), station_system.GetInputPort("iiwa_feedforward_torque")
+        receiver.get_commanded_torque_output_port(),
+        arm_system.GetInputPort("iiwa_feedforward_torque"),
     )
-    return subscriber, receiver, applied
+    valid_in = add("command_valid_input", Multiplexer([NUM_JOINTS, 1]))
+    builder.Connect(position, valid_in.get_input_port(0))
+    builder.Connect(receiver.GetOutputPort("time"), valid_in.get_input_port(1))
+    valid = add("command_valid", _command_valid())
+    builder.Connect(valid_in.get_output_port(), valid.get_input_port())
+    builder.Connect(valid.get_output_port(), arm_system.GetInputPort("iiwa_command_valid"))
+    return subscriber, receiver
 
 
-def _add_wsg_command(builder: DiagramBuilder, lcm: DrakeLcm, station_system, gripper):
-    """SCHUNK_WSG_COMMAND -> the station's wsg_position [m] and wsg_force_limit [N]; until the
-    first command the gripper's initial width and force limit. Returns (subscriber, receiver).
-    """
+def _add_wsg_command(builder: DiagramBuilder, lcm: DrakeLcm, arm_system, gripper):
+    """SCHUNK_WSG_COMMAND -> the arm cell's wsg_position [m] and wsg_force_limit [N]; until
+    the first command the gripper's initial width and force limit. Returns the subscriber."""
     subscriber = builder.AddNamedSystem(
         "wsg_command_subscriber",
         LcmSubscriberSystem.Make(
@@ -394,74 +412,70 @@ def _add_wsg_command(builder: DiagramBuilder, lcm: DrakeLcm, station_system, gri
         ),
     )
     builder.Connect(subscriber.get_output_port(), receiver.GetInputPort("command_message"))
+    builder.Connect(receiver.get_position_output_port(), arm_system.GetInputPort("wsg_position"))
     builder.Connect(
-        receiver.get_position_output_port(), station_system.GetInputPort("wsg_position")
+        receiver.get_force_limit_output_port(), arm_system.GetInputPort("wsg_force_limit")
     )
-    builder.Connect(
-        receiver.get_force_limit_output_port(), station_system.GetInputPort("wsg_force_limit")
+    return subscriber
+
+
+def _publisher(builder, lcm, name, channel, lcm_type, period, offset, sender):
+    system = builder.AddNamedSystem(
+        name,
+        LcmPublisherSystem.Make(
+            channel,
+            lcm_type,
+            lcm,
+            publish_period=period,
+            publish_offset=offset,
+            use_cpp_serializer=True,
+        ),
     )
-    return subscriber, receiver
+    builder.Connect(sender.get_output_port(), system.get_input_port())
+    return system
 
 
 def _add_statuses(
-    builder: DiagramBuilder,
-    lcm: DrakeLcm,
-    station_system,
-    plant_step: float,
-    utime_warmup: bool,
+    builder: DiagramBuilder, lcm: DrakeLcm, arm: ArmCell, arm_system, utime_warmup: bool
 ):
-    """The station's outputs -> IIWA_STATUS every 5 ms and SCHUNK_WSG_STATUS every 50 ms, and
-    the read and status ticks (``plant_step``: the plant's step h [s]).
-    Returns (iiwa publisher, wsg publisher)."""
+    """The arm cell's status -> IIWA_STATUS every cycle, STATUS_DELAY after its events; its
+    gripper -> SCHUNK_WSG_STATUS every 50 ms; the read tick. Returns (iiwa, wsg publisher)."""
 
     def add(name: str, system):
         return builder.AddNamedSystem(name, system)
 
+    offset = arm.offset + STATUS_DELAY
     iiwa_status = add("iiwa_status", IiwaStatusSender(NUM_JOINTS))
-    for sender_port, station_port in (
+    for sender_port, arm_port in (
         ("position_commanded", "iiwa_position_commanded"),
         ("position_measured", "iiwa_position_measured"),
         ("velocity_estimated", "iiwa_velocity_estimated"),
         ("torque_commanded", "iiwa_torque_commanded"),
         ("torque_external", "iiwa_torque_external"),
     ):  # torque_measured left open: the sender reports torque_commanded
-        builder.Connect(
-            station_system.GetOutputPort(station_port), iiwa_status.GetInputPort(sender_port)
-        )
-    utime = add("status_utime", TrajectorySource(_utime_source(utime_warmup)))
+        builder.Connect(arm_system.GetOutputPort(arm_port), iiwa_status.GetInputPort(sender_port))
+    utime = add("status_utime", TrajectorySource(_utime_source(utime_warmup, offset)))
     builder.Connect(utime.get_output_port(), iiwa_status.GetInputPort("time_measured"))
-
-    def publisher(name: str, channel: str, lcm_type: type, period: float, offset: float, sender):
-        system = add(
-            name,
-            LcmPublisherSystem.Make(
-                channel,
-                lcm_type,
-                lcm,
-                publish_period=period,
-                publish_offset=offset,
-                use_cpp_serializer=True,
-            ),
-        )
-        builder.Connect(sender.get_output_port(), system.get_input_port())
-        return system
-
-    iiwa_pub = publisher(
+    iiwa_pub = _publisher(
+        builder,
+        lcm,
         "iiwa_status_publisher",
         IIWA_STATUS_CHANNEL,
         lcmt_iiwa_status,
         IIWA_STATUS_PERIOD,
-        STATUS_DELAY,
+        offset,
         iiwa_status,
     )
     wsg_status = add("wsg_status", SchunkWsgStatusSender())
     builder.Connect(
-        station_system.GetOutputPort("wsg_state_measured"), wsg_status.get_state_input_port()
+        arm_system.GetOutputPort("wsg_state_measured"), wsg_status.get_state_input_port()
     )
     builder.Connect(
-        station_system.GetOutputPort("wsg_force_measured"), wsg_status.get_force_input_port()
+        arm_system.GetOutputPort("wsg_force_measured"), wsg_status.get_force_input_port()
     )
-    wsg_pub = publisher(
+    wsg_pub = _publisher(
+        builder,
+        lcm,
         "wsg_status_publisher",
         WSG_STATUS_CHANNEL,
         lcmt_schunk_wsg_status,
@@ -469,18 +483,51 @@ def _add_statuses(
         0.0,
         wsg_status,
     )
-
-    # The read and status ticks (module docstring): simulator steps that start READ_LEAD
-    # before every plant step and at every status slot (C++, no output used).
-    tick_input = add("tick_input", ConstantVectorSource([0.0]))
-    h = plant_step
-    for name, period, offset in (
-        ("read_tick", h, h - READ_LEAD),
-        ("status_tick", IIWA_STATUS_PERIOD, 0.0),
-    ):
-        tick = add(name, ZeroOrderHold(period, 1, offset_sec=offset))
-        builder.Connect(tick_input.get_output_port(), tick.get_input_port())
+    _add_read_tick(builder, arm.offset)
     return iiwa_pub, wsg_pub
+
+
+def _add_read_tick(builder: DiagramBuilder, offset: float) -> None:
+    """The read tick (module docstring): a simulator step that starts READ_LEAD before every
+    cycle's events at ``offset`` [s] after k x 5 ms (C++, no output used)."""
+    tick_input = builder.AddNamedSystem("tick_input", ConstantVectorSource([0.0]))
+    tick = builder.AddNamedSystem(
+        "read_tick", ZeroOrderHold(IIWA_STATUS_PERIOD, 1, offset_sec=offset - READ_LEAD)
+    )
+    builder.Connect(tick_input.get_output_port(), tick.get_input_port())
+
+
+def _add_records(builder: DiagramBuilder, arm: ArmCell, arm_system, receiver, scenario):
+    """The ground truth (every log period, sampled as a status is), each cycle's applied
+    command's utime and each cycle's status. Returns (logger, command logger, cycle logger,
+    the ground truth's channel sizes)."""
+    period = IIWA_STATUS_PERIOD
+    # Each cycle: the utime [s] of the status that the command applied from it answers.
+    applied_utime = builder.AddNamedSystem(
+        "applied_command_utime", ZeroOrderHold(period, 1, offset_sec=arm.offset)
+    )
+    builder.Connect(receiver.GetOutputPort("time"), applied_utime.get_input_port())
+    command_logger = builder.AddNamedSystem("applied_command_logger", VectorLogSink(1, period))
+    builder.Connect(applied_utime.get_output_port(), command_logger.get_input_port())
+    cycle_logger = builder.AddNamedSystem("cycle_logger", VectorLogSink(STATUS_SIZE, period))
+    builder.Connect(arm_system.GetOutputPort("status"), cycle_logger.get_input_port())
+
+    ports = [arm_system.GetOutputPort(port) for _, port in _GROUND_TRUTH_PORTS]
+    sizes = tuple(p.size() for p in ports)
+    mux = builder.AddNamedSystem("ground_truth_channels", Multiplexer(list(sizes)))
+    for i, port in enumerate(ports):
+        builder.Connect(port, mux.get_input_port(i))
+    # Sampled as a status is: STATUS_DELAY after each slot's cycle events (a hold), logged at
+    # the next slot; ground_truth() puts each sample at its slot.
+    size, log_period = mux.get_output_port().size(), scenario.timeline.log_period
+    hold = builder.AddNamedSystem(
+        "ground_truth_sample",
+        ZeroOrderHold(log_period, size, offset_sec=arm.offset + STATUS_DELAY),
+    )
+    builder.Connect(mux.get_output_port(), hold.get_input_port())
+    logger = builder.AddNamedSystem("ground_truth_logger", VectorLogSink(size, log_period))
+    builder.Connect(hold.get_output_port(), logger.get_input_port())
+    return logger, command_logger, cycle_logger, sizes
 
 
 def add_sim_driver(
@@ -493,76 +540,56 @@ def add_sim_driver(
     record: bool = False,
     add_lcm_interface: bool = True,
 ) -> SimDriverSystems:
-    """Adds doorlab's station behind the drivers' LCM protocol to ``builder``.
+    """Adds doorlab's arm behind the drivers' LCM protocol to ``builder``.
 
     Args:
         builder: The diagram to add to.
         lcm: The LCM bus (``DrakeLcm(url)``; ``DrakeLcm("memq://")`` for one process).
-        scenario: A validated scenario: the station (physics, inner loop, gripper) and the
-            initial state (doors, gripper width); ``timeline.log_period`` is the ground
-            truth's sample period.
+        scenario: A validated scenario: the station (physics, inner loop, gripper, the
+            driver's filter and external-torque limit) and the initial state (doors, gripper
+            width); ``timeline.log_period`` is the ground truth's sample period.
         q_initial: The arm's start pose (7,) [rad] (the episode's: q_home).
         utime_warmup: Send utime -1 in the first 200 statuses, as the real driver does.
-        record: Log the ground truth (see :meth:`SimDriverSystems.ground_truth`).
+        record: Log the ground truth, each cycle's status and applied command
+            (:meth:`SimDriverSystems.ground_truth`, ``cycle_log``, ``command_delays``).
         add_lcm_interface: Add the ``LcmInterfaceSystem`` that reads ``lcm`` at every step
             (added first, before the subscribers). Pass False when the diagram already has
             one for this ``lcm`` (one per bus), added before this call.
 
     Returns:
-        The systems (call :meth:`SimDriverSystems.initialize` on the simulator's context).
+        The systems (call :meth:`SimDriverSystems.initialize` on the simulator's context,
+        and advance with :meth:`SimDriverSystems.advance_to`).
     """
     if add_lcm_interface:
         builder.AddNamedSystem("lcm_interface", LcmInterfaceSystem(lcm))
-    station = build_station(scenario.station)
-    station_system = builder.AddNamedSystem("station", station.diagram)
-    q_initial = np.asarray(q_initial, float).copy()
-    iiwa_sub, iiwa_receiver, iiwa_command = _add_iiwa_command(
-        builder, lcm, station_system, q_initial
+    arm = build_arm_cell(scenario.station, q_initial=q_initial)
+    arm_system = builder.AddNamedSystem("arm", arm.diagram)
+    iiwa_sub, iiwa_receiver = _add_iiwa_command(builder, lcm, arm_system)
+    wsg_sub = _add_wsg_command(builder, lcm, arm_system, scenario.station.gripper)
+    iiwa_pub, wsg_pub = _add_statuses(builder, lcm, arm, arm_system, utime_warmup)
+    watch = builder.AddNamedSystem(
+        "external_torque_watch",
+        ExternalTorqueWatch(
+            scenario.station.driver.external_torque_limit, offset=arm.offset + WATCH_DELAY
+        ),
     )
-    wsg_sub, wsg_command = _add_wsg_command(builder, lcm, station_system, scenario.station.gripper)
-    iiwa_pub, wsg_pub = _add_statuses(
-        builder, lcm, station_system, scenario.station.time_step, utime_warmup
-    )
-
-    logger = command_logger = None
+    builder.Connect(arm_system.GetOutputPort("iiwa_torque_external"), watch.get_input_port())
+    logger = command_logger = cycle_logger = None
     log_sizes: tuple[int, ...] = ()
     if record:
-        # At every plant step t_n (logged at the end of the step ending there, after the read
-        # tick): the utime [s] of the status that the command the step applies answers.
-        command_logger = builder.AddNamedSystem(
-            "applied_command_logger", VectorLogSink(1, scenario.station.time_step)
+        logger, command_logger, cycle_logger, log_sizes = _add_records(
+            builder, arm, arm_system, iiwa_receiver, scenario
         )
-        builder.Connect(iiwa_receiver.GetOutputPort("time"), command_logger.get_input_port())
-        systems = {
-            "station": station_system,
-            "iiwa_command_applied": iiwa_command,
-            "wsg_command": wsg_command,
-        }
-        ports = [systems[system].GetOutputPort(port) for _, system, port in _LOG_PORTS]
-        log_sizes = tuple(p.size() for p in ports)
-        mux = builder.AddNamedSystem("ground_truth_channels", Multiplexer(list(log_sizes)))
-        for i, port in enumerate(ports):
-            builder.Connect(port, mux.get_input_port(i))
-        # Sampled as a status is: STATUS_DELAY after each slot, after the plant step there
-        # (a hold), logged at the next slot; ground_truth() puts each sample at its slot.
-        size, period = mux.get_output_port().size(), scenario.timeline.log_period
-        hold = builder.AddNamedSystem(
-            "ground_truth_sample", ZeroOrderHold(period, size, offset_sec=STATUS_DELAY)
-        )
-        builder.Connect(mux.get_output_port(), hold.get_input_port())
-        logger = builder.AddNamedSystem("ground_truth_logger", VectorLogSink(size, period))
-        builder.Connect(hold.get_output_port(), logger.get_input_port())
-
     return SimDriverSystems(
-        station=station,
+        arm=arm,
         iiwa_command_subscriber=iiwa_sub,
         wsg_command_subscriber=wsg_sub,
         iiwa_status_publisher=iiwa_pub,
         wsg_status_publisher=wsg_pub,
         logger=logger,
         command_logger=command_logger,
+        cycle_logger=cycle_logger,
         scenario=scenario,
-        q_initial=q_initial,
         utime_warmup=utime_warmup,
         log_sizes=log_sizes,
     )

@@ -21,7 +21,9 @@ from pydrake.lcm import DrakeLcm
 from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 from pydrake.systems.framework import Context, DiagramBuilder, EventStatus
 
+from doorlab.arm_cell import ExternalTorqueFreeze
 from doorlab.config import Scenario, validate
+from doorlab.constants import Q_HOME
 from doorlab.errors import ConfigError, SimulationError
 from doorlab.hardware.ground_truth import (
     DRIVER_FILE,
@@ -35,7 +37,8 @@ from doorlab.hardware.protocol import (
     START_COMMAND_GUARD,
     WSG_STATUS_PERIOD,
 )
-from doorlab.hardware.sim_cell import STATUS_DELAY, add_sim_driver, start_guard_message
+from doorlab.hardware.sim_cell import add_sim_driver, start_guard_message
+from doorlab.kuka import external_torque_limits
 
 
 @dataclass(frozen=True)
@@ -44,8 +47,9 @@ class DriverOutcome:
 
     Attributes:
         status: ``"stopped"`` (the duration ran out), ``"interrupted"`` (a signal),
-            ``"aborted"`` (the start guard), or ``"failed"`` (the physics, or a command
-            the receivers reject, e.g. not 7 joints).
+            ``"aborted"`` (the start guard, or kuka_driver's external-torque stop), or
+            ``"failed"`` (the physics, or a command the receivers reject, e.g. not 7
+            joints).
         message: Why, in one line ("" when stopped).
         sim_time_s: Simulated time at the end [s]. wall_time_s: Wall time since the first
             status [s].
@@ -75,6 +79,7 @@ class SimDriver:
             ``memq://`` only to talk to a client in this process.
         utime_warmup: Send utime -1 in the first 200 statuses, as the real driver does.
         record: Log the ground truth (:meth:`ground_truth`, :meth:`write_output`).
+        q_initial: The arm's start pose (7,) [rad] (an episode's: q_home).
     """
 
     def __init__(
@@ -84,13 +89,19 @@ class SimDriver:
         lcm_url: str,
         utime_warmup: bool = False,
         record: bool = False,
+        q_initial: np.ndarray = Q_HOME,
     ):
         self.scenario = validate(scenario)
         self.lcm_url = lcm_url
         self.lcm = DrakeLcm(lcm_url)
         builder = DiagramBuilder()
         self.systems = add_sim_driver(
-            builder, self.lcm, self.scenario, utime_warmup=utime_warmup, record=record
+            builder,
+            self.lcm,
+            self.scenario,
+            q_initial=q_initial,
+            utime_warmup=utime_warmup,
+            record=record,
         )
         self.diagram = builder.Build()
         self.diagram.set_name("doorlab_sim_driver")
@@ -143,10 +154,11 @@ class SimDriver:
                 wall_start = time.monotonic()
                 if guard > 0:
                     self._advance_through_guard(duration, guard, paced, wall_start)
-                if self.time < duration:
-                    simulator.AdvanceTo(duration)
+                self.systems.advance_to(simulator, duration)
             except _StartGuardTripped as e:
                 status, message, exit_code = "aborted", str(e), 1
+            except ExternalTorqueFreeze as e:
+                status, message, exit_code = "aborted", freeze_message(e.violation), 1
             except RuntimeError as e:  # the physics, or a message the receivers reject
                 first = str(e).splitlines()[0] if str(e) else type(e).__name__
                 status, exit_code = "failed", 1
@@ -187,7 +199,7 @@ class SimDriver:
         simulator.set_monitor(monitor)
         try:
             while elapsed() < guard and self.time < duration:
-                simulator.AdvanceTo(min(duration, self.time + IIWA_STATUS_PERIOD))
+                systems.advance_to(simulator, min(duration, self.time + IIWA_STATUS_PERIOD))
                 if tripped:
                     raise _StartGuardTripped(start_guard_message(guard, tripped[0]))
         finally:
@@ -209,7 +221,7 @@ class SimDriver:
             "sim_time_s": t,
             "wall_time_s": outcome.wall_time_s if outcome else 0.0,
             "realtime_rate": outcome.realtime_rate if outcome else math.nan,
-            "iiwa_statuses_sent": _slots(t - STATUS_DELAY, IIWA_STATUS_PERIOD),
+            "iiwa_statuses_sent": _slots(t - self.systems.status_offset, IIWA_STATUS_PERIOD),
             "wsg_statuses_sent": _slots(t, WSG_STATUS_PERIOD),
             "iiwa_commands_received": self.systems.iiwa_commands_received(),
             "wsg_commands_received": self.systems.wsg_commands_received(),
@@ -218,23 +230,32 @@ class SimDriver:
             "wsg_status_period_s": WSG_STATUS_PERIOD,
             "start_command_guard_s": START_COMMAND_GUARD,
             "joint_limit_margin_rad": float(JOINT_LIMIT_MARGIN),
+            "inner_loop": self.scenario.station.inner_loop.kind,
+            "velocity_filter_cutoff_hz": self.scenario.station.driver.velocity_filter_cutoff,
+            "external_torque_limits_Nm": external_torque_limits(
+                self.scenario.station.driver.external_torque_limit
+            ).tolist(),
             "log_period_s": self.scenario.timeline.log_period,
             **self._command_timing(),
         }
 
     def _command_timing(self) -> dict:
-        """How the applied commands' timing compared with one process (with ``record``)."""
+        """When the commands were applied against kuka_driver's cycle (with ``record``)."""
         if self.systems.command_logger is None:
             return {}
         delays = self.systems.command_delays(self.simulator.get_context())
         late = delays[delays > 0]
+        received = self.systems.iiwa_commands_received()
         return {
             "iiwa_commands_applied": len(delays),
-            "iiwa_commands_late": len(late),  # acted a plant step or more after one process
-            "iiwa_command_delay_mean_s": float(np.mean(np.maximum(delays, 0)))
-            * self.scenario.station.time_step
+            # applied a cycle or more after the one following the status they answer
+            "iiwa_commands_late": len(late),
+            "iiwa_command_cycles_late_max": int(late.max()) if len(late) else 0,
+            "iiwa_command_delay_mean_s": float(np.mean(np.maximum(delays, 0))) * IIWA_STATUS_PERIOD
             if len(delays)
             else math.nan,
+            # read, but replaced by a newer one before a cycle applied them
+            "iiwa_commands_superseded": max(received - len(delays), 0),
         }
 
     def write_output(self, staging: Path) -> None:
@@ -254,6 +275,16 @@ def _finite(data: dict) -> dict:
     return {
         k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in data.items()
     }
+
+
+def freeze_message(violation) -> str:
+    """kuka_driver's external-torque stop in one line: the joint, the torque, the limit."""
+    return (
+        f"external torque: |tau_external| = {violation.value:.3g} N m on "
+        f"{violation.joint_name} over kuka_driver's limit {violation.bound:.3g} N m at "
+        f"t = {violation.t:.3f} s; the "
+        "driver exits, as kuka_driver does ('Robot0 is in an unsafe state.')"
+    )
 
 
 class _StartGuardTripped(SimulationError):

@@ -9,6 +9,7 @@ This module builds no page and runs nothing, so the page's modules may import it
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -130,3 +131,107 @@ class RunRecord:
     status: str = "unknown"
     message: str = ""
     elapsed_s: float = float("nan")
+
+
+ARM_CONDITIONS = ("cell", "timing", "arm")
+"""The report's "On the arm" conditions: doorlab's cell (``station.driver.timing: next_step``,
+doorlab's inner loop), the arm's timing only (``kuka_driver``), and the arm preset
+(:func:`doorlab.config.arm_preset`: the timing, KUKA's joint impedance, a 2.5 ms step, the
+real run's safety limits)."""
+ARM_TUNING: dict[str, str] = {
+    "velocity": "velocity: {lead: inner_loop}",
+    "impedance": "impedance: {kv: 10000.0}",
+}
+"""What makes the problem set's plans that fail on the arm open the door there (scenario YAML
+on top of the case's): for the velocity plan a change of its law (q_ref = q + q_dot x the
+inner loop's lead instead of x dt), for the impedance plan a stiffer task-space spring. Found with
+``examples/sweep_kuka_velocity.yaml`` and ``examples/sweep_kuka_impedance.yaml``; the report
+measures them on the arm and what they cost in doorlab's cell."""
+ARM_COST_YAW_DEG = 5.0
+"""The tuned plans' cost is also measured with the cupboard turned this much [deg] (a stiffer
+plan gives up compliance against a hinge that is not where it believes)."""
+
+
+@dataclass(frozen=True)
+class ArmCase:
+    """One run of the report's "On the arm" section.
+
+    Attributes:
+        run: The run folder's name (shared with an identical run of the report if any).
+        controller: Registry name. condition: One of :data:`ARM_CONDITIONS`.
+        tuned: With :data:`ARM_TUNING`'s settings. yaw_error_rad: The cupboard's yaw error.
+    """
+
+    run: str
+    controller: str
+    condition: str
+    tuned: bool = False
+    yaw_error_rad: float = 0.0
+
+
+def arm_condition(base: Scenario, condition: str) -> Scenario:
+    """``base`` (doors closed) under a condition of :data:`ARM_CONDITIONS` (a validated copy).
+
+    ``cell`` keeps ``base`` but with doorlab's timing, and doorlab's default loop if ``base``
+    runs KUKA's; ``timing`` adds kuka_driver's timing; ``arm`` is the arm preset on ``cell``.
+    """
+    from doorlab.config import InnerLoopConfig, arm_preset, validate
+
+    scenario = copy.deepcopy(base)
+    scenario.doors, scenario.door_angles = "closed", None
+    scenario.station.driver.timing = "next_step"
+    if scenario.station.inner_loop.kind == "kuka_joint_impedance":
+        scenario.station.inner_loop = InnerLoopConfig()
+    if condition == "timing":
+        scenario.station.driver.timing = "kuka_driver"
+    elif condition == "arm":
+        scenario = arm_preset(scenario)
+    return validate(scenario)
+
+
+def make_arm_cases(
+    base: Scenario | None = None, existing: Sequence[tuple[str, Scenario]] = ()
+) -> tuple[tuple[ArmCase, ...], tuple[tuple[str, Scenario], ...]]:
+    """The "On the arm" runs: every controller under every condition; the plans of
+    :data:`ARM_TUNING` tuned on the arm and in doorlab's cell, there also with the cupboard
+    turned :data:`ARM_COST_YAW_DEG` (tuned and not).
+
+    Args:
+        base: The report's base scenario. existing: Runs the report has already: a case
+            with the very same scenario reuses it.
+
+    Returns:
+        (the cases, the (name, scenario) runs still to run).
+    """
+    from doorlab.config import update_scenario
+    from doorlab.controllers import REGISTRY
+
+    base = base if base is not None else Scenario()
+    yaw = math.radians(ARM_COST_YAW_DEG)
+    wanted = [(c, condition, False, 0.0) for c in REGISTRY for condition in ARM_CONDITIONS]
+    for controller in ARM_TUNING:
+        wanted += [
+            (controller, "arm", True, 0.0),
+            (controller, "cell", True, 0.0),
+            (controller, "cell", False, yaw),
+            (controller, "cell", True, yaw),
+        ]
+    known = list(existing)
+    cases, new = [], []
+    for controller, condition, tuned, yaw_error in wanted:
+        scenario = arm_condition(base, condition)
+        scenario.controller = controller
+        scenario.station.cupboard_yaw_error = yaw_error
+        if tuned:
+            scenario = update_scenario(scenario, ARM_TUNING[controller])
+        same = [name for name, other in known if other == scenario]
+        if same:
+            name = same[0]
+        else:
+            prefix = {"cell": "arm_cell", "timing": "arm_timing", "arm": "arm_preset"}
+            name = f"{prefix[condition]}_{controller}" + ("_tuned" if tuned else "")
+            name += f"_yaw_p{ARM_COST_YAW_DEG:g}" if yaw_error else ""
+            new.append((name, scenario))
+            known.append((name, scenario))
+        cases.append(ArmCase(name, controller, condition, tuned, yaw_error))
+    return tuple(cases), tuple(new)

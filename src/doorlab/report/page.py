@@ -26,7 +26,7 @@ from doorlab.pages import (
 )
 from doorlab.report.answers import ANSWERS, QUESTIONS, TASK_TITLES
 from doorlab.report.context import AnswerPage
-from doorlab.report.experiments import RobustnessCase, RunRecord
+from doorlab.report.experiments import ArmCase, RobustnessCase, RunRecord
 from doorlab.report.folders import LoadedRun, load_run
 from doorlab.runs import write_json
 
@@ -144,6 +144,8 @@ def build_page(
     total_wall_time_s: float | None = None,
     jobs: int | None = None,
     robustness: Sequence[tuple[RobustnessCase, RunRecord]] | None = None,
+    arm: Sequence[tuple[ArmCase, RunRecord]] | None = None,
+    base=None,
     title: str = "doorlab: opening the cupboard's left door three ways",
 ) -> Path:
     """Writes ``index.html``, ``summary.json`` and ``figures/*.png`` from run folders.
@@ -159,6 +161,9 @@ def build_page(
         jobs: Worker processes used, shown in the header.
         robustness: The robustness grid's (case, run) pairs
             (:func:`doorlab.report.experiments.make_robustness_cases`); None: no section.
+        arm: The "On the arm" section's (case, run) pairs
+            (:func:`doorlab.report.experiments.make_arm_cases`); None: no section.
+        base: The report's base scenario (the arm section's model; default: the defaults).
         title: Page title.
 
     Returns:
@@ -192,12 +197,27 @@ def build_page(
                 "with the runs above; not part of the exit code)",
             )
         )
+    if arm is not None:
+        shared = {run.name for run in loaded} | {case.run for case, _ in robustness or ()}
+        own = len({case.run for case, _ in arm} - shared)
+        meta.append(
+            (
+                "on the arm",
+                f"{len(arm)} cases ({own} runs of their own, the others shared with the runs "
+                "above; not part of the exit code)",
+            )
+        )
     tasks = _tasks(page)  # the answers first: they add the figures in page order
     robust = None
     if robustness is not None:
         from doorlab.report.robustness_page import robustness_context
 
         robust = robustness_context(robustness, out_dir, page.figures)
+    on_arm = None
+    if arm is not None:
+        from doorlab.report.arm_page import arm_context
+
+        on_arm = arm_context(arm, out_dir, page.figures, base)
     document = render(
         "report.html.j2",
         title=title,
@@ -209,6 +229,7 @@ def build_page(
         metrics=_metrics_table(page, out_dir),
         overlays=_overlays(page),
         robustness=robust,
+        arm=on_arm,
     )
     index = out_dir / "index.html"
     index.write_text(document, encoding="utf-8")
@@ -242,5 +263,7 @@ def build_page(
             }
             for case, record in robustness
         ]
+    if on_arm is not None:
+        summary["on_the_arm"] = on_arm["summary"]
     write_json(out_dir / "summary.json", summary)
     return index

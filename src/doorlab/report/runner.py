@@ -18,8 +18,10 @@ from pathlib import Path
 from doorlab.config import Scenario, validate
 from doorlab.errors import ConfigError
 from doorlab.report.experiments import (
+    ArmCase,
     RobustnessCase,
     RunRecord,
+    make_arm_cases,
     make_experiments,
     make_robustness_cases,
 )
@@ -129,6 +131,7 @@ def run_report(
     scheduler: str | None = None,
     robustness: bool = True,
     scheduler_timeout_s: float | None = None,
+    arm: bool = True,
 ) -> int:
     """Runs the experiments in parallel and writes the report folder atomically.
 
@@ -146,6 +149,8 @@ def run_report(
             :data:`doorlab.executor.CONNECT_TIMEOUT_S`).
         robustness: Also run the robustness grid (:func:`make_robustness_cases` on ``base``,
             reusing the experiments' identical runs; no replay) and add its section.
+        arm: Also run the "On the arm" cases (:func:`make_arm_cases` on ``base``, reusing
+            identical runs; no replay) and add its section.
 
     Returns:
         0 if every experiment's status is ``ok``, 1 otherwise (failed runs are on the page).
@@ -180,6 +185,13 @@ def run_report(
         clash = sorted(set(names) & {name for name, _ in extra})
         if clash:
             raise ConfigError(f"experiment names clash with the robustness runs: {clash}")
+    arm_cases: tuple[ArmCase, ...] = ()
+    if arm:
+        arm_cases, arm_extra = make_arm_cases(base, (*experiments, *extra))
+        clash = sorted(set(names) & {name for name, _ in arm_extra})
+        if clash:
+            raise ConfigError(f"experiment names clash with the arm runs: {clash}")
+        extra = (*extra, *arm_extra)
     experiment_names = set(names)
 
     with staged_output(Path(out_dir), force=force) as staging:
@@ -232,7 +244,16 @@ def run_report(
         from doorlab.report.page import build_page
 
         grid = [(case, records[case.run]) for case in cases] if robustness else None
-        build_page(ordered, staging, total_wall_time_s=total, jobs=jobs, robustness=grid)
+        on_arm = [(case, records[case.run]) for case in arm_cases] if arm else None
+        build_page(
+            ordered,
+            staging,
+            total_wall_time_s=total,
+            jobs=jobs,
+            robustness=grid,
+            arm=on_arm,
+            base=base,
+        )
     if progress:
         sys.stderr.write(f"report written to {out_dir} in {time.perf_counter() - start:.0f} s\n")
     return 0 if all(r.status == "ok" for r in ordered) else 1

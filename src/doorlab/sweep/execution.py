@@ -18,7 +18,7 @@ from pathlib import Path
 import pandas as pd
 
 from doorlab.config import Scenario
-from doorlab.errors import ConfigError, IkError, OutputError, SimulationError
+from doorlab.errors import ConfigError, IkError, OutputError, RunStopped, SimulationError
 from doorlab.sweep.results import (
     RESULTS_CSV,
     RESULTS_PARQUET,
@@ -54,7 +54,7 @@ def run_one(scenario: Scenario) -> dict:
 
     Returns:
         ``status``, ``error``, ``run_wall_time_s`` [s] and every key of ``metrics.json`` the
-        run produced (none for ik_failed, diverged and error).
+        run produced (none for ik_failed, diverged, safety_stop and error).
     """
     from doorlab.controllers import run_controller
     from doorlab.geometry import true_door_geometry
@@ -69,12 +69,9 @@ def run_one(scenario: Scenario) -> dict:
             result, scenario, true_door_geometry(scenario), kinematics=_kinematics()
         )
         row = {**metrics.to_dict(), "error": status_message(metrics)}
-    except (IkError, SimulationError) as e:
-        row = {
-            **base,
-            "status": "ik_failed" if isinstance(e, IkError) else "diverged",
-            "error": str(e),
-        }
+    except (IkError, SimulationError, RunStopped) as e:  # results of the run, not errors
+        status = "ik_failed" if isinstance(e, IkError) else getattr(e, "status", "diverged")
+        row = {**base, "status": status, "error": str(e)}
     except Exception as e:  # a run's bug must not end the sweep
         row = {**base, "status": "error", "error": f"{type(e).__name__}: {e}"}
     row["run_wall_time_s"] = time.perf_counter() - start

@@ -150,7 +150,7 @@ def plot_metrics_vs_axis(
                 color="black",
                 s=40,
                 zorder=5,
-                label="no metrics (ik_failed, diverged, error)",
+                label="no metrics (ik_failed, diverged, safety_stop, error)",
             )
         if categories is not None:
             ax.set_xticks(range(len(categories)), categories)

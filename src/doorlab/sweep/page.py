@@ -129,7 +129,7 @@ def build_sweep_page(
         caption = (
             f"Headline metrics against {axis.label}: {how}; x: a run that finished not ok "
             "(e.g. slipped), triangle at the bottom: a run without metrics (ik_failed, "
-            "diverged, error)."
+            "diverged, safety_stop, error)."
         )
         sections.append({"title": axis.label, "figure": figures.add(f"axis_{i}", fig, caption)})
     heatmaps = []

@@ -4,7 +4,8 @@ Columns, in order: ``run`` (position in the sweep), ``key`` (hash of the run's f
 ``controller``, ``doors``, one column per axis (its dotted field name, the field's unit),
 ``status``, ``error``, ``run_wall_time_s`` (the whole run in its worker: IK, simulation and
 metrics [s]), then every key of ``metrics.json`` (:class:`doorlab.metrics.DoorMetrics`) not
-already listed. Runs that produced no metrics (ik_failed, diverged, error) have empty metrics.
+already listed. Runs that produced no metrics (ik_failed, diverged, safety_stop: a safety limit,
+kuka_driver's external-torque stop included, stopped the episode; error) have empty metrics.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ LEAD_COLUMNS = ("run", "key", "controller", "doors")
 STATUS_COLUMNS = ("status", "error", "run_wall_time_s")
 TIMING_COLUMNS = ("run_wall_time_s", "wall_time_s", "realtime_factor")
 """Columns measured with a clock: they differ between two runs of the same scenario."""
-FAILED_STATUSES = ("diverged", "ik_failed", "error")
+FAILED_STATUSES = ("diverged", "ik_failed", "safety_stop", "error")
 """Statuses of runs that produced no metrics."""
 
 

@@ -1,0 +1,187 @@
+"""Tests of the report's "On the arm" section: its cases (every controller under doorlab's cell,
+the arm's timing and the arm preset; the tuned plans on the arm and in the cell), and the
+section built from run folders: three short real runs (the impedance plan under the three
+conditions, whose logs feed the freeze ratio and the figure) and hand-written metrics for the
+other cases, so that the page is checked against numbers the test knows.
+
+The short runs are structure fixtures (a 2 s arc): the physics of the full runs is the
+report's and README's, measured by ``doorlab report``.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from report_fixtures import short_scenario
+
+from doorlab.config import Scenario, arm_preset
+from doorlab.controllers import REGISTRY
+from doorlab.report import make_arm_cases, make_experiments
+from doorlab.report.experiments import ARM_CONDITIONS, ARM_TUNING, arm_condition
+
+REAL = ("impedance", False, 0.0)
+"""(controller, tuned, yaw) of the cases run for real in the fixture."""
+
+
+def test_arm_cases_cover_the_registry_and_reuse_identical_runs():
+    """Every controller under every condition, the tuned plans on the arm and in the cell (also
+    turned 5 deg); the problem set's closed-door runs are reused for doorlab's cell."""
+    experiments = make_experiments()
+    cases, new = make_arm_cases(None, experiments)
+    plain = [(c.controller, c.condition) for c in cases if not c.tuned and not c.yaw_error_rad]
+    assert plain == [(name, cond) for name in REGISTRY for cond in ARM_CONDITIONS]
+    cell = {
+        c.controller: c.run
+        for c in cases
+        if c.condition == "cell" and not c.tuned and not c.yaw_error_rad
+    }
+    assert cell["ik"] == "ik_10_closed" and cell["impedance"] == "impedance_closed"
+    tuned = {(c.controller, c.condition, bool(c.yaw_error_rad)) for c in cases if c.tuned}
+    variants = (("arm", False), ("cell", False), ("cell", True))
+    assert tuned == {(c, cond, yaw) for c in ARM_TUNING for cond, yaw in variants}
+    names = [name for name, _ in new]
+    assert len(set(names)) == len(names) and not set(names) & {n for n, _ in experiments}
+    scenarios = {**dict(experiments), **dict(new)}
+    for case in cases:
+        s = scenarios[case.run]
+        assert s.controller == case.controller and s.doors == "closed"
+        assert (s.station.driver.timing == "kuka_driver") == (case.condition != "cell")
+        assert (s.station.inner_loop.kind == "kuka_joint_impedance") == (case.condition == "arm")
+        assert s.station.cupboard_yaw_error == pytest.approx(case.yaw_error_rad)
+        if case.tuned and case.controller == "impedance":
+            assert s.impedance.kv == 10000.0
+        if case.tuned and case.controller == "velocity":
+            assert s.velocity.lead == "inner_loop"
+
+
+def test_arm_conditions_from_a_preset_base():
+    """With the arm preset as the report's base, doorlab's cell drops its timing and loop."""
+    base = arm_preset(Scenario(controller="velocity"))
+    cell = arm_condition(base, "cell")
+    assert cell.station.driver.timing == "next_step"
+    assert cell.station.inner_loop.kind == "stiffness"
+    assert arm_condition(base, "arm") == arm_preset(cell)
+
+
+def _fake_metrics(case, k: int) -> dict:
+    """Hand-written metrics of a case the fixture does not run: numbers it knows."""
+    door = 30.0 + k  # deg
+    return {
+        "controller": case.controller,
+        "doors": "closed",
+        "status": "ok",
+        "door_opening_arc_end_rad": math.radians(door),
+        "handle_held": True,
+        "slip_time_s": None,
+        "max_radial_error_m": 1e-3 * (1 + k),
+        "peak_external_torque_arc_Nm": 0.5 + k,
+    }
+
+
+def arm_base() -> Scenario:
+    """The short scenario, its position-gap limit relaxed for the arm's loop on the short
+    approach (the preset checks the real run's limits)."""
+    base = short_scenario()
+    base.station.safety.gap_time = 0.08
+    return base
+
+
+@functools.cache
+def arm_report() -> tuple[Path, list]:
+    import tempfile
+
+    from doorlab.report import RunRecord, build_page
+    from doorlab.runs import run_to_folder
+
+    base = arm_base()
+    cases, new = make_arm_cases(base, ())
+    scenarios = dict(new)
+    root = Path(tempfile.mkdtemp(prefix="doorlab_arm_report_"))
+    runs = root / "runs"
+    runs.mkdir()
+    grid = []
+    for k, case in enumerate(cases):
+        folder = runs / case.run
+        if (case.controller, case.tuned, case.yaw_error_rad) == REAL:
+            if not folder.exists():
+                run_to_folder(scenarios[case.run], folder, replay=False, plots=False)
+        else:
+            folder.mkdir(exist_ok=True)
+            (folder / "metrics.json").write_text(json.dumps(_fake_metrics(case, k)))
+        grid.append((case, RunRecord(case.run, folder)))
+    build_page([], root, total_wall_time_s=1.0, jobs=1, arm=grid, base=base)
+    return root, grid
+
+
+def _section(page: str) -> str:
+    match = re.search(r'<section id="on-the-arm">(.*?)</section>', page, flags=re.S)
+    assert match, "no arm section"
+    return match.group(1)
+
+
+def test_the_section_prints_the_folders_metrics():
+    """A row per case with its folder's numbers; the real runs' peak |external torque| against
+    kuka_driver's limits from their logs; the figure embedded; summary.json lists the cases."""
+    from doorlab.episode import EpisodeResult
+    from doorlab.kuka import external_torque_limits
+
+    folder, grid = arm_report()
+    page = (folder / "index.html").read_text(encoding="utf-8")
+    section = _section(page)
+    rows = re.findall(r'<tr data-run="([^"]+)"[^>]*>(.*?)</tr>', section, flags=re.S)
+    assert [name for name, _ in rows] == [case.run for case, _ in grid]
+    for (case, record), (_, row) in zip(grid, rows, strict=True):
+        cells = re.findall(r"<td[^>]*>(.*?)</td>", row, flags=re.S)
+        metrics = json.loads((Path(record.run_dir) / "metrics.json").read_text())
+        assert cells[1] == case.controller and cells[5] == metrics["status"], metrics
+        if "door_opening_arc_end_rad" in metrics:
+            door = math.degrees(metrics["door_opening_arc_end_rad"])
+            assert float(cells[6]) == pytest.approx(door, rel=5e-3, abs=5e-3)
+        else:  # a run stopped by a limit (the short arc on the arm)
+            assert cells[6] == "n/a" and metrics["status"] == "safety_stop"
+        if (Path(record.run_dir) / "log.npz").is_file():
+            tau = EpisodeResult.load(Path(record.run_dir) / "log.npz").tau_external
+            ratio = 100 * np.max(np.abs(tau) / external_torque_limits())
+            assert float(cells[10].split()[0]) == pytest.approx(ratio, rel=5e-3)
+        else:
+            assert cells[10] == "n/a"
+    assert 'src="data:image/png;base64,' in section
+    assert (folder / "figures" / "on_the_arm.png").is_file()
+    summary = json.loads((folder / "summary.json").read_text())
+    assert [r["run"] for r in summary["on_the_arm"]] == [case.run for case, _ in grid]
+
+
+def test_the_answer_explains_the_impedance_plan_with_the_models_numbers():
+    """The answer quotes the joint damping of both loops as computed from the model (KUKA's
+    2 sqrt(K M_ii) at the grasp pose, doorlab's Dq + h Kq), the delay's K x 5 ms, and the
+    doors of the three impedance runs; a finding per controller and one on the freeze."""
+    from doorlab.pages import format_number
+    from doorlab.station import joint_damping
+
+    folder, grid = arm_report()
+    section = _section((folder / "index.html").read_text(encoding="utf-8"))
+    answer = re.search(r'<p id="arm-answer">(.*?)</p>', section, flags=re.S).group(1)
+    base = arm_base()
+    cell, arm = arm_condition(base, "cell"), arm_condition(base, "arm")
+    d_arm, d_cell = joint_damping(arm.station), joint_damping(cell.station)
+    assert f"{format_number(d_arm.min())}-{format_number(d_arm.max())} N m s/rad" in answer
+    assert f"{format_number(d_cell.min())}-{format_number(d_cell.max())}" in answer
+    delay = f"{format_number(2.5)}-{format_number(5.0)} N m s/rad"  # KUKA's stiffness x 5 ms
+    assert delay in answer
+    for case, record in grid:
+        if case.controller == "impedance" and not case.tuned and not case.yaw_error_rad:
+            metrics = json.loads((Path(record.run_dir) / "metrics.json").read_text())
+            door = metrics.get("door_opening_arc_end_rad")
+            shown = format_number(None if door is None else math.degrees(door))
+            assert f"{shown} deg" in answer
+    findings = re.findall(r"<li>(.*?)</li>", section, flags=re.S)
+    for controller in REGISTRY:
+        assert any(f"The {controller} plan" in f for f in findings)
+    assert any("freeze" in f for f in findings)
+    assert sum(f.startswith("With ") for f in findings) == len(ARM_TUNING)
