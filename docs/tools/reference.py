@@ -79,11 +79,24 @@ manifest (a test compares a real run folder with this page)."""
 API_GROUPS = {
     "configuration": (
         "Configuration, errors and inputs",
-        ["doorlab.config", "doorlab.errors", "doorlab.inputs", "doorlab.constants"],
+        [
+            "doorlab.config",
+            "doorlab.config_checks",
+            "doorlab.errors",
+            "doorlab.inputs",
+            "doorlab.constants",
+        ],
     ),
     "cell": (
         "The cell: station, frames, geometry",
-        ["doorlab.station", "doorlab.models", "doorlab.frames", "doorlab.geometry"],
+        [
+            "doorlab.station",
+            "doorlab.arm_cell",
+            "doorlab.kuka",
+            "doorlab.models",
+            "doorlab.frames",
+            "doorlab.geometry",
+        ],
     ),
     "control": (
         "Control laws, plans and controllers",

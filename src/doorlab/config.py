@@ -107,9 +107,11 @@ class InnerLoopConfig:
     # Multiplier on every Dq [-] (>= 0): one knob for the position-tracking vs impedance-lag
     # trade-off (benchmarks/inner_loop_sweep.py).
     dq_scale: float = 1.0
-    # KUKA's joint impedance (kind kuka_joint_impedance; DrakeFRITorqueDriver's values):
-    # stiffness [N m/rad] and KUKA's dimensionless damping [-] (0.1-1.0) per joint.
+    # [N m/rad] KUKA's joint stiffness per joint (kind kuka_joint_impedance;
+    # DrakeFRITorqueDriver's values).
     kuka_stiffness: list[float] = field(default_factory=lambda: list(KUKA_STIFFNESS))
+    # [-] KUKA's dimensionless joint damping per joint, 0.1-1.0 (kind kuka_joint_impedance;
+    # Dq = 2 d sqrt(Kq M_ii), see the class docstring).
     kuka_damping: list[float] = field(default_factory=lambda: list(KUKA_DAMPING))
     # Inverse-dynamics PID gains of the original station (act through M(q)).
     id_kp: float = 100.0  # [1/s^2] proportional gain
