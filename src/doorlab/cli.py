@@ -243,6 +243,12 @@ def add_pset_parser(sub) -> None:
         metavar="RESULTS_JSON",
         help="reuse the reference episodes of an earlier grading's results (saves 3 episodes)",
     )
+    grade.add_argument(
+        "--insecure",
+        action="store_true",
+        help="grade even where the student's code cannot be isolated (no bubblewrap, no user "
+        "namespaces); the results and the summary say so",
+    )
     auto = actions.add_parser(
         "autograder", help="write a Gradescope autograder zip that grades with this doorlab"
     )

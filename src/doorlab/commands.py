@@ -52,7 +52,8 @@ def pset(args: argparse.Namespace) -> int:
     out = args.out or folder / "test_results.json"
     _check_writable(out)  # before grading: the grading takes minutes
     reference = None if args.reference is None else grader.load_reference(args.reference)
-    results = grader.grade(folder, jobs=args.jobs, reference=reference)
+    policy = "insecure" if args.insecure else "require"
+    results = grader.grade(folder, jobs=args.jobs, reference=reference, isolation=policy)
     grader.write_results(results, out)
     record_written(folder, [out])  # doorlab's (pset init --force may replace it)
     print(grader.pretty_format_json_results(out))

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from doorlab.errors import DoorlabError, OutputError
 from doorlab.pset.jobs import EPISODE_TIME_LIMIT_S, UNIT_TIME_LIMIT_S
+from doorlab.pset.safe_text import clean_json, clean_text
 from doorlab.pset.verdicts import (
     ARC_END_MARGIN,
     DOOR_OPENING_MARGIN,
@@ -63,6 +64,8 @@ def grade(
     reference: dict[str, dict] | None = None,
     only: Sequence[str] | None = None,
     time_limit_scale: float = 1.0,
+    isolation: str = "require",
+    harden: Sequence[str | Path] = (),
 ) -> dict:
     """Grades a problem-set folder; returns the Gradescope results (write them with
     :func:`write_results`).
@@ -77,16 +80,25 @@ def grade(
             ``extra_data["reference"]``); None simulates them in this grading.
         only: Names of the tests to run (default: all, :data:`TESTS`).
         time_limit_scale: Multiplies every test's time limit.
+        isolation: What to do where the student's view (bubblewrap) cannot be built:
+            ``"require"`` refuses (GradingError, before any student code runs),
+            ``"insecure"`` grades without it, ``"self-check"`` too (a student checking their
+            own folder), ``"autograder"`` falls back to another user after making the
+            grader's files and ``harden`` unreadable to it (root only; Gradescope). See
+            :mod:`doorlab.pset.isolation`; the results say what held.
+        harden: Paths the autograder's fallback makes unreadable to the student's user.
 
     Returns:
         ``{"score", "tests": [{"name", "score", "max_score", "output"}], "execution_time",
         "extra_data": {"max_score", "reference", "sandbox"}}`` (``reference``: the reference
         episodes' figures, reusable as the ``reference`` argument; ``sandbox``: how the
-        student's code ran: uids, network isolated, reference files hidden, limits).
+        student's code ran: the isolation mode and what each student process observed of
+        itself, limits).
 
     Raises:
-        GradingError: The grader could not run (e.g. the sandbox's user cannot run this
-            Python); no results, rather than zeros the submission did not earn.
+        GradingError: The grader could not run (the student's code cannot be isolated as
+            ``isolation`` requires; the sandbox's user cannot run this Python); no results,
+            rather than zeros the submission did not earn.
     """
     request = {
         "folder": str(Path(folder).resolve()),
@@ -94,6 +106,8 @@ def grade(
         "reference": reference,
         "only": None if only is None else list(only),
         "time_limit_scale": float(time_limit_scale),
+        "isolation": isolation,
+        "harden": [str(p) for p in harden],
     }
     proc = subprocess.Popen(
         [sys.executable, "-I", "-m", "doorlab.pset.jobs", "supervise"],
@@ -117,7 +131,7 @@ def grade(
     if not isinstance(results, dict) or proc.returncode != 0:
         raise GradingError(f"the grading process failed (exit code {proc.returncode})")
     if "grader_error" in results:
-        raise GradingError(f"cannot grade: {results['grader_error']}")
+        raise GradingError(clean_text(f"cannot grade: {results['grader_error']}", 2000))
     return results
 
 
@@ -129,7 +143,7 @@ def write_results(results: dict, path: str | Path) -> Path:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
         try:
             with os.fdopen(fd, "w") as f:
-                f.write(json.dumps(results, indent=2, default=str) + "\n")
+                f.write(json.dumps(clean_json(results), indent=2, default=str) + "\n")
                 f.flush()
                 os.fsync(f.fileno())
             os.chmod(tmp, 0o644)
@@ -142,14 +156,33 @@ def write_results(results: dict, path: str | Path) -> Path:
     return path
 
 
+def isolation_warning(results: dict) -> str | None:
+    """The summary's first line when the student's code ran without the minimal root (None
+    when it ran in it, or when no student process ran)."""
+    facts = (results.get("extra_data") or {}).get("sandbox") or {}
+    mode = facts.get("mode") if isinstance(facts, dict) else None
+    if mode in (None, "bwrap"):
+        return None
+    why = facts.get("why_no_minimal_root") or "unknown"
+    return clean_text(
+        f"NOT ISOLATED ({facts.get('policy')}): the student's code ran {facts.get('held')} "
+        f"(why: {why})"
+    )
+
+
 def pretty_format_json_results(path: str | Path) -> str:
-    """A readable summary of a results file: one block per test and the total."""
+    """A readable summary of a results file: whether the student's code ran isolated (a
+    first line when it did not), one block per test and the total. Every text is cleaned
+    (:func:`~doorlab.pset.safe_text.clean_text`): nothing in it can move the terminal's
+    cursor or colour the lines."""
     data = json.loads(Path(path).read_text())
-    lines = []
+    warning = isolation_warning(data)
+    lines = [] if warning is None else [warning]
     for t in data["tests"]:
         mark = "PASS" if t["score"] >= t["max_score"] else "FAIL"
-        lines.append(f"[{mark}] {t['name']}: {t['score']:g} / {t['max_score']:g}")
-        for line in str(t.get("output", "")).splitlines():
+        name = clean_text(t["name"], 200)
+        lines.append(f"[{mark}] {name}: {t['score']:g} / {t['max_score']:g}")
+        for line in clean_text(str(t.get("output", ""))).splitlines():
             lines.append(f"    {line}")
     total = sum(t["max_score"] for t in data["tests"])
     lines.append(f"Total score: {data['score']:g} / {total:g}")
@@ -174,9 +207,11 @@ def load_reference(path: str | Path) -> dict[str, dict]:
 
 
 def main(argv: Sequence[str]) -> int:
-    """``python -I -m doorlab.pset.grader FOLDER [RESULTS_JSON] [--reference FILE]`` (what the
-    folder's ``test_pset_5a.py`` runs): grades FOLDER, writes the JSON (default
-    ``test_results.json`` in the working directory) and prints the summary."""
+    """``python -I -m doorlab.pset.grader FOLDER [RESULTS_JSON] [--reference FILE]
+    [--insecure | --self-check]`` (the folder's ``test_pset_5a.py`` runs it with
+    ``--self-check``: a student checking their own work needs no isolation from it): grades
+    FOLDER, writes the JSON (default ``test_results.json`` in the working directory) and
+    prints the summary."""
     import argparse
 
     from doorlab.errors import interrupt_exit_code
@@ -189,12 +224,23 @@ def main(argv: Sequence[str]) -> int:
     parser.add_argument(
         "--reference", type=Path, help="reuse the reference episodes of an earlier results file"
     )
+    parser.add_argument(
+        "--insecure",
+        action="store_true",
+        help="grade even where the student's code cannot be isolated (the results say so)",
+    )
+    parser.add_argument(
+        "--self-check",
+        action="store_true",
+        help="a student checking their own folder: grade isolated where possible, else not",
+    )
     args = parser.parse_args(argv)
     folder, out = args.folder.resolve(), args.out.resolve()
     os.chdir("/")  # nothing of the folder in this process either
     try:
         reference = None if args.reference is None else load_reference(args.reference)
-        results = grade(folder, reference=reference)
+        policy = "self-check" if args.self_check else "insecure" if args.insecure else "require"
+        results = grade(folder, reference=reference, isolation=policy)
         write_results(results, out)
     except DoorlabError as e:
         print(f"test_pset_5a.py: {e}", file=sys.stderr)

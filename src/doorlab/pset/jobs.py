@@ -61,9 +61,10 @@ def _first_line(e: BaseException) -> str:
     return f"{type(e).__name__}: {line}".rstrip(": ")
 
 
-def run_job(job: str, folder: Path, workdir: Path, limit: float) -> dict:
+def run_job(job: str, folder: Path, workdir: Path, limit: float, isolation_file: Path) -> dict:
     """Runs one job in this process and returns its JSON-ready result."""
     from doorlab.pset.channel import ProtocolError
+    from doorlab.pset.isolation import Isolation
     from doorlab.pset.student import SandboxError, StudentFailure, StudentProcess
 
     kind, _, name = job.partition(":")
@@ -72,13 +73,10 @@ def run_job(job: str, folder: Path, workdir: Path, limit: float) -> dict:
             from doorlab.pset.episodes import reference_episode
 
             return {"figures": reference_episode(name)}
-        try:
-            identity = sandbox.sandbox_identity()
-        except OSError as e:
-            return {"grader_error": str(e)}
+        isolation = Isolation.from_json(isolation_file.read_text())
         # The student's process starts first (no thread may exist at its fork), then the
         # grader's side imports Drake while it starts.
-        with StudentProcess(folder, workdir, job, limit, identity) as student:
+        with StudentProcess(folder, workdir, job, limit, isolation) as student:
             try:
                 if kind == "unit":
                     from doorlab.pset.checks import UNIT_CHECKS
@@ -107,14 +105,15 @@ def run_job(job: str, folder: Path, workdir: Path, limit: float) -> dict:
 
 
 def job_main(argv: list[str]) -> int:
-    """``job JOB FOLDER WORKDIR LIMIT PARENT_PID``: the result as JSON on stdout."""
-    job, folder, workdir, limit, parent = argv
+    """``job JOB FOLDER WORKDIR LIMIT PARENT_PID ISOLATION_JSON_FILE``: the result as JSON
+    on stdout."""
+    job, folder, workdir, limit, parent, isolation = argv
     result_fd = os.dup(1)
     os.dup2(2, 1)  # anything printed (Drake's warnings) goes to stderr, not into the result
     sandbox.die_with_parent(int(parent))
     sandbox.become_subreaper()
     sandbox.make_undumpable()
-    result = run_job(job, Path(folder), Path(workdir), float(limit))
+    result = run_job(job, Path(folder), Path(workdir), float(limit), Path(isolation))
     with os.fdopen(result_fd, "w") as out:
         out.write(json.dumps(result, default=str))
     return 0
@@ -126,8 +125,9 @@ def job_main(argv: list[str]) -> int:
 class _Jobs:
     """Runs trusted job processes and kills whatever outlives them."""
 
-    def __init__(self, folder: Path, workdir: Path, scale: float):
+    def __init__(self, folder: Path, workdir: Path, scale: float, isolation: Path):
         self.folder, self.workdir, self.scale = folder, workdir, scale
+        self.isolation = isolation
         self.active: set[int] = set()
         self.lock = threading.Lock()
 
@@ -138,6 +138,7 @@ class _Jobs:
         os.chmod(jobdir, 0o711)  # the student's user reaches its scratch folder, lists nothing
         argv = [sys.executable, "-I", "-m", "doorlab.pset.jobs", "job", job]
         argv += [str(self.folder), str(jobdir), repr(limit), str(os.getpid())]
+        argv.append(str(self.isolation))
         start = time.perf_counter()
         with self.lock:  # no orphan hunt (below) between the spawn and its registration
             proc = subprocess.Popen(
@@ -204,8 +205,16 @@ def supervise(request: dict) -> dict:
         workdir = Path(tmp)
         os.chmod(workdir, 0o711)
         os.chdir(workdir)
-        runner = _Jobs(folder, workdir, float(request.get("time_limit_scale", 1.0)))
         try:
+            student_jobs = [j for j in todo if not j.startswith("reference:")]
+            isolation = _isolation(request, workdir) if student_jobs else None
+            if isinstance(isolation, str):
+                return {"grader_error": isolation}
+            isolation_file = workdir / "isolation.json"
+            isolation_file.write_text(isolation.to_json() if isolation else "{}")
+            os.chmod(isolation_file, 0o600)
+            scale = float(request.get("time_limit_scale", 1.0))
+            runner = _Jobs(folder, workdir, scale, isolation_file)
             with ThreadPoolExecutor(max_workers=max(1, int(request.get("jobs", 2)))) as pool:
                 for job, result in zip(todo, pool.map(runner.run, todo), strict=True):
                     results[job] = result
@@ -215,7 +224,17 @@ def supervise(request: dict) -> dict:
     errors = [r["grader_error"] for r in results.values() if "grader_error" in r]
     if errors:
         return {"grader_error": errors[0]}
-    return results_from_jobs(specs, results, time.perf_counter() - start)
+    return results_from_jobs(specs, results, time.perf_counter() - start, isolation)
+
+
+def _isolation(request: dict, workdir: Path):
+    """The grading's :class:`~doorlab.pset.isolation.Isolation`, or why there is none (str)."""
+    from doorlab.pset.isolation import IsolationError, prepare
+
+    try:
+        return prepare(workdir, request.get("isolation", "require"), request.get("harden") or ())
+    except (IsolationError, OSError) as e:
+        return str(e)
 
 
 def _on_signal(signum, frame):
