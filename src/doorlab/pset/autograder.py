@@ -42,6 +42,7 @@ from pathlib import Path, PurePosixPath
 
 from doorlab.errors import DoorlabError, OutputError
 from doorlab.pset.folder import STUDENT_FILES
+from doorlab.pset.safe_text import clean_text
 
 ROOT_ENV = "DOORLAB_AUTOGRADER_ROOT"
 """Environment variable that replaces ``/autograder`` (the scripts and ``--root`` read it)."""
@@ -53,6 +54,10 @@ SUBMISSION_FILE_LIMIT = 1_000_000
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 """Every entry's timestamp, so the same doorlab writes the same bytes."""
 _SKIPPED_DIRS = {"__MACOSX", "__pycache__", ".git", ".ipynb_checkpoints"}
+HARDENED = ("source", "results", "submission", "submission_metadata.json")
+"""What of Gradescope's ``/autograder`` becomes root's alone before student code runs without
+the student's view (the zip with its wheel; earlier results; the submission's metadata, which
+names the student)."""
 
 
 class AutograderError(DoorlabError):
@@ -347,11 +352,15 @@ def collect_submission(submission: Path, folder: Path) -> Submission:
     return result
 
 
-def _grade(folder: Path, jobs: int, reference: dict[str, dict] | None) -> dict:
-    """The one call into the grader (its public entry point), kept here alone."""
+def _grade(folder: Path, jobs: int, reference: dict[str, dict] | None, root: Path) -> dict:
+    """The one call into the grader (its public entry point), kept here alone: in the
+    student's view where the container allows it, else as another user once the zip's
+    source (its wheel), the results and the submission's metadata are root's alone
+    (:mod:`doorlab.pset.isolation`, policy ``"autograder"``)."""
     from doorlab.pset.grader import grade
 
-    return grade(folder, jobs=jobs, reference=reference)
+    harden = [root / name for name in HARDENED]
+    return grade(folder, jobs=jobs, reference=reference, isolation="autograder", harden=harden)
 
 
 def read_settings(root: Path) -> dict:
@@ -420,9 +429,9 @@ def run_autograder(
     with tempfile.TemporaryDirectory(prefix="doorlab_autograder_") as tmp:
         folder = init_folder(Path(tmp) / "pset")  # the stubs; the student's files go over them
         taken = collect_submission(submission, folder)
-        results = _grade(folder, jobs or int(settings.get("jobs", 1)), reference)
+        results = _grade(folder, jobs or int(settings.get("jobs", 1)), reference, root)
     header = f"Graded by doorlab {__version__} (Drake {metadata.version('drake')})."
-    results["output"] = "\n".join(filter(None, [header, taken.summary()]))
+    results["output"] = clean_text("\n".join(filter(None, [header, taken.summary()])))
     results.setdefault("extra_data", {})["submission"] = {
         "taken": taken.taken,
         "missing": taken.missing,
@@ -481,7 +490,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from doorlab.pset.grader import pretty_format_json_results
 
     path = args.root / "results" / "results.json"
-    print(results["output"])
+    print(clean_text(results["output"]))
     print(pretty_format_json_results(path))
     print(f"run_autograder: wrote {path} in {results['execution_time']:.0f} s")
     return 0
