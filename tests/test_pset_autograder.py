@@ -464,6 +464,9 @@ def test_run_autograder_falls_back_to_another_user_and_hides_the_grader(
     every non-student file of doorlab were made root's alone: 0; the wheel, the reference
     files and the hidden modules stay out of reach; extra_data.sandbox says what held."""
     root = fallback_root
+    package = next((root / "doorlab-venv").glob("lib/python3*/site-packages/doorlab"))
+    for compiled in package.glob("pset/__pycache__/checks.*.pyc"):
+        compiled.unlink()  # the grading writes it again, after the fallback hid checks.py
     _submit(root, _attacks(root, None))
     proc = _run(root, *JOBS, *reference_args, env_extra={BWRAP_ENV: str(root / "no-bwrap")})
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
@@ -488,17 +491,17 @@ def test_run_autograder_falls_back_to_another_user_and_hides_the_grader(
         "    try:\n        open(p).close(); print('read', p)\n"
         "    except OSError as e:\n        print(type(e).__name__)"
     )
-    package = next((root / "doorlab-venv").glob("lib/python3*/site-packages/doorlab"))
+    hidden = [
+        wheel,
+        package / "laws.py",
+        package / "pset" / "templates" / "open_left_door.py.j2",
+        # checks.py compiled again by this grading, after the fallback hid its source: a
+        # .pyc takes its source's mode.
+        *package.glob("__pycache__/laws.*.pyc"),
+        *package.glob("pset/__pycache__/checks.*.pyc"),
+    ]
+    assert len(hidden) >= 5
     probe = subprocess.run(
-        [
-            sys.executable,
-            "-c",
-            code,
-            str(wheel),
-            str(package / "laws.py"),
-            str(package / "pset" / "templates" / "open_left_door.py.j2"),
-        ],
-        capture_output=True,
-        text=True,
+        [sys.executable, "-c", code, *map(str, hidden)], capture_output=True, text=True
     )
-    assert probe.stdout.split() == ["PermissionError"] * 3, probe.stdout
+    assert probe.stdout.split() == ["PermissionError"] * len(hidden), probe.stdout

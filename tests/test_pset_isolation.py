@@ -558,7 +558,10 @@ for folder in [*sys.path, *TARGETS]:
         written.append(folder)
     except OSError as e:
         pass
-print("EVIDENCE pth " + __import__("json").dumps({"written": written}))
+import ctypes
+libc = ctypes.CDLL(None, use_errno=True)
+userns = "made" if libc.unshare(0x10000000) == 0 else os.strerror(ctypes.get_errno())
+print("EVIDENCE pth " + __import__("json").dumps({"written": written, "userns": userns}))
 raise NotImplementedError("calc_p_Q: no .pth written")
 """
 
@@ -567,8 +570,9 @@ def test_as_an_ordinary_user_the_venv_is_never_writable_from_the_student_s_view(
     public, user_venv, reference_file
 ):
     """An ordinary user (with user namespaces) grades stubs whose calc_p_Q writes a .pth
-    file into every folder on its path and into the user's venv: nothing is written, the
-    venv is unchanged, and the next grading of the stubs scores 0."""
+    file into every folder on its path and into the user's venv, then tries a user
+    namespace of its own: nothing is written, no namespace made, the venv is unchanged, and
+    the next grading of the stubs scores 0."""
     purelib = next((user_venv / "lib").glob("python3*/site-packages"))
     folder = init_folder(public / "user-stubs")
     path = folder / "open_left_door.py"
@@ -590,7 +594,8 @@ def test_as_an_ordinary_user_the_venv_is_never_writable_from_the_student_s_view(
     facts = results["extra_data"]["sandbox"]
     assert facts["mode"] == "bwrap" and facts["student_uids"] == [TEST_UID]
     assert facts["python_path_read_only"] and facts["reference_hidden"], facts["seen"]
-    assert evidence(results)["pth"] == {"written": []}
+    found = evidence(results)["pth"]
+    assert found["written"] == [] and found["userns"] != "made", found  # --disable-userns
     assert _tree(user_venv) == before
     again = init_folder(public / "user-stubs-again")
     subprocess.run(["chown", "-R", f"{TEST_UID}:{TEST_UID}", str(again)], check=True)
