@@ -74,22 +74,71 @@ def _baseline_python(src: Path, where: Path) -> Path:
     return python
 
 
+CGROUPS = (
+    ("/sys/fs/cgroup/cpuacct", "cpuacct.usage", 1e-9),  # cgroup v1 [ns]
+    ("/sys/fs/cgroup/unified", "cpu.stat", 1e-6),  # cgroup v2 beside v1 [us]
+    ("/sys/fs/cgroup", "cpu.stat", 1e-6),  # cgroup v2 [us]
+)
+"""Where a grading's CPU time can be counted whole. getrusage cannot: the student's
+processes run in a PID namespace of their own (bubblewrap's), and when its init dies the
+kernel reaps them inside it, so their CPU time reaches no parent outside."""
+
+
+def _cgroup_cpu(folder: Path, usage_file: str, scale: float) -> float:
+    text = (folder / usage_file).read_text()
+    if usage_file == "cpu.stat":
+        text = dict(line.split() for line in text.splitlines())["usage_usec"]
+    return int(text) * scale
+
+
+def _new_cgroup(name: str) -> tuple[Path, str, float] | None:
+    """A fresh cgroup that counts CPU time (root only), or None."""
+    for base, usage_file, scale in CGROUPS:
+        folder = Path(base) / name
+        try:
+            folder.mkdir()
+        except OSError:
+            continue
+        if (folder / usage_file).exists() and (folder / "cgroup.procs").exists():
+            return folder, usage_file, scale
+        folder.rmdir()
+    return None
+
+
 def _grade_in_subprocess(folder: Path, jobs: int, python: Path) -> dict:
     """One grading by ``python``'s doorlab: {"wall" [s] of the whole interpreter, "cpu" [s]
-    of it and every process below it, "score", "doorlab" (where it came from)}."""
+    of it and every process below it (a cgroup's count where this process may make one, else
+    getrusage's, which misses the student's processes: "cpu_source" says which), "score",
+    "doorlab" (where it came from)}."""
     env = dict(os.environ)
     env.pop("PYTHONPATH", None)
-    start = time.perf_counter()
-    proc = subprocess.run(
-        [str(python), "-c", _GRADE, str(folder), str(jobs)],
-        env=env,
-        cwd="/",
-        capture_output=True,
-        text=True,
-        check=True,
-    )
-    out = json.loads(proc.stdout.strip().splitlines()[-1])
-    out["wall"] = time.perf_counter() - start
+    cgroup = _new_cgroup(f"doorlab_bench_{os.getpid()}_{time.time_ns()}")
+
+    def enter() -> None:
+        if cgroup is not None:
+            (cgroup[0] / "cgroup.procs").write_text(str(os.getpid()))
+
+    try:
+        start = time.perf_counter()
+        proc = subprocess.run(
+            [str(python), "-c", _GRADE, str(folder), str(jobs)],
+            env=env,
+            cwd="/",
+            capture_output=True,
+            text=True,
+            check=True,
+            preexec_fn=enter,
+        )
+        wall = time.perf_counter() - start
+        out = json.loads(proc.stdout.strip().splitlines()[-1])
+        out["wall"] = wall
+        out["cpu_source"] = "getrusage (lower bound)"
+        if cgroup is not None:
+            out["cpu"] = _cgroup_cpu(*cgroup)
+            out["cpu_source"] = f"cgroup {cgroup[0].parent}"
+    finally:
+        if cgroup is not None:
+            cgroup[0].rmdir()
     return out
 
 
@@ -112,6 +161,7 @@ def _side_by_side(args) -> int:
                 walls[name].append(out["wall"])
                 cpus[name].append(out["cpu"])
                 scores[name], origins[name] = out["score"], out["doorlab"]
+                cpu_source = out["cpu_source"]
         busy1, total1 = _cpu_times()
     ticks = os.sysconf("SC_CLK_TCK")
     cores = os.cpu_count() or 1
@@ -129,7 +179,7 @@ def _side_by_side(args) -> int:
             f"max {max(w):.1f}); cpu median {cpu_medians[name]:.1f} s; score "
             f"{scores[name]:g}; doorlab from {origins[name]}"
         )
-    print(f"  this / baseline wall {ratio:.2f}, cpu {cpu_ratio:.2f}")
+    print(f"  this / baseline wall {ratio:.2f}, cpu {cpu_ratio:.2f} (cpu from {cpu_source})")
     print(f"  busy cores      {busy:.2f} of {cores} (these gradings and everything else)")
     if args.out:
         figures = {
@@ -137,6 +187,7 @@ def _side_by_side(args) -> int:
             "median_wall_s": medians,
             "ratio": ratio,
             "cpu_s": cpus,
+            "cpu_source": cpu_source,
             "median_cpu_s": cpu_medians,
             "cpu_ratio": cpu_ratio,
             "doorlab": origins,

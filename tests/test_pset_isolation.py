@@ -637,6 +637,35 @@ def test_as_an_ordinary_user_without_namespaces_the_grader_refuses(public, user_
         assert not (folder / "test_results.json").exists()
 
 
+def test_a_student_s_self_check_without_namespaces_grades_and_says_so(
+    public, user_venv, reference_file
+):
+    """The folder's test_pset_5a.py (the notebook's last cell) on a student's machine where
+    bwrap cannot make namespaces: it grades anyway (their own code, nobody to protect), the
+    summary's first line and the results say it ran without the minimal root."""
+    folder = init_folder(public / "self-check", solutions=True)
+    subprocess.run(["chown", "-R", f"{TEST_UID}:{TEST_UID}", str(folder)], check=True)
+    env = {"PATH": "/usr/bin:/bin", "HOME": str(folder), view.BWRAP_ENV: str(_fake_bwrap(public))}
+    proc = subprocess.run(
+        [str(user_venv / "bin" / "python"), "test_pset_5a.py", "out.json"]
+        + ["--reference", str(reference_file)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=env,
+        cwd=folder,
+        user=TEST_UID,
+        group=TEST_UID,
+        extra_groups=[],
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.stdout.startswith("NOT ISOLATED (self-check)"), proc.stdout[:300]
+    results = json.loads((folder / "out.json").read_text())
+    assert results["score"] == FULL_MARKS
+    facts = results["extra_data"]["sandbox"]
+    assert facts["mode"] == "none" and "user namespaces" in facts["why_no_minimal_root"]
+
+
 # Text from student code ---------------------------------------------------------------------
 
 

@@ -24,7 +24,6 @@ from __future__ import annotations
 import json
 import os
 import pwd
-import stat
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -211,15 +210,3 @@ def _source_of(rel: Path) -> Path:
     if rel.parent.name == "__pycache__" and rel.suffix == ".pyc":
         return rel.parent.parent / (rel.name.split(".", 1)[0] + ".py")
     return rel
-
-
-def unreadable_by(path: Path, identity: sandbox.Identity) -> bool:
-    """True when ``identity`` cannot read ``path`` by its mode bits (root's view of it)."""
-    st = os.stat(path)
-    if st.st_uid == identity.uid:
-        bit = stat.S_IRUSR
-    elif st.st_gid == identity.gid:
-        bit = stat.S_IRGRP
-    else:
-        bit = stat.S_IROTH
-    return not st.st_mode & bit

@@ -1,8 +1,10 @@
 """The grader's processes: the supervisor and one trusted process per job.
 
 ``python -I -m doorlab.pset.jobs supervise`` (started by :func:`doorlab.pset.grader.grade`)
-reads the grading request as JSON on stdin, runs the jobs ``parallel`` at a time, judges
-them and writes the results as JSON on stdout. Each job runs in
+reads the grading request as JSON on stdin, decides how the student's code is isolated
+(:func:`doorlab.pset.isolation.prepare`: the student's view, or the request's policy where
+it cannot be built; before any student code runs), runs the jobs ``parallel`` at a time,
+judges them and writes the results as JSON on stdout. Each job runs in
 ``python -I -m doorlab.pset.jobs job ...``: a reference episode, or a test that starts the
 student's process (:class:`~doorlab.pset.student.StudentProcess`), talks to it and judges
 what it answers. Both are *trusted*: Python's isolated mode (no working directory, no

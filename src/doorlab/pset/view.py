@@ -91,10 +91,6 @@ ETC_FILES = ("/etc/ld.so.cache", "/etc/ld.so.conf", "/etc/ld.so.conf.d", "/etc/l
 """What the dynamic loader and the C library read from /etc."""
 
 
-class ViewError(Exception):
-    """The view cannot be built here: the message says what is missing."""
-
-
 # doorlab's student side -----------------------------------------------------------------
 
 
@@ -278,18 +274,14 @@ def plan_view(site_dir: Path, bwrap: str) -> View:
             ro.append((top, top))
     ro.extend((f, f) for f in ETC_FILES if os.path.exists(f))
     bound = [dest for _, dest in ro]
-    paths = sysconfig.get_paths()
-    stdlib = {os.path.realpath(paths[k]) for k in ("stdlib",)}
-    stdlib.add(os.path.dirname(os.__file__))
-    dynload = os.path.join(os.path.dirname(os.__file__), "lib-dynload")
-    extra = [python, *sorted(stdlib)]
-    if os.path.isdir(dynload):
-        extra.append(os.path.realpath(dynload))
-    libdir, soname = sysconfig.get_config_var("LIBDIR"), sysconfig.get_config_var("INSTSONAME")
-    if sysconfig.get_config_var("Py_ENABLE_SHARED") and libdir and soname:
-        lib = os.path.join(libdir, soname)
-        if os.path.exists(lib):
-            extra.append(os.path.realpath(lib))
+    # The interpreter's own library folder whole where it is not the system's (pyenv's,
+    # conda's: libpython and the libraries its modules link to; its site-packages is
+    # emptied below), then the standard library if it lives elsewhere still.
+    libdir = sysconfig.get_config_var("LIBDIR") or ""
+    extra = [python]
+    if libdir and os.path.isdir(libdir):
+        extra.append(os.path.realpath(libdir))
+    extra += [os.path.realpath(sysconfig.get_paths()["stdlib"]), os.path.dirname(os.__file__)]
     for path in extra:
         if not _inside(path, bound):
             ro.append((path, path))
