@@ -643,7 +643,7 @@ def test_a_student_s_self_check_without_namespaces_grades_and_says_so(
     """The folder's test_pset_5a.py (the notebook's last cell) on a student's machine where
     bwrap cannot make namespaces: it grades anyway (their own code, nobody to protect), the
     summary's first line and the results say it ran without the minimal root."""
-    folder = init_folder(public / "self-check", solutions=True)
+    folder = init_folder(public / "self-check")  # the stubs: quick to grade
     subprocess.run(["chown", "-R", f"{TEST_UID}:{TEST_UID}", str(folder)], check=True)
     env = {"PATH": "/usr/bin:/bin", "HOME": str(folder), view.BWRAP_ENV: str(_fake_bwrap(public))}
     proc = subprocess.run(
@@ -661,7 +661,7 @@ def test_a_student_s_self_check_without_namespaces_grades_and_says_so(
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert proc.stdout.startswith("NOT ISOLATED (self-check)"), proc.stdout[:300]
     results = json.loads((folder / "out.json").read_text())
-    assert results["score"] == FULL_MARKS
+    assert results["score"] == 0 and len(results["tests"]) == len(TESTS)
     facts = results["extra_data"]["sandbox"]
     assert facts["mode"] == "none" and "user namespaces" in facts["why_no_minimal_root"]
 
