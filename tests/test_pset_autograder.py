@@ -462,7 +462,8 @@ def test_run_autograder_falls_back_to_another_user_and_hides_the_grader(
     """No bubblewrap (a container refusing namespaces looks the same to the grader): the
     attacks run as the sandbox user after the zip's source (the wheel), the results and
     every non-student file of doorlab were made root's alone: 0; the wheel, the reference
-    files and the hidden modules stay out of reach; extra_data.sandbox says what held."""
+    files and the hidden modules stay out of reach; what the code left in /tmp and /dev/shm
+    is removed; extra_data.sandbox says what held."""
     root = fallback_root
     package = next((root / "doorlab-venv").glob("lib/python3*/site-packages/doorlab"))
     for compiled in package.glob("pset/__pycache__/checks.*.pyc"):
@@ -477,6 +478,9 @@ def test_run_autograder_falls_back_to_another_user_and_hides_the_grader(
     assert 0 not in facts["student_uids"] and facts["reference_hidden"]
     assert str(root / "source") in facts["made_unreadable"]
     assert "NOT ISOLATED (autograder)" in proc.stdout
+    # What its code left in /tmp and /dev/shm (no private ones without the view) is gone.
+    mark = f"doorlab-ag-{os.getpid()}"
+    assert [p for d in ("/tmp", "/dev/shm") for p in Path(d).iterdir() if mark in p.name] == []
     found = evidence(results)
     # (Without the view, whatever the machine leaves world-readable is readable: on
     # Gradescope the container holds the autograder only; this machine has other clones.)

@@ -100,6 +100,39 @@ def copy_submission(folder: Path, dest: Path, identity: sandbox.Identity | None)
         os.chown(dest, identity.uid, identity.gid)
 
 
+SHARED_TEMP_FOLDERS = ("/tmp", "/var/tmp", "/dev/shm")
+"""Where a student process without the view (another user, no mount namespace) can leave
+files for the next one: the view gives it a private /tmp and /dev/shm instead."""
+
+
+def remove_leftovers(uid: int, since: float) -> list[str]:
+    """Removes what user ``uid`` created in the shared temporary folders since ``since``
+    (a time.time(); the sandbox user's other files stay: ``nobody`` may be shared); returns
+    the paths removed. For the modes without the view, where that user is not the grader."""
+    removed = []
+    for folder in SHARED_TEMP_FOLDERS:
+        try:
+            entries = list(os.scandir(folder))
+        except OSError:
+            continue
+        for entry in entries:
+            try:
+                st = entry.stat(follow_symlinks=False)
+            except OSError:
+                continue
+            if st.st_uid != uid or st.st_ctime < since - 1.0:
+                continue
+            if stat.S_ISDIR(st.st_mode):
+                shutil.rmtree(entry.path, ignore_errors=True)
+            else:
+                try:
+                    os.unlink(entry.path)
+                except OSError:
+                    continue
+            removed.append(entry.path)
+    return removed
+
+
 def _signal_message(signum: int, limits: sandbox.Limits) -> str:
     if signum == signal.SIGXCPU:
         return f"your code used more than {limits.cpu_seconds:.0f} s of CPU time (the CPU limit)"
@@ -153,6 +186,7 @@ class StudentProcess:
     ):
         self.limits = sandbox.Limits(cpu_seconds=time_limit)
         self.deadline = time.monotonic() + time_limit
+        self.started = time.time()
         self.facts: dict = {}
         self.isolation = isolation
         identity = isolation.user()
@@ -245,6 +279,9 @@ class StudentProcess:
                 pass
         for folder in self._private:
             shutil.rmtree(folder, ignore_errors=True)
+        user = self.isolation.user()
+        if self.isolation.mode == "uid" and user is not None:
+            remove_leftovers(user.uid, self.started)
 
     # What went wrong --------------------------------------------------------------------
 
