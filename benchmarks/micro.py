@@ -21,7 +21,7 @@ def _pointwise_ik(ctx: Context, knots: int):
     """Pointwise IK along the arc exactly as ``doorlab.controllers.build_ik_plan`` calls it."""
     from doorlab import Scenario
     from doorlab.constants import Q_HOME
-    from doorlab.ik import pointwise_ik
+    from doorlab.ik_pointwise import pointwise_ik
 
     scenario = Scenario(controller="ik")
     geometry = ctx.geometry()

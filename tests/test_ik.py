@@ -9,7 +9,8 @@ from doorlab.constants import JOINT_POSITION_LIMITS, Q_HOME
 from doorlab.errors import IkError
 from doorlab.frames import L7_FRAME, p_L7Q
 from doorlab.geometry import default_door_geometry
-from doorlab.ik import pointwise_ik, solve_ik
+from doorlab.ik import solve_ik
+from doorlab.ik_pointwise import pointwise_ik
 from doorlab.station import make_controller_plant
 
 POSITION_TOLERANCE = 0.001  # [m] the problem set's box half-width

@@ -19,17 +19,20 @@ import shutil
 import site
 import subprocess
 import sys
+import tempfile
 import zipfile
 from pathlib import Path
 
 import pset_fixtures
 import pytest
+from pset_attacks import attack_folder, evidence
 
 import doorlab
 from doorlab.cli import main
 from doorlab.pset import autograder
 from doorlab.pset.folder import STUDENT_FILES, init_folder
 from doorlab.pset.grader import TESTS
+from doorlab.pset.view import BWRAP_ENV
 
 FULL_MARKS = sum(t.max_score for t in TESTS)
 RUN_TIMEOUT_S = 900
@@ -48,14 +51,19 @@ def zip_path(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def root(tmp_path_factory, zip_path) -> Path:
     """Gradescope's /autograder after setup.sh: source/, run_autograder, doorlab-venv/."""
-    root = tmp_path_factory.mktemp("autograder")
+    return _install(tmp_path_factory.mktemp("autograder"), zip_path, sys.executable)
+
+
+def _install(root: Path, zip_path: Path, python: str) -> Path:
+    """The zip unpacked into ``root`` and its wheel installed into ``root/doorlab-venv``, a
+    venv of ``python`` (doorlab's dependencies from this environment, see the module)."""
     with zipfile.ZipFile(zip_path) as archive:
         archive.extractall(root / "source")
         for info in archive.infolist():  # extractall drops the mode bits
             (root / "source" / info.filename).chmod(info.external_attr >> 16 & 0o777)
     shutil.copy2(root / "source" / "run_autograder", root / "run_autograder")
     venv = root / "doorlab-venv"
-    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
+    subprocess.run([python, "-m", "venv", "--without-pip", str(venv)], check=True)
     python = venv / "bin" / "python"
     settings = json.loads((root / "source" / autograder.SETTINGS_NAME).read_text())
     subprocess.run(
@@ -82,9 +90,10 @@ def reference_args(tmp_path_factory) -> tuple[str, ...]:
     return ("--reference", str(path))
 
 
-def _run(root: Path, *args: str) -> subprocess.CompletedProcess:
+def _run(root: Path, *args: str, env_extra: dict | None = None) -> subprocess.CompletedProcess:
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON")}
     env[autograder.ROOT_ENV] = str(root)
+    env.update(env_extra or {})
     return subprocess.run(
         ["bash", str(root / "run_autograder"), *args],
         cwd=root,  # Gradescope's working directory
@@ -366,3 +375,119 @@ def test_run_autograder_without_a_submission_says_so(root):
     assert proc.returncode == 1
     assert "no submission" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
     assert not (root / "results" / "results.json").exists()
+
+
+# Issue 24: what the submission's code can reach ------------------------------------------
+
+
+def _attacks(root: Path, key: Path | None):
+    clone = Path(doorlab.__file__).resolve().parents[2]
+
+    def make(folder: Path) -> None:
+        attack_folder(
+            folder,
+            roots=[] if key is None else [str(key)],
+            wheels=[str(root / "source" / "*.whl"), "/autograder/source/*.whl"],
+            clones=[str(clone)],
+            socket_path=str(root / "grader.sock"),
+            port=9,
+            mark=f"doorlab-ag-{os.getpid()}",
+        )
+
+    return make
+
+
+def test_run_autograder_gives_issue_24_s_attacks_zero(root, reference_args, tmp_path):
+    """As root, with bubblewrap: the stubs trying the issue's attacks (the zip's wheel in
+    the autograder's source, a world-readable solved folder, the clone's git, reload,
+    dir_fd, /proc, leftovers): 0, and each attack found nothing."""
+    key = init_folder(tmp_path / "key", solutions=True)
+    _submit(root, _attacks(root, key))
+    proc = _run(root, *JOBS, *reference_args)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    results = _results(root)
+    assert results["score"] == 0, proc.stdout
+    assert results["extra_data"]["sandbox"]["mode"] == "bwrap"
+    found = evidence(results)
+    assert found["calc_p_Q"]["roots"] == [] and found["calc_p_Q"]["hits"] == []
+    assert found["calc_R_WL7_ref"]["wheels"] == []
+    assert found["ik"]["reload_has_pointwise_ik"] is False
+    assert found["velocity"]["grader_seen"] == []
+    assert found["impedance"]["notes_seen"] == []
+    for char in ("\x1b", "\x00", "\r"):
+        assert char not in proc.stdout and char not in json.dumps(results, ensure_ascii=False)
+
+
+@pytest.fixture(scope="module")
+def fallback_root(zip_path):
+    """/autograder where the student's view cannot be built (no bwrap), with a venv of the
+    system's Python (the sandbox user must reach it: Gradescope's image has it in /usr)."""
+    if os.geteuid() != 0:
+        pytest.skip("the fallback switches to another user: as root only")
+    python = shutil.which("python3", path="/usr/bin:/bin")
+    version = subprocess.run(
+        [python or "false", "-c", "import sys; print(sys.version_info[:2])"],
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
+    if version != str(sys.version_info[:2]):
+        pytest.skip("needs a system python3 of this interpreter's version")
+    public = Path(tempfile.mkdtemp(prefix="doorlab_fallback_"))
+    os.chmod(public, 0o755)
+    yield _install(public / "autograder", zip_path, python)
+    shutil.rmtree(public, ignore_errors=True)
+
+
+def test_run_autograder_falls_back_to_another_user_and_hides_the_grader(
+    fallback_root, reference_args
+):
+    """No bubblewrap (a container refusing namespaces looks the same to the grader): the
+    attacks run as the sandbox user after the zip's source (the wheel), the results and
+    every non-student file of doorlab were made root's alone: 0; the wheel, the reference
+    files and the hidden modules stay out of reach; what the code left in /tmp and /dev/shm
+    is removed; extra_data.sandbox says what held."""
+    root = fallback_root
+    package = next((root / "doorlab-venv").glob("lib/python3*/site-packages/doorlab"))
+    for compiled in package.glob("pset/__pycache__/checks.*.pyc"):
+        compiled.unlink()  # the grading writes it again, after the fallback hid checks.py
+    _submit(root, _attacks(root, None))
+    proc = _run(root, *JOBS, *reference_args, env_extra={BWRAP_ENV: str(root / "no-bwrap")})
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    results = _results(root)
+    assert results["score"] == 0, proc.stdout
+    facts = results["extra_data"]["sandbox"]
+    assert facts["mode"] == "uid" and facts["policy"] == "autograder"
+    assert 0 not in facts["student_uids"] and facts["reference_hidden"]
+    assert str(root / "source") in facts["made_unreadable"]
+    assert "NOT ISOLATED (autograder)" in proc.stdout
+    # What its code left in /tmp and /dev/shm (no private ones without the view) is gone.
+    mark = f"doorlab-ag-{os.getpid()}"
+    assert [p for d in ("/tmp", "/dev/shm") for p in Path(d).iterdir() if mark in p.name] == []
+    found = evidence(results)
+    # (Without the view, whatever the machine leaves world-readable is readable: on
+    # Gradescope the container holds the autograder only; this machine has other clones.)
+    assert found["calc_R_WL7_ref"]["wheels"] == []  # the source folder cannot be listed
+    ik = found["ik"]
+    assert ik["reload_has_pointwise_ik"] is False
+    assert all(v in ("HonestyError", "PermissionError") for k, v in ik.items() if k[0] == "d")
+    wheel = next((root / "source").glob("*.whl"))
+    code = (
+        "import os, sys; os.setgid(65534); os.setuid(65534)\n"
+        "for p in sys.argv[1:]:\n"
+        "    try:\n        open(p).close(); print('read', p)\n"
+        "    except OSError as e:\n        print(type(e).__name__)"
+    )
+    hidden = [
+        wheel,
+        package / "laws.py",
+        package / "pset" / "templates" / "open_left_door.py.j2",
+        # checks.py compiled again by this grading, after the fallback hid its source: a
+        # .pyc takes its source's mode.
+        *package.glob("__pycache__/laws.*.pyc"),
+        *package.glob("pset/__pycache__/checks.*.pyc"),
+    ]
+    assert len(hidden) >= 5
+    probe = subprocess.run(
+        [sys.executable, "-c", code, *map(str, hidden)], capture_output=True, text=True
+    )
+    assert probe.stdout.split() == ["PermissionError"] * len(hidden), probe.stdout

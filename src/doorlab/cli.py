@@ -266,6 +266,12 @@ def add_pset_parser(sub) -> None:
         help="the grading seed of a recorded grading (its results' extra_data.seed.grading): "
         "replays its random inputs",
     )
+    grade.add_argument(
+        "--insecure",
+        action="store_true",
+        help="grade even where the student's code cannot be isolated (no bubblewrap, no user "
+        "namespaces); the results and the summary say so",
+    )
     auto = actions.add_parser(
         "autograder", help="write a Gradescope autograder zip that grades with this doorlab"
     )

@@ -101,6 +101,7 @@ def _pset_grade(args: argparse.Namespace, assignment) -> int:
         assignment=assignment,
         seed=args.seed,
         require_files=True,
+        isolation="insecure" if args.insecure else "require",
     )
     grader.write_results(results, out)
     if source.is_dir():

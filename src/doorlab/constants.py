@@ -23,6 +23,10 @@ cupboard (Q at the handle, L7 at the arc's initial orientation; tests/test_kuka.
 again). KUKA's joint impedance is tuned for the joint inertia here (:mod:`doorlab.kuka`)."""
 Q_STATION_DEFAULT = np.array([0.0, 0.6, 0.0, -1.75, 0.0, 1.0, 0.0])
 """The original station's default pose [rad]."""
+ARC_END_DEG = 50.0
+"""Handle angle about the hinge at the end of the problem set's arc [deg] (its ``angle_end``)."""
+L7_PITCH = 3 * np.pi / 4
+"""Pitch of L7's reference orientation [rad]: approach 45 deg downwards (station facts §4)."""
 
 # Door initial conditions of the original (station facts §3): exactly 0 or 90 deg gave
 # intermittent contact in the original, hence the 1 mrad offsets.

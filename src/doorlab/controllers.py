@@ -19,7 +19,8 @@ from doorlab.config import Scenario, validate
 from doorlab.constants import Q_HOME
 from doorlab.errors import ConfigError
 from doorlab.geometry import DoorGeometry, scenario_door_geometry
-from doorlab.ik import IkResult, pointwise_ik, solve_ik
+from doorlab.ik import solve_ik
+from doorlab.ik_pointwise import IkResult, pointwise_ik
 from doorlab.plans import JointSpacePlan, Plan, TaskSpaceImpedancePlan, TaskSpaceVelocityPlan
 from doorlab.simulation import EpisodeResult, run_episode
 from doorlab.station import make_controller_plant

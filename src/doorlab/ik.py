@@ -1,4 +1,7 @@
-"""Inverse kinematics: one-shot IK of Q and L7, and pointwise IK along a path (task 1).
+"""Inverse kinematics: one-shot IK of Q and L7 (the problem set's ``SolveOneShotIk``).
+
+Pointwise IK along a path (task 1's reference solution) is :mod:`doorlab.ik_pointwise`, a
+module of its own that the grader keeps out of the student's sight.
 
 Solver: SNOPT (shipped in the drake wheel), a sparse SQP that handles the nonlinear position
 and orientation constraints directly and converges in a few milliseconds from a warm start;
@@ -12,9 +15,6 @@ the arc) accepts any pose within the tolerances.
 """
 
 from __future__ import annotations
-
-from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 from pydrake.math import RotationMatrix
@@ -34,34 +34,18 @@ JOINT_COST_WEIGHT = 1e-2
 """Weight of |q - q_guess|^2 [1/rad^2]: breaks the arm's redundancy towards the guess."""
 
 
-@dataclass(frozen=True)
-class IkResult:
-    """Pointwise IK along a path.
-
-    Attributes:
-        times: Knot times (n,) [s]. q_knots: Joint solutions (n, 7) [rad].
-        position_residuals: |p_WQ(q) - p_WQ_ref| at each knot (n,) [m].
-        orientation_residuals: Angle between R_WL7(q) and the reference (n,) [rad].
-        solver: Name of the solver used.
-    """
-
-    times: np.ndarray
-    q_knots: np.ndarray
-    position_residuals: np.ndarray
-    orientation_residuals: np.ndarray
-    solver: str
-
-
-def _solver() -> SolverInterface:
+def ik_solver() -> SolverInterface:
+    """SNOPT if this drake has it enabled, else IPOPT."""
     snopt = SnoptSolver()
     if snopt.available() and snopt.enabled():
         return snopt
     return IpoptSolver()
 
 
-def _residuals(
+def pose_residuals(
     plant: MultibodyPlant, context, q: np.ndarray, p_WQ_ref: np.ndarray, R_WL7_ref: RotationMatrix
 ) -> tuple[float, float]:
+    """(|p_WQ(q) - p_WQ_ref| [m], angle between R_WL7(q) and R_WL7_ref [rad])."""
     plant.SetPositions(context, q)
     X_WL7 = plant.GetFrameByName(L7_FRAME).CalcPoseInWorld(context)
     position = float(np.linalg.norm(X_WL7 @ p_L7Q - p_WQ_ref))
@@ -113,11 +97,11 @@ def solve_ik(
         ik.AddOrientationCost(W, R_WL7_ref, L7, RotationMatrix(), ORIENTATION_COST_WEIGHT)
     prog = ik.get_mutable_prog()
     prog.AddQuadraticErrorCost(JOINT_COST_WEIGHT * np.eye(NUM_JOINTS), q_guess, q)
-    result = _solver().Solve(prog, q_guess)
+    result = ik_solver().Solve(prog, q_guess)
     q_sol = result.GetSolution(q)
     if not result.is_success():
         context = plant.CreateDefaultContext()
-        position, _ = _residuals(plant, context, q_sol, p_WQ_ref, R_WL7_ref)
+        position, _ = pose_residuals(plant, context, q_sol, p_WQ_ref, R_WL7_ref)
         where = "one-shot IK" if knot is None else f"IK at knot {knot}"
         raise IkError(
             f"{where} failed ({result.get_solution_result().name}): Q is {1000 * position:.1f} mm "
@@ -126,60 +110,3 @@ def solve_ik(
             residual=position,
         )
     return q_sol
-
-
-def pointwise_ik(
-    plant: MultibodyPlant,
-    p_WQ_ref: Callable[[float], np.ndarray],
-    R_WL7_ref: Callable[[float], RotationMatrix],
-    *,
-    duration: float,
-    num_knots: int,
-    q_guess: np.ndarray,
-    position_tolerance: float,
-    theta_bound: float,
-    centered: bool = False,
-) -> IkResult:
-    """IK at knots tau = i / (num_knots - 1) along a path, each warm-started from the last.
-
-    Args:
-        plant: The controller plant.
-        p_WQ_ref, R_WL7_ref: The path as functions of tau in [0, 1].
-        duration: Time of the last knot [s].
-        num_knots: Number of knots (>= 2).
-        q_guess: Initial guess of the first knot (7,) [rad].
-        position_tolerance: [m]. theta_bound: [rad].
-        centered: See :func:`solve_ik`. The default (False) is the problem set's formulation.
-
-    Raises:
-        IkError: A knot has no solution.
-    """
-    if num_knots < 2:
-        raise IkError(f"pointwise IK needs at least 2 knots, got {num_knots}")
-    context = plant.CreateDefaultContext()
-    taus = np.linspace(0.0, 1.0, num_knots)
-    q_knots, pos_res, rot_res = [], [], []
-    guess = np.asarray(q_guess, dtype=float)
-    for i, tau in enumerate(taus):
-        p_ref, R_ref = p_WQ_ref(tau), R_WL7_ref(tau)
-        guess = solve_ik(
-            plant,
-            p_ref,
-            R_ref,
-            guess,
-            position_tolerance=position_tolerance,
-            theta_bound=theta_bound,
-            centered=centered,
-            knot=i,
-        )
-        position, orientation = _residuals(plant, context, guess, p_ref, R_ref)
-        q_knots.append(guess)
-        pos_res.append(position)
-        rot_res.append(orientation)
-    return IkResult(
-        times=taus * duration,
-        q_knots=np.array(q_knots),
-        position_residuals=np.array(pos_res),
-        orientation_residuals=np.array(rot_res),
-        solver=_solver().solver_id().name(),
-    )

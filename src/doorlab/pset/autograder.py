@@ -59,6 +59,10 @@ ASSIGNMENT_NAME = "assignment.yaml"
 CONSTRAINTS_NAME = "constraints.txt"
 SANDBOX_USER = "doorlab-student"
 """The user setup.sh creates for the student's code (:mod:`doorlab.pset.sandbox` uses it)."""
+HARDENED = ("source", "results", "submission", "submission_metadata.json")
+"""What of Gradescope's ``/autograder`` becomes root's alone before student code runs without
+the student's view (the zip with its wheel; earlier results; the submission's metadata, which
+names the student)."""
 
 
 class AutograderError(DoorlabError):
@@ -298,6 +302,8 @@ def run_autograder(
         reference=reference,
         assignment=assignment,
         seed=seed,
+        isolation="autograder",  # the view, else another user with HARDENED root's alone
+        harden=[root / name for name in HARDENED],
     )
     results["extra_data"]["autograder"] = {"digest": settings.get("digest")}
     write_results(results, results_dir / "results.json")

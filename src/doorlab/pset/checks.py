@@ -24,7 +24,7 @@ from pydrake.math import RollPitchYaw, RotationMatrix
 from doorlab.constants import JOINT_POSITION_LIMITS, Q_HOME
 from doorlab.frames import p_L7Q
 from doorlab.geometry import default_door_geometry
-from doorlab.ik import pointwise_ik
+from doorlab.ik_pointwise import pointwise_ik
 from doorlab.laws import orientation_error
 from doorlab.pset.channel import ProtocolError, as_array
 from doorlab.pset.episodes import trajectory_from_answer

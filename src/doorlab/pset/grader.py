@@ -23,6 +23,7 @@ from pathlib import Path
 
 from doorlab.errors import DoorlabError, OutputError
 from doorlab.pset.jobs import EPISODE_TIME_LIMIT_S, UNIT_TIME_LIMIT_S
+from doorlab.pset.safe_text import clean_json, clean_text
 from doorlab.pset.verdicts import (
     ARC_END_MARGIN,
     DOOR_OPENING_MARGIN,
@@ -66,6 +67,8 @@ def grade(
     time_limit_scale: float = 1.0,
     assignment: object = None,
     seed: int | None = None,
+    isolation: str = "require",
+    harden: Sequence[str | Path] = (),
 ) -> dict:
     """Grades a problem-set folder; returns the Gradescope results (write them with
     :func:`write_results`).
@@ -84,6 +87,13 @@ def grade(
             points, margins, visibility, random seed, the episodes' helpers); None: the defaults.
         seed: The grading's seed (``--seed``: replays a recorded grading's random inputs);
             None derives it from the assignment's random seed and the folder's graded files.
+        isolation: What to do where the student's view (bubblewrap) cannot be built:
+            ``"require"`` refuses (GradingError, before any student code runs),
+            ``"insecure"`` grades without it, ``"self-check"`` too (a student checking their
+            own folder), ``"autograder"`` falls back to another user after making the
+            grader's files and ``harden`` unreadable to it (root only; Gradescope). See
+            :mod:`doorlab.pset.isolation`; the results say what held.
+        harden: Paths the autograder's fallback makes unreadable to the student's user.
 
     Returns:
         Gradescope's results: ``{"score", "visibility", "output", "output_format",
@@ -92,11 +102,13 @@ def grade(
         "extra_data": {"max_score", "seed", "reference", "sandbox"}}`` (``seed``: the grading
         grading seed and where it came from, the graded files' SHA-256; ``reference``: the reference
         episodes' figures, reusable as the ``reference`` argument; ``sandbox``: how the
-        student's code ran: uids, network isolated, reference files hidden, limits).
+        student's code ran: the isolation mode and what each student process observed of
+        itself, limits).
 
     Raises:
-        GradingError: The grader could not run (e.g. the sandbox's user cannot run this
-            Python); no results, rather than zeros the submission did not earn.
+        GradingError: The grader could not run (the student's code cannot be isolated as
+            ``isolation`` requires; the sandbox's user cannot run this Python); no results,
+            rather than zeros the submission did not earn.
     """
     request = {
         "folder": str(Path(folder).resolve()),
@@ -106,6 +118,8 @@ def grade(
         "time_limit_scale": float(time_limit_scale),
         "assignment": None if assignment is None else assignment.to_dict(),
         "seed": None if seed is None else int(seed),
+        "isolation": isolation,
+        "harden": [str(p) for p in harden],
     }
     proc = subprocess.Popen(
         [sys.executable, "-I", "-m", "doorlab.pset.jobs", "supervise"],
@@ -129,7 +143,7 @@ def grade(
     if not isinstance(results, dict) or proc.returncode != 0:
         raise GradingError(f"the grading process failed (exit code {proc.returncode})")
     if "grader_error" in results:
-        raise GradingError(f"cannot grade: {results['grader_error']}")
+        raise GradingError(clean_text(f"cannot grade: {results['grader_error']}", 2000))
     return results
 
 
@@ -141,6 +155,8 @@ def grade_submission(
     assignment: object = None,
     seed: int | None = None,
     require_files: bool = False,
+    isolation: str = "require",
+    harden: Sequence[str | Path] = (),
 ) -> dict:
     """Grades a submission as every grading path does (``doorlab pset grade``, the folder's
     ``test_pset_5a.py``, Gradescope's ``run_autograder``): its student files taken by the one
@@ -152,7 +168,7 @@ def grade_submission(
 
     Args:
         source: The submission: a folder, or a zip file.
-        jobs, reference, assignment, seed: As for :func:`grade`.
+        jobs, reference, assignment, seed, isolation, harden: As for :func:`grade`.
         require_files: Refuse (OutputError) a submission that holds none of the student
             files, rather than grade the stubs (``doorlab pset grade``: a mistyped folder;
             Gradescope grades it: every test 0, as it should).
@@ -183,7 +199,13 @@ def grade_submission(
             results = results_not_graded(TESTS, intake.refused, assignment)
         else:
             results = grade(
-                folder, jobs=jobs, reference=reference, assignment=assignment, seed=seed
+                folder,
+                jobs=jobs,
+                reference=reference,
+                assignment=assignment,
+                seed=seed,
+                isolation=isolation,
+                harden=harden,
             )
     header = f"Graded by doorlab {__version__} (Drake {version('drake')})."
     results["output"] = "\n".join(
@@ -201,7 +223,7 @@ def write_results(results: dict, path: str | Path) -> Path:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
         try:
             with os.fdopen(fd, "w") as f:
-                f.write(json.dumps(results, indent=2, default=str) + "\n")
+                f.write(json.dumps(clean_json(results), indent=2, default=str) + "\n")
                 f.flush()
                 os.fsync(f.fileno())
             os.chmod(tmp, 0o644)
@@ -214,15 +236,35 @@ def write_results(results: dict, path: str | Path) -> Path:
     return path
 
 
+def isolation_warning(results: dict) -> str | None:
+    """The summary's first line when the student's code ran without the minimal root (None
+    when it ran in it, or when no student process ran)."""
+    facts = (results.get("extra_data") or {}).get("sandbox") or {}
+    mode = facts.get("mode") if isinstance(facts, dict) else None
+    if mode in (None, "bwrap"):
+        return None
+    why = facts.get("why_no_minimal_root") or "unknown"
+    return clean_text(
+        f"NOT ISOLATED ({facts.get('policy')}): the student's code ran {facts.get('held')} "
+        f"(why: {why})"
+    )
+
+
 def pretty_format_json_results(path: str | Path) -> str:
-    """A readable summary of a results file: its top-level output (the doorlab that graded,
-    what was taken from the submission, the grading seed), one block per test and the total."""
+    """A readable summary of a results file: whether the student's code ran isolated (a
+    first line when it did not), its top-level output (the doorlab that graded, what was taken
+    from the submission, the grading seed), one block per test and the total. Every text is
+    cleaned (:func:`~doorlab.pset.safe_text.clean_text`): nothing in it can move the
+    terminal's cursor or colour the lines."""
     data = json.loads(Path(path).read_text())
-    lines = str(data.get("output") or "").splitlines()
+    warning = isolation_warning(data)
+    lines = [] if warning is None else [warning]
+    lines += clean_text(str(data.get("output") or "")).splitlines()
     for t in data["tests"]:
         mark = "PASS" if t["score"] >= t["max_score"] else "FAIL"
-        lines.append(f"[{mark}] {t['name']}: {t['score']:g} / {t['max_score']:g}")
-        for line in str(t.get("output", "")).splitlines():
+        name = clean_text(t["name"], 200)
+        lines.append(f"[{mark}] {name}: {t['score']:g} / {t['max_score']:g}")
+        for line in clean_text(str(t.get("output", ""))).splitlines():
             lines.append(f"    {line}")
     total = sum(t["max_score"] for t in data["tests"])
     lines.append(f"Total score: {data['score']:g} / {total:g}")
@@ -247,10 +289,11 @@ def load_reference(path: str | Path) -> dict[str, dict]:
 
 
 def main(argv: Sequence[str]) -> int:
-    """``python -I -m doorlab.pset.grader FOLDER [RESULTS_JSON] [--reference FILE]`` (what the
-    folder's ``test_pset_5a.py`` runs): grades FOLDER's student files as Gradescope does
-    (:func:`grade_submission`), writes the JSON (default ``test_results.json`` in the
-    working directory) and prints the summary."""
+    """``python -I -m doorlab.pset.grader FOLDER [RESULTS_JSON] [--reference FILE]
+    [--insecure | --self-check]`` (the folder's ``test_pset_5a.py`` runs it with
+    ``--self-check``: a student checking their own work needs no isolation from it): grades
+    FOLDER's student files as Gradescope does (:func:`grade_submission`), writes the JSON
+    (default ``test_results.json`` in the working directory) and prints the summary."""
     import argparse
 
     from doorlab.errors import interrupt_exit_code
@@ -263,12 +306,23 @@ def main(argv: Sequence[str]) -> int:
     parser.add_argument(
         "--reference", type=Path, help="reuse the reference episodes of an earlier results file"
     )
+    parser.add_argument(
+        "--insecure",
+        action="store_true",
+        help="grade even where the student's code cannot be isolated (the results say so)",
+    )
+    parser.add_argument(
+        "--self-check",
+        action="store_true",
+        help="a student checking their own folder: grade isolated where possible, else not",
+    )
     args = parser.parse_args(argv)
     folder, out = args.folder.resolve(), args.out.resolve()
     os.chdir("/")  # nothing of the folder in this process either
     try:
         reference = None if args.reference is None else load_reference(args.reference)
-        results = grade_submission(folder, reference=reference)
+        policy = "self-check" if args.self_check else "insecure" if args.insecure else "require"
+        results = grade_submission(folder, reference=reference, isolation=policy)
         write_results(results, out)
     except DoorlabError as e:
         print(f"test_pset_5a.py: {e}", file=sys.stderr)

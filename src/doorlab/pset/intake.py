@@ -67,7 +67,8 @@ def shown_name(name: str) -> str:
     """A file name as the student sees it: control and format characters and lone
     surrogates (undecodable bytes) replaced by ``?``, cut to :data:`NAME_CHARS`.
 
-    (A local helper: the grader's text hygiene for everything else lives with the sandbox.)
+    (One line, so stricter than :func:`~doorlab.pset.safe_text.clean_text`, which every text
+    of the results also goes through when they are written.)
     """
     out = []
     for ch in name[: NAME_CHARS + 1]:

@@ -1,8 +1,10 @@
 """The grader's processes: the supervisor and one trusted process per job.
 
 ``python -I -m doorlab.pset.jobs supervise`` (started by :func:`doorlab.pset.grader.grade`)
-reads the grading request as JSON on stdin, runs the jobs ``parallel`` at a time, judges
-them and writes the results as JSON on stdout. Each job runs in
+reads the grading request as JSON on stdin, decides how the student's code is isolated
+(:func:`doorlab.pset.isolation.prepare`: the student's view, or the request's policy where
+it cannot be built; before any student code runs), runs the jobs ``parallel`` at a time,
+judges them and writes the results as JSON on stdout. Each job runs in
 ``python -I -m doorlab.pset.jobs job ...``: a reference episode, or a test that starts the
 student's process (:class:`~doorlab.pset.student.StudentProcess`), talks to it and judges
 what it answers. Both are *trusted*: Python's isolated mode (no working directory, no
@@ -62,16 +64,24 @@ def _first_line(e: BaseException) -> str:
 
 
 def run_job(
-    job: str, folder: Path, workdir: Path, limit: float, options: dict | None = None
+    job: str,
+    folder: Path,
+    workdir: Path,
+    limit: float,
+    isolation_file: Path,
+    options: dict | None = None,
 ) -> dict:
     """Runs one job in this process and returns its JSON-ready result.
 
+    ``isolation_file``: the grading's :class:`~doorlab.pset.isolation.Isolation` (JSON).
     ``options``: ``seed`` (a unit test's random draws: the grading seed) and ``helpers`` (a task 2
     or 3 episode: ``reference`` or ``student``, whose calc_p_Q and calc_R_WL7_ref it runs).
     """
-    options = options or {}
     from doorlab.pset.channel import ProtocolError
+    from doorlab.pset.isolation import Isolation
     from doorlab.pset.student import SandboxError, StudentFailure, StudentProcess
+
+    options = options or {}
 
     kind, _, name = job.partition(":")
     try:
@@ -79,13 +89,10 @@ def run_job(
             from doorlab.pset.episodes import reference_episode
 
             return {"figures": reference_episode(name)}
-        try:
-            identity = sandbox.sandbox_identity()
-        except OSError as e:
-            return {"grader_error": str(e)}
+        isolation = Isolation.from_json(isolation_file.read_text())
         # The student's process starts first (no thread may exist at its fork), then the
         # grader's side imports Drake while it starts.
-        with StudentProcess(folder, workdir, job, limit, identity) as student:
+        with StudentProcess(folder, workdir, job, limit, isolation) as student:
             try:
                 if kind == "unit":
                     from doorlab.pset.checks import UNIT_CHECKS
@@ -115,14 +122,17 @@ def run_job(
 
 
 def job_main(argv: list[str]) -> int:
-    """``job JOB FOLDER WORKDIR LIMIT PARENT_PID OPTIONS_JSON``: the result as JSON on stdout."""
-    job, folder, workdir, limit, parent, options = argv
+    """``job JOB FOLDER WORKDIR LIMIT PARENT_PID ISOLATION_JSON_FILE OPTIONS_JSON``: the result
+    as JSON on stdout."""
+    job, folder, workdir, limit, parent, isolation, options = argv
     result_fd = os.dup(1)
     os.dup2(2, 1)  # anything printed (Drake's warnings) goes to stderr, not into the result
     sandbox.die_with_parent(int(parent))
     sandbox.become_subreaper()
     sandbox.make_undumpable()
-    result = run_job(job, Path(folder), Path(workdir), float(limit), json.loads(options))
+    result = run_job(
+        job, Path(folder), Path(workdir), float(limit), Path(isolation), json.loads(options)
+    )
     with os.fdopen(result_fd, "w") as out:
         out.write(json.dumps(result, default=str))
     return 0
@@ -134,8 +144,11 @@ def job_main(argv: list[str]) -> int:
 class _Jobs:
     """Runs trusted job processes and kills whatever outlives them."""
 
-    def __init__(self, folder: Path, workdir: Path, scale: float, options: dict[str, dict]):
+    def __init__(
+        self, folder: Path, workdir: Path, scale: float, isolation: Path, options: dict[str, dict]
+    ):
         self.folder, self.workdir, self.scale = folder, workdir, scale
+        self.isolation = isolation
         self.options = options  # job -> its options (run_job)
         self.active: set[int] = set()
         self.lock = threading.Lock()
@@ -147,6 +160,7 @@ class _Jobs:
         os.chmod(jobdir, 0o711)  # the student's user reaches its scratch folder, lists nothing
         argv = [sys.executable, "-I", "-m", "doorlab.pset.jobs", "job", job]
         argv += [str(self.folder), str(jobdir), repr(limit), str(os.getpid())]
+        argv.append(str(self.isolation))
         argv.append(json.dumps(self.options.get(job, {})))
         start = time.perf_counter()
         with self.lock:  # no orphan hunt (below) between the spawn and its registration
@@ -257,9 +271,16 @@ def supervise(request: dict) -> dict:
         workdir = Path(tmp)
         os.chmod(workdir, 0o711)
         os.chdir(workdir)
-        scale = float(request.get("time_limit_scale", 1.0))
-        runner = _Jobs(folder, workdir, scale, options)
         try:
+            student_jobs = [j for j in todo if not j.startswith("reference:")]
+            isolation = _isolation(request, workdir) if student_jobs else None
+            if isinstance(isolation, str):
+                return {"grader_error": isolation}
+            isolation_file = workdir / "isolation.json"
+            isolation_file.write_text(isolation.to_json() if isolation else "{}")
+            os.chmod(isolation_file, 0o600)
+            scale = float(request.get("time_limit_scale", 1.0))
+            runner = _Jobs(folder, workdir, scale, isolation_file, options)
             with ThreadPoolExecutor(max_workers=max(1, int(request.get("jobs", 2)))) as pool:
                 for job, result in zip(todo, pool.map(runner.run, todo), strict=True):
                     results[job] = result
@@ -270,7 +291,17 @@ def supervise(request: dict) -> dict:
     if errors:
         return {"grader_error": errors[0]}
     elapsed = time.perf_counter() - start
-    return results_from_jobs(specs, results, elapsed, assignment, drawn)
+    return results_from_jobs(specs, results, elapsed, assignment, drawn, isolation)
+
+
+def _isolation(request: dict, workdir: Path):
+    """The grading's :class:`~doorlab.pset.isolation.Isolation`, or why there is none (str)."""
+    from doorlab.pset.isolation import IsolationError, prepare
+
+    try:
+        return prepare(workdir, request.get("isolation", "require"), request.get("harden") or ())
+    except (IsolationError, OSError) as e:
+        return str(e)
 
 
 def _on_signal(signum, frame):

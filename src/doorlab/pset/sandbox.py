@@ -9,15 +9,14 @@ threads of its own yet, see :func:`spawn`):
   threads (:data:`PROCESS_LIMIT` beyond what its user already runs), open files, no core dumps;
 - **its own session** (``setsid``), and ``PR_SET_NO_NEW_PRIVS`` (no set-user-ID program
   can give it privileges back); it gets ``SIGKILL`` if the process that started it dies;
-- **another user**: when the grader runs as root (Gradescope does), student code runs as
-  :func:`sandbox_identity` (``$DOORLAB_SANDBOX_USER``, else a user named ``doorlab-student``
-  if the machine has one, else ``nobody``), which cannot write the grader's files, the
-  results, or signal and trace the grader's processes;
-- **namespaces where the kernel allows them**: a network namespace without interfaces (no
-  network at all) and a mount namespace in which doorlab's reference solutions (the laws,
-  the reference plans and controllers, the problem set's templates and grader) are replaced
-  by empty files, so no route to them exists from that process or its children (as root;
-  as another user where unprivileged user namespaces are enabled).
+- **another user** (``switch_user``): student code runs as :func:`sandbox_identity`
+  (``$DOORLAB_SANDBOX_USER``, else a user named ``doorlab-student`` if the machine has one,
+  else ``nobody``) when the grader is root; inside the student's view
+  (:mod:`doorlab.pset.view`) the worker switches to it itself, since bwrap must start as root.
+
+The view (bubblewrap: a minimal read-only root, its own PID, network, IPC and UTS
+namespaces) is built by :mod:`doorlab.pset.view`; the command :func:`spawn` runs is bwrap
+then.
 
 **Every descendant dies with its test.** A child can leave the process group and the
 session (``setsid``) or be orphaned by a double fork, so killing the group is not enough.
@@ -26,10 +25,9 @@ any depth is re-parented to the nearest of them instead of to init, so every pro
 submission started stays a descendant of the grader, whatever its session or group.
 :func:`kill_descendants` walks ``/proc`` for them, ``SIGKILL`` s them all, reaps the ones
 that became its children, and repeats until none is left (a process forking meanwhile
-only adds descendants for the next pass). This works for root and for an ordinary user
-alike; a PID namespace would do the same for root but needs an init process inside it,
-which the uid separation makes unnecessary (the student's user cannot see the grader's
-processes' memory nor signal them).
+only adds descendants for the next pass). Inside the view the same holds twice over: the
+student's processes live in a PID namespace whose init (bwrap's) dies with its parent, which
+takes every process of the namespace with it.
 
 Output: :class:`OutputCollector` drains the process's stdout and stderr (one pipe) in a
 thread, keeps the first and last :data:`OUTPUT_KEPT_BYTES`, counts the rest and stops the
@@ -44,9 +42,7 @@ import os
 import pwd
 import resource
 import signal
-import stat
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -77,12 +73,6 @@ PR_SET_PDEATHSIG = 1
 PR_SET_DUMPABLE = 4
 PR_SET_CHILD_SUBREAPER = 36
 PR_SET_NO_NEW_PRIVS = 38
-CLONE_NEWNS = 0x00020000
-CLONE_NEWUSER = 0x10000000
-CLONE_NEWNET = 0x40000000
-MS_BIND = 4096
-MS_REC = 16384
-MS_PRIVATE = 1 << 18
 
 _libc = ctypes.CDLL(None, use_errno=True)
 
@@ -180,147 +170,8 @@ def count_tasks(uid: int) -> int:
     return total
 
 
-def _write(path: str, text: str) -> None:
-    fd = os.open(path, os.O_WRONLY)
-    try:
-        os.write(fd, text.encode())
-    finally:
-        os.close(fd)
-
-
-def _mount(
-    source: str | None, target: str, flags: int, fstype: str | None = None, data: str = ""
-) -> None:
-    def c(text: str | None):
-        return None if text is None else text.encode()
-
-    _check(_libc.mount(c(source), c(target), c(fstype), flags, c(data)), f"mount {target}")
-
-
-def _searchable(folder: Path, identity: Identity) -> bool:
-    st = os.stat(folder)
-    if st.st_uid == identity.uid:
-        bit = stat.S_IXUSR
-    elif st.st_gid == identity.gid:
-        bit = stat.S_IXGRP
-    else:
-        bit = stat.S_IXOTH
-    return bool(st.st_mode & bit)
-
-
-def exposures(paths: Iterable[str | Path], identity: Identity) -> list[tuple[str, list[str]]]:
-    """What the student's mount namespace must re-open so ``identity`` reaches ``paths``
-    (the interpreter, its libraries, doorlab), past folders it may not search (say
-    ``/root``, 0700, holding pyenv's Python, or a 0700 temporary folder holding a venv):
-    ``(closed, [relative path, ...])`` for the first closed folder of each path, where the
-    relative path leads from it to the child of the path's LAST closed folder.
-
-    In the namespace the first closed folder becomes an empty tmpfs in which only the
-    folders down to that child exist (mode 0711), and the child itself is bind-mounted there:
-    nothing else of the closed folders is visible.
-    """
-    plan: dict[Path, list[Path]] = {}
-    for path in paths:
-        real = Path(os.path.realpath(path))
-        chain = [*reversed(real.parents), real]
-        closed = [
-            i
-            for i, folder in enumerate(chain[:-1])
-            if folder != Path("/") and not _searchable(folder, identity)
-        ]
-        if not closed:
-            continue
-        top, child = chain[closed[0]], chain[closed[-1] + 1]
-        rel = child.relative_to(top)
-        children = plan.setdefault(top, [])
-        # One bind per subtree: a path inside an exposed child is reachable through it.
-        if any(rel == r or r in rel.parents for r in children):
-            continue
-        children[:] = [r for r in children if rel not in r.parents]
-        children.append(rel)
-    return [(str(top), [str(r) for r in children]) for top, children in plan.items()]
-
-
-def _fd_path(fd: int) -> str:
-    # A bind from /proc/self/fd/N mounts what N was opened on, even once a tmpfs covers it.
-    return f"/proc/self/fd/{fd}"
-
-
-def _expose(plan: Sequence[tuple[str, Sequence[str]]]) -> None:
-    """In the child (root, a new mount namespace): carry out :func:`exposures`' plan."""
-    fds = [
-        [os.open(os.path.join(closed, rel), os.O_PATH | os.O_DIRECTORY) for rel in children]
-        for closed, children in plan
-    ]
-    for (closed, children), child_fds in zip(plan, fds, strict=True):
-        _mount("tmpfs", closed, 0, "tmpfs", "mode=0711,size=64k")
-        for rel, fd in zip(children, child_fds, strict=True):
-            target = closed
-            for part in Path(rel).parts:
-                target = os.path.join(target, part)
-                if not os.path.isdir(target):
-                    os.mkdir(target)
-                    os.chmod(target, 0o711)
-            _mount(_fd_path(fd), target, MS_BIND | MS_REC)
-    for fd in (fd for child_fds in fds for fd in child_fds):
-        os.close(fd)
-
-
-def make_blanks(folder: Path) -> Path:
-    """A folder holding an empty folder ``d`` and an empty file ``f`` (what hidden paths
-    show in the student's mount namespace); returns ``folder``."""
-    (folder / "d").mkdir(parents=True, exist_ok=True)
-    (folder / "f").touch()
-    os.chmod(folder / "d", 0o555)
-    os.chmod(folder / "f", 0o444)
-    os.chmod(folder, 0o755)
-    return folder
-
-
-def _enter_namespaces(
-    as_root: bool, expose: Sequence[tuple], hide: Sequence[tuple[str, bool]], blanks: str
-) -> None:
-    """In the child: new network and mount namespaces, the ``expose`` plan carried out, the
-    ``hide`` paths covered (path, is_dir). Best effort: where the kernel refuses, the
-    process runs without them."""
-    uid, gid = os.getuid(), os.getgid()
-    flags = CLONE_NEWNS | CLONE_NEWNET
-    if _libc.unshare(flags if as_root else flags | CLONE_NEWUSER) != 0:
-        return
-    if not as_root:
-        try:
-            # The grader's processes are not dumpable, which makes /proc/self/* root's;
-            # this child's (exec would reset it anyway) must be ours to write its maps.
-            prctl(PR_SET_DUMPABLE, 1)
-            _write("/proc/self/setgroups", "deny")
-            _write("/proc/self/uid_map", f"{uid} {uid} 1")
-            _write("/proc/self/gid_map", f"{gid} {gid} 1")
-        except OSError:
-            return
-    try:
-        _mount(None, "/", MS_REC | MS_PRIVATE)
-        # Opened before _expose: a tmpfs it lays over a closed folder may cover ``blanks``.
-        blank = {
-            True: os.open(os.path.join(blanks, "d"), os.O_PATH | os.O_DIRECTORY),
-            False: os.open(os.path.join(blanks, "f"), os.O_PATH),
-        }
-        _expose(expose)
-        for path, is_dir in hide:
-            _mount(_fd_path(blank[is_dir]), path, MS_BIND)
-        for fd in blank.values():
-            os.close(fd)
-    except OSError:
-        return
-
-
 def _preexec(
-    limits: Limits,
-    identity: Identity | None,
-    nproc: int,
-    expose: Sequence[tuple],
-    hide: Sequence[tuple[str, bool]],
-    blanks: str,
-    parent_pid: int,
+    limits: Limits, identity: Identity | None, switch_user: bool, nproc: int, parent_pid: int
 ) -> Callable[[], None]:
     cpu = max(1, math.ceil(limits.cpu_seconds))
     settings = [
@@ -336,8 +187,7 @@ def _preexec(
         # Runs in the child between fork and exec (after setsid): no threads, no imports.
         for which, value in settings:
             resource.setrlimit(which, value)
-        _enter_namespaces(identity is not None, expose, hide, blanks)
-        if identity is not None:
+        if switch_user and identity is not None:
             os.setgroups([])
             os.setresgid(identity.gid, identity.gid, identity.gid)
             os.setresuid(identity.uid, identity.uid, identity.uid)
@@ -354,9 +204,8 @@ def spawn(
     env: dict[str, str],
     limits: Limits,
     identity: Identity | None,
+    switch_user: bool = True,
     pass_fds: Sequence[int] = (),
-    hide: Iterable[Path] = (),
-    blanks: Path,
 ) -> subprocess.Popen:
     """Starts the untrusted process: stdin from /dev/null, stdout and stderr into one pipe
     (``proc.stdout``, binary), its own session, the limits above.
@@ -365,16 +214,16 @@ def spawn(
     and exec, where only async-signal-safe work is safe in a threaded process).
 
     Args:
-        argv: The command. cwd: Its working directory. env: Its whole environment.
-        limits: Resource limits. identity: The user to run as (None: this process's).
+        argv: The command (bwrap's, for a student process in its view). cwd: Its working
+            directory. env: Its whole environment. limits: Resource limits.
+        identity: The user its code runs as (None: this process's); the process limit
+            counts that user's processes.
+        switch_user: Switch to ``identity`` before exec (False: the command does it, as
+            the worker in the view does).
         pass_fds: Descriptors it inherits (the channel's).
-        hide: Files and folders replaced by empty ones in its mount namespace.
-        blanks: A folder from :func:`make_blanks` (readable by the student's user).
     """
     uid = os.getuid() if identity is None else identity.uid
     nproc = count_tasks(uid) + limits.processes
-    covered = [(str(p), p.is_dir()) for p in hide if p.exists()]
-    plan = [] if identity is None else exposures(needed_paths(), identity)
     return subprocess.Popen(
         list(argv),
         cwd=cwd,
@@ -384,33 +233,8 @@ def spawn(
         stderr=subprocess.STDOUT,
         pass_fds=tuple(pass_fds),
         start_new_session=True,
-        preexec_fn=_preexec(limits, identity, nproc, plan, covered, str(blanks), os.getpid()),
+        preexec_fn=_preexec(limits, identity, switch_user, nproc, os.getpid()),
     )
-
-
-def needed_paths() -> list[str]:
-    """What the student's process reads to start: the interpreter and its prefixes, the
-    folders of doorlab, pydrake and numpy (a tree the sandbox user must reach)."""
-    import importlib.util
-
-    paths = {os.path.realpath(sys.executable), sys.prefix, sys.base_prefix, sys.exec_prefix}
-    for name in ("doorlab", "pydrake", "numpy"):
-        spec = importlib.util.find_spec(name)
-        if spec is not None and spec.origin:
-            paths.add(os.path.dirname(spec.origin))
-    return sorted(paths)
-
-
-def network_isolated() -> bool:
-    """True when this process's network namespace has no interface but loopback and no
-    route (a fresh namespace: nothing reachable)."""
-    try:
-        devices = Path("/proc/net/dev").read_text().splitlines()[2:]
-        routes = Path("/proc/net/route").read_text().splitlines()[1:]
-    except OSError:
-        return False
-    names = [line.split(":", 1)[0].strip() for line in devices]
-    return names == ["lo"] and not routes
 
 
 # Every descendant -------------------------------------------------------------------------

@@ -1,15 +1,18 @@
 """The trusted side's handle on one student process (:mod:`doorlab.pset.worker`).
 
 :class:`StudentProcess` copies the submission to a scratch folder (its working directory),
-starts the worker there under :mod:`doorlab.pset.sandbox`'s limits, and asks it for numbers
-over :mod:`doorlab.pset.channel`. Whatever goes wrong on that side (an exception in the
-student's code, a crash, an exit, a signal, a limit, a hang, garbage on the channel, the
-honesty boundary) becomes a :class:`StudentFailure` whose message says so in a student's
-words; the process and every descendant are killed when the test ends.
+starts the worker there under :mod:`doorlab.pset.sandbox`'s limits, in the student's view
+(:mod:`doorlab.pset.view`) when the grading has one (:mod:`doorlab.pset.isolation`), and asks
+it for numbers over :mod:`doorlab.pset.channel`. Whatever goes wrong on that side (an
+exception in the student's code, a crash, an exit, a signal, a limit, a hang, garbage on the
+channel, the honesty boundary) becomes a :class:`StudentFailure` whose message says so in a
+student's words (cleaned: :func:`doorlab.pset.safe_text.clean_text`); the process and every
+descendant are killed when the test ends.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -21,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from doorlab.pset import sandbox
+from doorlab.pset import sandbox, view
 from doorlab.pset.channel import (
     KIND_ARRAY,
     Channel,
@@ -32,7 +35,8 @@ from doorlab.pset.channel import (
     parse_array,
     parse_json,
 )
-from doorlab.pset.honesty import reference_paths
+from doorlab.pset.isolation import Isolation
+from doorlab.pset.safe_text import clean_text
 
 MAX_SUBMISSION_BYTES = 64 << 20
 """Largest submission copied to the scratch folder [bytes]."""
@@ -49,8 +53,8 @@ class StudentFailure(Exception):
     traceback and printed output (both capped)."""
 
     def __init__(self, message: str, detail: str = ""):
-        super().__init__(message)
-        self.detail = detail
+        super().__init__(clean_text(message))
+        self.detail = clean_text(detail)
 
 
 class SandboxError(Exception):
@@ -96,6 +100,39 @@ def copy_submission(folder: Path, dest: Path, identity: sandbox.Identity | None)
         os.chown(dest, identity.uid, identity.gid)
 
 
+SHARED_TEMP_FOLDERS = ("/tmp", "/var/tmp", "/dev/shm")
+"""Where a student process without the view (another user, no mount namespace) can leave
+files for the next one: the view gives it a private /tmp and /dev/shm instead."""
+
+
+def remove_leftovers(uid: int, since: float) -> list[str]:
+    """Removes what user ``uid`` created in the shared temporary folders since ``since``
+    (a time.time(); the sandbox user's other files stay: ``nobody`` may be shared); returns
+    the paths removed. For the modes without the view, where that user is not the grader."""
+    removed = []
+    for folder in SHARED_TEMP_FOLDERS:
+        try:
+            entries = list(os.scandir(folder))
+        except OSError:
+            continue
+        for entry in entries:
+            try:
+                st = entry.stat(follow_symlinks=False)
+            except OSError:
+                continue
+            if st.st_uid != uid or st.st_ctime < since - 1.0:
+                continue
+            if stat.S_ISDIR(st.st_mode):
+                shutil.rmtree(entry.path, ignore_errors=True)
+            else:
+                try:
+                    os.unlink(entry.path)
+                except OSError:
+                    continue
+            removed.append(entry.path)
+    return removed
+
+
 def _signal_message(signum: int, limits: sandbox.Limits) -> str:
     if signum == signal.SIGXCPU:
         return f"your code used more than {limits.cpu_seconds:.0f} s of CPU time (the CPU limit)"
@@ -113,15 +150,16 @@ def _signal_message(signum: int, limits: sandbox.Limits) -> str:
     return f"your code's process was killed by {name}"
 
 
-def student_environment(scratch: Path) -> dict[str, str]:
-    """The student process's whole environment (nothing of the grader's)."""
+def student_environment(home: str, tmp: str) -> dict[str, str]:
+    """The student process's whole environment (nothing of the grader's): ``home`` its
+    working directory, ``tmp`` its temporary folder (both as its process names them)."""
     return {
         "PATH": "/usr/local/bin:/usr/bin:/bin",
-        "HOME": str(scratch),
-        "TMPDIR": str(scratch),
+        "HOME": home,
+        "TMPDIR": tmp,
         "LANG": "C.UTF-8",
         "MPLBACKEND": "Agg",
-        "MPLCONFIGDIR": str(scratch / ".matplotlib"),
+        "MPLCONFIGDIR": os.path.join(tmp, ".matplotlib"),
         "OPENBLAS_NUM_THREADS": "1",
         "OMP_NUM_THREADS": "1",
         "MKL_NUM_THREADS": "1",
@@ -144,36 +182,50 @@ class StudentProcess:
     """
 
     def __init__(
-        self,
-        folder: Path,
-        workdir: Path,
-        name: str,
-        time_limit: float,
-        identity: sandbox.Identity | None,
+        self, folder: Path, workdir: Path, name: str, time_limit: float, isolation: Isolation
     ):
         self.limits = sandbox.Limits(cpu_seconds=time_limit)
         self.deadline = time.monotonic() + time_limit
+        self.started = time.time()
         self.facts: dict = {}
-        self.scratch = workdir / ("scratch_" + name.replace(":", "_"))
+        self.isolation = isolation
+        identity = isolation.user()
+        plan = isolation.plan()
+        stem = name.replace(":", "_")
+        self.scratch = workdir / ("scratch_" + stem)
+        self._private = [self.scratch]
         try:
             copy_submission(folder, self.scratch, identity)
-            blanks = sandbox.make_blanks(workdir / "blanks")
+            tmp_dirs = None
+            if plan is not None:
+                drop = None if identity is None else (identity.uid, identity.gid)
+                tmp_dirs = view.job_tmp_dirs(plan, workdir / ("tmp_" + stem), drop)
+                if tmp_dirs is not None:
+                    self._private.append(workdir / ("tmp_" + stem))
         except OSError as e:
             raise SandboxError(f"cannot copy the submission: {e}") from None
         request_r, self._request_w = os.pipe()
         self._answer_r, answer_w = os.pipe()
         os.set_blocking(self._request_w, False)
-        argv = [sys.executable, "-I", "-B", "-m", "doorlab.pset.worker"]
+        channel_args = [str(request_r), str(answer_w), json.dumps(isolation.guard)]
+        if plan is None:
+            argv = [sys.executable, "-I", "-B", "-m", "doorlab.pset.worker", *channel_args]
+            env = student_environment(str(self.scratch), str(self.scratch))
+        else:
+            drop = None if identity is None else (identity.uid, identity.gid)
+            argv = view.bwrap_argv(plan, self.scratch, tmp_dirs, as_root=identity is not None)
+            argv += [plan.python, "-I", "-S", "-B", "-c", view.worker_code(plan, drop)]
+            argv += channel_args
+            env = student_environment(view.SCRATCH_MOUNT, "/tmp")
         try:
             self.proc = sandbox.spawn(
-                [*argv, str(request_r), str(answer_w)],
+                argv,
                 cwd=self.scratch,
-                env=student_environment(self.scratch),
+                env=env,
                 limits=self.limits,
                 identity=identity,
+                switch_user=plan is None,
                 pass_fds=(request_r, answer_w),
-                hide=reference_paths(),
-                blanks=blanks,
             )
         except (OSError, subprocess.SubprocessError) as e:  # the latter: a limit refused
             raise SandboxError(f"cannot start the student's process: {e}") from None
@@ -190,7 +242,7 @@ class StudentProcess:
             self.close()
             raise SandboxError(
                 f"the student's process did not start ({self._death(e)}): "
-                + self.output.text()[-500:]
+                + clean_text(self.output.text()[-500:])
             ) from None
         facts = hello.get("hello")
         self.facts = facts if isinstance(facts, dict) else {}
@@ -225,7 +277,11 @@ class StudentProcess:
                 os.close(fd)
             except OSError:
                 pass
-        shutil.rmtree(self.scratch, ignore_errors=True)
+        for folder in self._private:
+            shutil.rmtree(folder, ignore_errors=True)
+        user = self.isolation.user()
+        if self.isolation.mode == "uid" and user is not None:
+            remove_leftovers(user.uid, self.started)
 
     # What went wrong --------------------------------------------------------------------
 
@@ -251,6 +307,9 @@ class StudentProcess:
             return f"your code's process sent something that is not an answer ({error})"
         if code < 0:
             return _signal_message(-code, self.limits)
+        if self.isolation.mode == "bwrap" and 128 < code < 128 + 65:
+            # bwrap reports a death by signal N as exit code 128 + N (as a shell does).
+            return _signal_message(code - 128, self.limits)
         return (
             f"your code ended its process (exit code {code}) before answering "
             "(sys.exit, os._exit or os.kill in your code?)"

@@ -1,9 +1,14 @@
 """The problem set's helper functions (``open_left_door`` and ``plan_utils`` of the 2019 files)
-on doorlab's geometry, kinematics and plots.
+on doorlab's door model, kinematics and plots.
 
 Every constant is read from doorlab's cupboard model
-(:func:`doorlab.geometry.default_door_geometry`), so the folder's numbers and the
-simulated cell cannot drift apart.
+(:func:`doorlab.door_model.default_door_constants`), so the folder's numbers and the
+simulated cell cannot drift apart. The handle's arc and L7's orientation along it
+(``InterpolateArc``, ``InterpolateYawAngle``) are the handout's: the 2019 folder provided
+them, with their formulas in their docstrings, and so does this one. They are written here
+from those formulas, apart from doorlab's own arc (:mod:`doorlab.geometry`, the reference the
+grader checks ``calc_p_Q`` and ``calc_R_WL7_ref`` against, which the student's process does
+not see); a test checks that the two agree.
 """
 
 from __future__ import annotations
@@ -14,11 +19,12 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
-from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.multibody.plant import MultibodyPlant
 
+from doorlab.constants import L7_PITCH
+from doorlab.door_model import default_door_constants
 from doorlab.frames import L7_FRAME
-from doorlab.geometry import default_door_geometry
 from doorlab.station import make_controller_plant
 
 if TYPE_CHECKING:
@@ -44,7 +50,7 @@ MAX_PLOT_POINTS = 1000
 def door_constants() -> dict:
     """The problem set's door constants from the model: hinge and handle (3,) [m], radius [m],
     initial handle angle and arc-end angle [rad]."""
-    g = default_door_geometry()
+    g = default_door_constants()
     return {
         "p_WC_left_hinge": g.p_W_hinge.copy(),
         "p_WC_handle": g.p_W_handle.copy(),
@@ -55,18 +61,24 @@ def door_constants() -> dict:
 
 
 def interpolate_arc(tau: float) -> np.ndarray:
-    """Q's reference on the handle arc at tau in [0, 1], shape (3,) [m]."""
-    return default_door_geometry().p_WQ_ref(tau)
+    """Q on the handle arc at tau in [0, 1] (clipped), shape (3,) [m]:
+    theta = theta0_hinge + (angle_end - theta0_hinge) tau,
+    p_WQ = p_WC_left_hinge - r_handle (sin theta, cos theta, 0)."""
+    g = default_door_constants()
+    theta = g.theta0 + g.sweep * min(max(float(tau), 0.0), 1.0)
+    return g.p_W_hinge - g.r_handle * np.array([math.sin(theta), math.cos(theta), 0.0])
 
 
 def interpolate_yaw(tau: float) -> RotationMatrix:
-    """L7's reference orientation at tau in [0, 1]."""
-    return default_door_geometry().R_WL7_ref(tau)
+    """L7's orientation at tau in [0, 1] (clipped):
+    RollPitchYaw(0, 3 pi / 4, -(angle_end - theta0_hinge) tau)."""
+    yaw = -default_door_constants().sweep * min(max(float(tau), 0.0), 1.0)
+    return RollPitchYaw(0.0, L7_PITCH, yaw).ToRotationMatrix()
 
 
 def handle_arc_points(n: int = ARC_PLOT_POINTS) -> np.ndarray:
     """n points of the handle's circle about the hinge, door closed to 90 deg open (n, 3) [m]."""
-    g = default_door_geometry()
+    g = default_door_constants()
     theta = np.linspace(0.0, math.pi / 2, n)
     offsets = np.column_stack([np.sin(theta), np.cos(theta), np.zeros(n)])
     return g.p_W_hinge - g.r_handle * offsets
@@ -74,18 +86,17 @@ def handle_arc_points(n: int = ARC_PLOT_POINTS) -> np.ndarray:
 
 def radial_tracking_error(p_WQ: np.ndarray) -> np.ndarray:
     """Horizontal distance of Q from the hinge axis minus the handle radius (n,) [m]."""
-    return default_door_geometry().radial_error(np.asarray(p_WQ, dtype=float))
+    return default_door_constants().radial_error(np.asarray(p_WQ, dtype=float))
 
 
 def orientation_tracking_error(
     list_X_WL7: Sequence[RigidTransform], t: np.ndarray, duration: float
 ) -> np.ndarray:
     """Angle between R_WL7 and its reference at tau = (t - t[0]) / duration, (n,) [rad]."""
-    g = default_door_geometry()
     t = np.asarray(t, dtype=float)
     out = np.empty(len(list_X_WL7))
     for i, X_WL7 in enumerate(list_X_WL7):
-        R_ref = g.R_WL7_ref((t[i] - t[0]) / duration)
+        R_ref = interpolate_yaw((t[i] - t[0]) / duration)
         out[i] = (X_WL7.rotation().inverse() @ R_ref).ToAngleAxis().angle()
     return out
 

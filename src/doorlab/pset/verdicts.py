@@ -13,6 +13,8 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from doorlab.pset.safe_text import clean_text
+
 IK_POSITION_TOLERANCE = 0.001
 """The task cell's position_tolerance [m]."""
 IK_RADIAL_MARGIN = 2 * math.sqrt(2) * IK_POSITION_TOLERANCE
@@ -307,6 +309,73 @@ TESTS: tuple[TestSpec, ...] = (
 )
 """Every graded test, in report order."""
 
+# What the student's process must not see -------------------------------------------------
+
+_ARC = "doorlab's handle arc and L7's orientation along it (the reference of calc_p_Q and "
+_ARC += "calc_R_WL7_ref)"
+_LAWS = "doorlab's control laws (the reference solution of tasks 2 and 3)"
+_PLANS = "doorlab's task-space plans (the reference solution of tasks 2 and 3)"
+REFERENCE_SOLUTIONS: dict[str, dict[str, str]] = {
+    "ik_utils.InverseKinPointwise": {
+        "doorlab.ik_pointwise": "doorlab's pointwise IK (the reference solution of task 1)",
+    },
+    "open_left_door.calc_p_Q": {"doorlab.geometry": _ARC},
+    "open_left_door.calc_R_WL7_ref": {"doorlab.geometry": _ARC},
+    "IiwaTaskSpaceVelocityPlan.CalcPositionCommand": {
+        "doorlab.laws": _LAWS,
+        "doorlab.plans": _PLANS,
+    },
+    "IiwaTaskSpaceImpedancePlan.CalcTorqueCommand": {
+        "doorlab.laws": _LAWS,
+        "doorlab.plans": _PLANS,
+    },
+}
+"""Per graded function (``doorlab.pset.folder.STUDENT_FUNCTIONS``), the modules that hold
+doorlab's reference solution of it, and what they hold."""
+BUILT_ON_REFERENCES = {
+    "doorlab.controllers": "doorlab's controllers (the reference solutions of tasks 1-3)",
+    "doorlab.adaptive": "doorlab's adaptive plan (built on the reference control laws)",
+    "doorlab.legacy": "doorlab's former episode design (runs the reference controllers)",
+    "doorlab.simulation": "doorlab's episodes (they run the reference plans)",
+}
+"""Modules that run or re-export the reference solutions."""
+_GRADER = "the grader (its expected answers)"
+GRADER_MODULES = {
+    "doorlab.pset.folder": "the problem set's solution files (doorlab pset init --solutions)",
+    "doorlab.pset.notebook": "the problem set's notebook writer",
+    "doorlab.pset.autograder": "the grader's Gradescope autograder (its wheel)",
+    **{
+        f"doorlab.pset.{name}": _GRADER
+        for name in (
+            "grader",
+            "verdicts",
+            "checks",
+            "episodes",
+            "jobs",
+            "student",
+            "sandbox",
+            "view",
+            "isolation",
+            "safe_text",
+        )
+    },
+}
+"""The grader's own modules."""
+TEMPLATES = ("doorlab.pset", "templates")
+"""The folder of the problem set's templates (the solutions' text)."""
+
+
+def hidden_modules() -> dict[str, str]:
+    """Every module the student's process must not see (each graded function's reference,
+    what is built on them, the grader), and what it holds: the one table the student's view
+    (:mod:`doorlab.pset.view`), the honesty guard and the Gradescope fallback derive from."""
+    out: dict[str, str] = {}
+    for modules in REFERENCE_SOLUTIONS.values():
+        out.update(modules)
+    out.update(BUILT_ON_REFERENCES)
+    out.update(GRADER_MODULES)
+    return out
+
 
 def _cap(text: str) -> str:
     if len(text) <= MAX_OUTPUT_CHARS:
@@ -314,22 +383,58 @@ def _cap(text: str) -> str:
     return text[:MAX_OUTPUT_CHARS] + f"\n[... {len(text) - MAX_OUTPUT_CHARS} characters left out]"
 
 
-def _sandbox_facts(results: dict[str, dict]) -> dict:
-    """How the student's processes ran (from what each reported before its code loaded)."""
+ISOLATION_HELD = {
+    "bwrap": "a minimal read-only root (bubblewrap): the student's code sees only its own "
+    "scratch copy, the interpreter and the libraries it needs; no network; its own processes",
+    "uid": "WITHOUT the minimal root: another user, no namespaces; it can read what that user "
+    "may read on this machine",
+    "none": "WITHOUT the minimal root: the grader's own user, no namespaces; it can read and "
+    "write what that user may",
+}
+"""What each isolation mode means, for ``extra_data.sandbox.held``."""
+
+
+def _sandbox_facts(results: dict[str, dict], isolation) -> dict:
+    """How the student's processes ran: the grading's isolation and what each process
+    observed of itself before its code loaded (judged here)."""
     from doorlab.pset import sandbox
 
     facts = [r["sandbox"] for r in results.values() if isinstance(r.get("sandbox"), dict)]
     uids = sorted({f.get("uid") for f in facts if isinstance(f.get("uid"), int)})
-    return {
+
+    def every(key: str) -> bool:
+        return bool(facts) and all(f.get(key) is True for f in facts)
+
+    sizes = [f.get("tmpfs_bytes") for f in facts if isinstance(f.get("tmpfs_bytes"), dict)]
+    mode = getattr(isolation, "mode", None)
+    out = {
+        "mode": mode,
+        "isolated": mode == "bwrap",
+        "held": ISOLATION_HELD.get(mode, "no student process ran"),
         "student_uids": uids,
         "grader_uid": os.geteuid(),
-        "network_isolated": bool(facts) and all(f.get("network_isolated") for f in facts),
-        "reference_hidden": bool(facts) and all(f.get("reference_hidden") for f in facts),
+        "network_isolated": every("network_isolated"),
+        "reference_hidden": every("reference_hidden"),
+        "pid_namespace": every("pid_namespace"),
+        "python_path_read_only": bool(facts)
+        and not any(f.get("python_path_writable") for f in facts),
+        "seen": {
+            key: sorted({str(p) for f in facts for p in f.get(key) or []})[:5]
+            for key in ("reference_readable", "python_path_writable")
+        },
+        "tmpfs_bytes": max(
+            (v for s in sizes for v in s.values() if isinstance(v, int)), default=None
+        ),
         "memory_limit_bytes": sandbox.MEMORY_LIMIT_BYTES,
         "file_size_limit_bytes": sandbox.FILE_SIZE_LIMIT_BYTES,
         "output_limit_bytes": sandbox.OUTPUT_LIMIT_BYTES,
         "process_limit": sandbox.PROCESS_LIMIT,
     }
+    if isolation is not None and isolation.mode != "bwrap":
+        out["why_no_minimal_root"] = clean_text(isolation.reason, 300)
+        out["policy"] = isolation.policy
+        out["made_unreadable"] = list(isolation.hardened)
+    return out
 
 
 def test_settings(assignment: object, spec: TestSpec) -> object:
@@ -368,7 +473,7 @@ def _gradescope_test(spec: TestSpec, settings: object, passed: bool, output: str
         "max_score": points,
         "status": "passed" if passed else "failed",
         "visibility": getattr(settings, "visibility", "visible"),
-        "output": _cap(output),
+        "output": _cap(clean_text(output)),
         "output_format": "text",
     }
 
@@ -393,9 +498,11 @@ def results_from_jobs(
     execution_time: float,
     assignment: object = None,
     drawn: dict | None = None,
+    isolation: object = None,
 ) -> dict:
     """The Gradescope results of ``specs`` judged on the jobs' ``results`` (in the
-    supervisor; see :func:`doorlab.pset.grader.grade` for the format).
+    supervisor; see :func:`doorlab.pset.grader.grade` for the format). Every test's output is
+    cleaned (:func:`~doorlab.pset.safe_text.clean_text`).
 
     Args:
         specs: The tests.
@@ -405,6 +512,8 @@ def results_from_jobs(
             margins, visibility); None: the defaults.
         drawn: How the unit tests' random inputs were drawn (``extra_data["seed"]``: the
             grading seed, its source, the graded files' SHA-256), if they were.
+        isolation: The grading's :class:`~doorlab.pset.isolation.Isolation` (None: no
+            student process ran).
     """
     tests = []
     for spec in specs:
@@ -425,7 +534,7 @@ def results_from_jobs(
         "max_score": sum(t["max_score"] for t in tests),
         "seed": drawn,
         "reference": {k: v for k, v in results.items() if k.startswith("reference:")},
-        "sandbox": _sandbox_facts(results),
+        "sandbox": _sandbox_facts(results, isolation),
     }
     return out
 

@@ -1,12 +1,15 @@
 """The student's process: runs the submission's functions and answers the grader in numbers.
 
-Started by :class:`doorlab.pset.student.StudentProcess` as ``python -I -B -m
-doorlab.pset.worker RFD WFD`` in a scratch copy of the submission, under the limits of
-:mod:`doorlab.pset.sandbox`. Before any of the student's code runs it imports everything
-the problem set's files need (so a helper named ``json.py``, ``copy.py`` or ``numpy.py`` in
-the folder shadows nothing), installs the honesty guard (:mod:`doorlab.pset.honesty`), says
-hello, and only then puts the folder on ``sys.path``. Then it serves requests (JSON frames;
-per-tick array frames) until the grader closes the channel.
+Started by :class:`doorlab.pset.student.StudentProcess` with ``RFD WFD CONFIG`` (the channel's
+descriptors, the honesty guard's table as JSON) in a scratch copy of the submission, under the
+limits of :mod:`doorlab.pset.sandbox`, in the student's view (:mod:`doorlab.pset.view`:
+bubblewrap, where only doorlab's student side exists) or, without one, as ``python -I -B -m
+doorlab.pset.worker``. Before any of the student's code runs it imports everything the
+problem set's files need (so a helper named ``json.py``, ``copy.py`` or ``numpy.py`` in the
+folder shadows nothing), notes what it can see (:func:`observe`: the grader reports it),
+installs the honesty guard (:mod:`doorlab.pset.honesty`), says hello, and only then puts the
+folder on ``sys.path``. Then it serves requests (JSON frames; per-tick array frames) until the
+grader closes the channel.
 
 Nothing this process says is trusted: the student's code can replace any of it. It only
 answers the grader's questions (the student's outputs for inputs the grader chose); every
@@ -16,6 +19,7 @@ verdict is computed on the grader's side.
 from __future__ import annotations
 
 import importlib
+import json
 import os
 import sys
 import traceback
@@ -40,8 +44,8 @@ def _preload() -> None:
     import pydrake.trajectories  # noqa: F401
 
     import doorlab.constants  # noqa: F401
+    import doorlab.door_model  # noqa: F401
     import doorlab.frames  # noqa: F401
-    import doorlab.geometry  # noqa: F401
     import doorlab.ik  # noqa: F401
     import doorlab.pset.station_api  # noqa: F401
     import doorlab.pset.task_helpers  # noqa: F401
@@ -184,17 +188,16 @@ class Server:
     def op_ik(self, request: dict) -> dict:
         import numpy as np
 
-        from doorlab.geometry import default_door_geometry
+        from doorlab.pset.task_helpers import interpolate_arc, interpolate_yaw
 
-        g = default_door_geometry()
         a, b = float(request["a"]), float(request["b"])
         offset = np.array(request["offset"], dtype=float)
 
         def position(tau):
-            return g.p_WQ_ref(a + (b - a) * tau) + offset
+            return interpolate_arc(a + (b - a) * tau) + offset
 
         def orientation(tau):
-            return g.R_WL7_ref(a + (b - a) * tau)
+            return interpolate_yaw(a + (b - a) * tau)
 
         kwargs = {
             "InterpolatePosition": position,
@@ -283,23 +286,64 @@ def _error(e: BaseException, folder: Path) -> dict:
     return {"error": {"type": type(e).__name__, "message": first, "traceback": "\n".join(lines)}}
 
 
-def serve(rfd: int, wfd: int) -> int:
+def network_isolated() -> bool:
+    """True when this process's network namespace has no interface but loopback and no
+    route (a fresh namespace: nothing reachable)."""
+    try:
+        devices = Path("/proc/net/dev").read_text().splitlines()[2:]
+        routes = Path("/proc/net/route").read_text().splitlines()[1:]
+    except OSError:
+        return False
+    names = [line.split(":", 1)[0].strip() for line in devices]
+    return names == ["lo"] and not routes
+
+
+def observe(config: dict) -> dict:
+    """What this process can see and do, before any of the student's code runs (the grader
+    reports it as ``extra_data.sandbox``, judged on its own side)."""
+    import importlib.util
+
+    readable = [p for p in config.get("paths", []) if os.access(p, os.R_OK)]
+    for name in config.get("modules", {}):
+        try:
+            spec = importlib.util.find_spec(name)
+        except (ImportError, ValueError):
+            continue
+        if spec is not None and spec.origin and os.access(spec.origin, os.R_OK):
+            readable.append(spec.origin)
+    writable = [p for p in sys.path if p and os.path.isdir(p) and os.access(p, os.W_OK)]
+    try:
+        init = Path("/proc/1/comm").read_text().strip()
+    except OSError:
+        init = ""
+    sizes = {}
+    for where in ("/tmp", "/dev/shm"):
+        try:
+            st = os.statvfs(where)
+            sizes[where] = st.f_blocks * st.f_frsize
+        except OSError:
+            pass
+    return {
+        "uid": os.getuid(),
+        "network_isolated": network_isolated(),
+        "reference_hidden": not readable,
+        "reference_readable": readable[:5],
+        "python_path_writable": writable[:5],
+        "pid_namespace": init == "bwrap",
+        "tmpfs_bytes": sizes,
+    }
+
+
+def serve(rfd: int, wfd: int, config: dict) -> int:
     """Says hello, then answers requests until the channel closes."""
     _preload()
     import numpy as np
 
-    from doorlab.pset import sandbox
     from doorlab.pset.channel import KIND_ARRAY, Channel, ChannelClosed, parse_json
-    from doorlab.pset.honesty import Guard, reference_paths
+    from doorlab.pset.honesty import Guard
 
-    paths = reference_paths()
-    files = [p for p in paths if p.is_file()]
-    facts = {
-        "uid": os.getuid(),
-        "network_isolated": sandbox.network_isolated(),
-        "reference_hidden": bool(files) and all(p.stat().st_size == 0 for p in files),
-    }
-    guard = Guard(paths)
+    facts = observe(config)
+    guard = Guard(config.get("modules", {}), config.get("paths", []))
     guard.install()
     channel = Channel(rfd, wfd)
     channel.send_json({"hello": facts})
@@ -321,15 +365,26 @@ def serve(rfd: int, wfd: int) -> int:
             answer = _error(e, folder)
         if guard.violation is not None:
             answer = {"honesty": guard.violation}
+        _flush()  # what the student's code printed reaches the grader with the answer
         if isinstance(answer, dict):
             channel.send_json(answer, allow_nan=True)
         else:
             channel.send_array(answer)
 
 
+def _flush() -> None:
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except BaseException:  # noqa: BLE001 - the student's code may have replaced them
+            pass
+
+
 def main(argv: list[str]) -> int:
+    """``RFD WFD [CONFIG_JSON]``."""
     rfd, wfd = int(argv[0]), int(argv[1])
-    return serve(rfd, wfd)
+    config = json.loads(argv[2]) if len(argv) > 2 else {}
+    return serve(rfd, wfd, config if isinstance(config, dict) else {})
 
 
 if __name__ == "__main__":

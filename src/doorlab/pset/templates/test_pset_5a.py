@@ -55,7 +55,10 @@ def _main():
         )
         print(f"test_pset_5a.py: {sys.executable} has no doorlab; {hint}", file=sys.stderr)
         return 2
+    # --self-check: your own folder, graded in the grader's sandbox where this machine has
+    # one (bubblewrap), else as you (the results say which).
     argv = [sys.executable, "-I", "-m", "doorlab.pset.grader", _HERE, *sys.argv[1:]]
+    argv.append("--self-check")
     os.execv(sys.executable, argv)
 
 
