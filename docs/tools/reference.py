@@ -96,6 +96,7 @@ API_GROUPS = {
             "doorlab.models",
             "doorlab.frames",
             "doorlab.geometry",
+            "doorlab.door_model",
         ],
     ),
     "control": (
@@ -104,6 +105,7 @@ API_GROUPS = {
             "doorlab.laws",
             "doorlab.plans",
             "doorlab.ik",
+            "doorlab.ik_pointwise",
             "doorlab.adaptive",
             "doorlab.hinge_estimation",
             "doorlab.controllers",

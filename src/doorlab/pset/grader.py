@@ -168,7 +168,8 @@ def grade_submission(
 
     Args:
         source: The submission: a folder, or a zip file.
-        jobs, reference, assignment, seed, isolation, harden: As for :func:`grade`.
+        jobs, reference, assignment, isolation, harden: As for :func:`grade`.
+        seed: The grading's random seed, as for :func:`grade`.
         require_files: Refuse (OutputError) a submission that holds none of the student
             files, rather than grade the stubs (``doorlab pset grade``: a mistyped folder;
             Gradescope grades it: every test 0, as it should).

@@ -62,12 +62,14 @@ PROBE_TIMEOUT_S = 30.0
 STUDENT_MODULES = (
     "doorlab",
     "doorlab.config",
+    "doorlab.config_checks",
     "doorlab.constants",
     "doorlab.door_model",
     "doorlab.errors",
     "doorlab.frames",
     "doorlab.ik",
     "doorlab.inputs",
+    "doorlab.kuka",
     "doorlab.models",
     "doorlab.station",
     "doorlab.pset",
@@ -366,6 +368,14 @@ def bwrap_argv(
     else:
         argv += ["--unshare-all", "--unshare-user", "--disable-userns"]
     argv += ["--hostname", "sandbox"]
+    # /proc, /dev and the private /tmp and /dev/shm first, so that a distribution bound from
+    # under /tmp (a venv made there) lands on top of the private /tmp, not under it.
+    argv += ["--proc", "/proc", "--dev", "/dev"]
+    for dest, folder in zip(("/tmp", "/dev/shm"), tmp_dirs or (None, None), strict=True):
+        if folder is None:
+            argv += ["--size", str(TMPFS_BYTES), "--perms", "1777", "--tmpfs", dest]
+        else:
+            argv += ["--bind", str(folder), dest]
     for op in view.mounts:
         kind = op[0]
         if kind == "dir":
@@ -376,12 +386,6 @@ def bwrap_argv(
             argv += ["--tmpfs", op[1]]
         elif kind == "symlink":
             argv += ["--symlink", op[1], op[2]]
-    argv += ["--proc", "/proc", "--dev", "/dev"]
-    for dest, folder in zip(("/tmp", "/dev/shm"), tmp_dirs or (None, None), strict=True):
-        if folder is None:
-            argv += ["--size", str(TMPFS_BYTES), "--perms", "1777", "--tmpfs", dest]
-        else:
-            argv += ["--bind", str(folder), dest]
     argv += ["--bind", str(scratch), SCRATCH_MOUNT, "--chdir", "/"]
     # The root itself (a tmpfs holding the mount points, the user's own in a user
     # namespace) read-only too: not recursive, so the three writable places stay writable.
