@@ -125,10 +125,11 @@ class StudentView:
         os.chmod(self.root, 0o711)  # the student's user reaches its scratch, lists nothing
         identity = isolation.user()
         drop = None if identity is None else (identity.uid, identity.gid)
+        # The tests' folders go in it, each the sandbox user's; the folder itself is the
+        # grader's (0711 as root: the student's code can write none of its own there).
         self.scratch = self.root / "scratch"
-        self.scratch.mkdir(mode=0o700)
-        if drop is not None:
-            os.chown(self.scratch, *drop)
+        self.scratch.mkdir(mode=0o711 if drop is not None else 0o700)
+        os.chmod(self.scratch, 0o711 if drop is not None else 0o700)
         plan = isolation.plan()
         tmp_dirs = view.job_tmp_dirs(plan, self.root / "tmp", drop)
         self.control, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)

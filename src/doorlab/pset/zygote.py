@@ -21,8 +21,14 @@ that is the student process of one test:
 
 The grader runs one test at a time in a view. Before each fork this process makes the view as
 fresh as a new one: it kills every other process of the view (what an earlier test left
-running, detached or not) and reaps them, and empties ``/tmp`` and ``/dev/shm``; so a test
-sees no process, file or note of the tests before it, only this process.
+running, detached or not) and reaps them, empties ``/tmp`` and ``/dev/shm`` (and ``/pset``
+but the test's own folder, where it may write), removes the System V shared memory,
+semaphores and message queues of the view's IPC namespace, and clears the sandbox user's
+kernel keyrings (which are the user's, not the view's: what a test of an earlier grading put
+there is gone too); so a test sees no process, file or note of the tests before it, only
+this process. (POSIX message queues cannot be listed without mounting their file system,
+which this process may not do: a test that knows a queue's name could read what an earlier
+test of the same grading left in it.)
 
 As the namespace's init, this process receives from inside the view only the signals it
 handles (``SIGCHLD``): the student's processes cannot kill it. It reaps every process of the
@@ -58,6 +64,14 @@ PROCESS_NAME = b"doorlab-view"
 """This process's name (``/proc/1/comm`` in the view: the worker checks it)."""
 PRIVATE_FOLDERS = ("/tmp", "/dev/shm")
 """The view's private temporary folders, emptied before each test."""
+SYSV_IPC = {"shm": "shmctl", "sem": "semctl", "msg": "msgctl"}
+"""System V IPC objects (``/proc/sysvipc/<kind>``) and the call that removes one."""
+IPC_RMID = 0
+KEYCTL_CLEAR = 7
+KEY_SPEC_USER_KEYRING = -4
+KEY_SPEC_USER_SESSION_KEYRING = -5
+KEYCTL_SYSCALL = {"x86_64": 250, "aarch64": 219, "ppc64le": 271, "s390x": 250}
+"""keyctl's system call number by machine (Python has no binding)."""
 CLEAN_TIMEOUT_S = 10.0
 """How long killing an earlier test's processes may take [s] (a fork bomb within the
 process limit dies in milliseconds)."""
@@ -135,7 +149,7 @@ def _others() -> list[int]:
     return [int(p) for p in os.listdir("/proc") if p.isdigit() and int(p) != me]
 
 
-def _empty(folder: str) -> None:
+def _empty(folder: str, keep: str = "") -> None:
     def retry(function, path, _):
         # A folder made unwritable (its owner may change that) or a file in it.
         try:
@@ -150,6 +164,8 @@ def _empty(folder: str) -> None:
     except OSError:
         return
     for name in names:
+        if name == keep:
+            continue
         path = os.path.join(folder, name)
         if os.path.isdir(path) and not os.path.islink(path):
             shutil.rmtree(path, onerror=retry)
@@ -160,9 +176,38 @@ def _empty(folder: str) -> None:
                 pass
 
 
-def clean_view(children: dict) -> bool:
-    """Kills and reaps every other process of the view, empties its temporary folders;
-    False if a process outlived :data:`CLEAN_TIMEOUT_S`."""
+def _remove_ipc() -> None:
+    """Removes every System V IPC object of the view's IPC namespace (the student's)."""
+    for kind, call in SYSV_IPC.items():
+        try:
+            with open(f"/proc/sysvipc/{kind}") as f:
+                lines = f.read().splitlines()[1:]
+        except OSError:
+            continue
+        remove = getattr(_libc, call)
+        for line in lines:
+            fields = line.split()
+            if len(fields) < 2 or not fields[1].isdigit():
+                continue
+            if kind == "sem":
+                remove(int(fields[1]), 0, IPC_RMID)
+            else:
+                remove(int(fields[1]), IPC_RMID, None)
+
+
+def _clear_keyrings() -> None:
+    """Clears the sandbox user's keyrings (kept by the kernel per user, across processes)."""
+    number = KEYCTL_SYSCALL.get(os.uname().machine)
+    if number is None:
+        return
+    for keyring in (KEY_SPEC_USER_KEYRING, KEY_SPEC_USER_SESSION_KEYRING):
+        _libc.syscall(number, KEYCTL_CLEAR, keyring)
+
+
+def clean_view(children: dict, keep: str = "") -> bool:
+    """Kills and reaps every other process of the view, empties its temporary folders and
+    its scratch root but ``keep`` (the next test's folder), removes its IPC objects and
+    clears the user's keyrings; False if a process outlived :data:`CLEAN_TIMEOUT_S`."""
     deadline = time.monotonic() + CLEAN_TIMEOUT_S
     while True:
         others = _others()
@@ -179,6 +224,9 @@ def clean_view(children: dict) -> bool:
         time.sleep(0.001)
     for folder in PRIVATE_FOLDERS:
         _empty(folder)
+    _empty(SCRATCH_ROOT, keep=keep)
+    _remove_ipc()
+    _clear_keyrings()
     return True
 
 
@@ -196,7 +244,7 @@ def _fork(request: dict, fds: list[int], config: dict, children: dict) -> None:
         for fd in fds[:3]:
             os.close(fd)
         return
-    if not clean_view(children):
+    if not clean_view(children, keep=request["scratch"]):
         _send(status, {"refused": "a process of an earlier test could not be killed"})
         status.close()
         for fd in fds[:3]:
