@@ -174,10 +174,8 @@ def one_round(samples: Samples, folder: Path, work: Path, jobs: list[str]) -> No
         lambda: _student_process(folder, work, isolation, "probe"),
     )
     samples.timed("start/trusted_fork", _fork_and_wait)
-    student_view = samples.timed(
-        "start/view", lambda: StudentView(isolation, work, "student", 150.0)
-    )
-    views = {"student": student_view}
+    student_view = samples.timed("start/view", lambda: StudentView(isolation, work, "view0", 150.0))
+    views = {"view0": student_view}
     try:
         samples.timed("start/forked_student", lambda: _forked_student(folder, student_view, "p"))
         _warm(jobs, {})

@@ -316,16 +316,24 @@ def test_the_sheet_holds_the_expected_scores_names_and_statuses(klass, resumed):
 
 def test_each_submission_graded_alone_gives_its_row(klass, resumed):
     """grade_submission on each submission folder of the export (the one intake, as
-    ``doorlab pset grade`` runs it): the row of the class's sheet, times aside; and the same
-    results file, times aside."""
+    ``doorlab pset grade`` runs it; two gradings at a time): the row of the class's sheet,
+    times aside; and the same results file, times aside."""
+    from concurrent.futures import ThreadPoolExecutor
+
     export, _, reference_file = klass
     reference = json.loads(reference_file.read_text())["extra_data"]["reference"]
-    submissions = {s.id: s for s in find_submissions(export)}
+    submissions = find_submissions(export)
     rows = {row["submission"]: row for row in resumed["rows"]}
-    for sid, submission in submissions.items():
-        results = grade_submission(submission.path, reference=reference, jobs=2)
-        alone = sheet_text([sheet_row(submission, results)], [t.key for t in TESTS])
-        row = next(csv.DictReader(alone.splitlines()))
+
+    def alone(submission: Submission) -> dict:
+        return grade_submission(submission.path, reference=reference, jobs=1)
+
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        graded = list(pool.map(alone, submissions))
+    for submission, results in zip(submissions, graded, strict=True):
+        sid = submission.id
+        text = sheet_text([sheet_row(submission, results)], [t.key for t in TESTS])
+        row = next(csv.DictReader(text.splitlines()))
         assert without_times([row]) == without_times([rows[sid]]), sid
         batch = json.loads((resumed["out"] / sid / RESULTS_JSON).read_text())
         for data in (batch, results):

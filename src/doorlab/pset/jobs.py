@@ -165,12 +165,14 @@ class _Running:
         self.limit = limit
         self.data = bytearray()
         self.students: list[tuple[int, int | None]] = []
+        self.view: str | None = None  # the key of the view its student's process runs in
 
 
 class _Jobs:
     """Forks a trusted process per job, ``parallel`` at a time, and kills whatever outlives
-    them. Holds the grading's student view (started when a job first needs it), in which one
-    test runs at a time (:mod:`doorlab.pset.views`)."""
+    them. Holds the grading's student views (:mod:`doorlab.pset.views`): each runs one test
+    at a time; the first is started for the first student job, a second (up to ``parallel``)
+    only when a slot would otherwise stay idle (the reference episodes all started)."""
 
     def __init__(self, folder: Path, workdir: Path, scale: float, isolation, options: dict):
         self.folder, self.workdir, self.scale = folder, workdir, scale
@@ -181,37 +183,47 @@ class _Jobs:
         self.selector = selectors.DefaultSelector()
 
     def _in_view(self, job: str) -> bool:
-        """Whether ``job``'s student process runs in the grading's view."""
+        """Whether ``job``'s student process runs in one of the grading's views."""
         mode = None if self.isolation is None else self.isolation.mode
         return mode == "bwrap" and not job.startswith("reference:")
 
-    def _view(self):
+    def _view(self, key: str):
         from doorlab.pset.views import StudentView
 
-        if "student" not in self.views:
+        if key not in self.views:
             limit = max(UNIT_TIME_LIMIT_S, EPISODE_TIME_LIMIT_S) * self.scale
-            self.views["student"] = StudentView(self.isolation, self.workdir, "student", limit)
-        return self.views["student"]
+            self.views[key] = StudentView(self.isolation, self.workdir, key, limit)
+        return self.views[key]
 
-    def _next(self, pending: list[str]) -> str | None:
-        """The job to start now: one test at a time in the view, and the view's tests first
-        (they are one chain), then the others, each in ``pending``'s order."""
-        busy = any(self._in_view(r.job) for r in self.running.values())
-        first = [j for j in pending if self._in_view(j) and not busy]
-        return next(iter(first + [j for j in pending if not self._in_view(j)]), None)
+    def _next(self, pending: list[str], parallel: int) -> tuple[str, str | None] | None:
+        """The job to start now and its view's key (None: no view): the student's tests
+        first (they are the longest chain), in a view no running test uses, then the
+        others, each in ``pending``'s order."""
+        tests = [j for j in pending if self._in_view(j)]
+        others = [j for j in pending if not self._in_view(j)]
+        busy = {r.view for r in self.running.values()}
+        free = [k for k in self.views if k not in busy]
+        if tests and (free or not self.views):
+            return tests[0], free[0] if free else "view0"
+        if others:
+            return others[0], None
+        if tests and len(self.views) < parallel:
+            return tests[0], f"view{len(self.views)}"
+        return None
 
     def run(self, todo: list[str], parallel: int) -> dict[str, dict]:
         results: dict[str, dict] = {}
         pending = list(todo)
         while pending or self.running:
-            while len(self.running) < parallel and (job := self._next(pending)) is not None:
+            while len(self.running) < parallel and (chosen := self._next(pending, parallel)):
+                job, key = chosen
                 pending.remove(job)
                 try:
-                    student_view = self._view() if self._in_view(job) else None
+                    student_view = None if key is None else self._view(key)
                 except Exception as e:  # noqa: BLE001 - SandboxError: the grader's failure
                     results[job] = {"grader_error": str(e)}
                     continue
-                self._fork(job, student_view)
+                self._fork(job, student_view, key)
             if not self.running:
                 continue
             timeout = max(0.0, min(r.deadline for r in self.running.values()) - time.monotonic())
@@ -228,7 +240,7 @@ class _Jobs:
                 results[running.job] = self._finish(running, timed_out=True)
         return results
 
-    def _fork(self, job: str, student_view) -> None:
+    def _fork(self, job: str, student_view, key: str | None = None) -> None:
         limit = time_limit(job, self.scale)
         jobdir = self.workdir / job.replace(":", "_")
         jobdir.mkdir()
@@ -253,6 +265,7 @@ class _Jobs:
                 os._exit(code)
         os.close(result_w)
         running = _Running(job, pid, result_r, err, limit)
+        running.view = key
         self.running[pid] = running
         self.selector.register(result_r, selectors.EVENT_READ, running)
 

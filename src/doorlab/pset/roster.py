@@ -36,9 +36,9 @@ from doorlab.pset.intake import shown_name
 
 METADATA_NAME = "submission_metadata.yml"
 """Gradescope's list of the export's submissions and their students."""
-MAX_METADATA_BYTES = 256 << 20
+MAX_METADATA_BYTES = 128 << 20
 """Largest metadata file read [bytes]: Gradescope's holds every submission's results and
-history (~10-50 kB each), so a class of 1,000 with a few resubmissions each stays far below."""
+history (~10-50 kB each): a class of 500 with a few resubmissions each stays below it."""
 MAX_SUBMISSIONS = 10_000
 """Most submissions in one class."""
 MAX_SUBMITTERS = 20
