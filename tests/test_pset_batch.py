@@ -478,3 +478,26 @@ def test_an_existing_folder_needs_resume_or_force_and_keeps_what_doorlab_did_not
     shutil.rmtree(tmp_path / "class" / "s1")
     assert main([*argv, "--force"]) == 2
     assert "holds no submission" in capsys.readouterr().err
+
+
+def test_a_grading_the_grader_fails_is_a_row_and_resume_grades_it_again(klass, tmp_path):
+    """A grading whose supervisor fails (here: an isolation policy it does not know) is the
+    row of its submission with status error and the message, no results file, exit code 1;
+    --resume grades it again, and it lands."""
+    from doorlab.pset.batch import grade_class
+
+    export, _, reference_file = klass
+    reference = json.loads(reference_file.read_text())["extra_data"]["reference"]
+    small = tmp_path / "small"
+    small.mkdir()
+    shutil.copytree(export / "submission_116", small / "only")  # a README: graded as stubs
+    out = tmp_path / "out"
+    failed = grade_class(small, out, reference=reference, isolation="no-such-policy")
+    [row] = failed.rows
+    assert row["status"] == "error" and "the grading process failed" in row["error"], row
+    assert failed.errors == 1 and not (out / "only").exists()
+    assert read_sheet(out / GRADES_CSV)[0]["status"] == "error"
+    again = grade_class(small, out, reference=reference, resume=True)
+    assert again.graded == ["only"] and again.errors == 0
+    assert again.rows[0]["status"] == "graded" and again.rows[0]["total"] == 0
+    assert (out / "only" / RESULTS_JSON).is_file()

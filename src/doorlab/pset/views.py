@@ -3,10 +3,11 @@
 Starting a student process is most of a unit test's cost (bubblewrap, an interpreter, numpy
 and pydrake's modules: about 0.4 CPU-second, against a few milliseconds of the test's own
 work). So a grading in the student's view (:mod:`doorlab.pset.view`) starts one
-:class:`StudentView`, and every test's student process is forked from the first process of
-that view (:mod:`doorlab.pset.zygote`), which imported those modules once, as the sandbox
-user, and runs none of the student's code. The grader runs one test at a time in it, and
-each test still gets:
+:class:`StudentView` (two where two tests at a time would otherwise leave a core idle: see
+:class:`doorlab.pset.jobs._Jobs`), and every test's student process is forked from the first
+process of a view (:mod:`doorlab.pset.zygote`), which imported those modules once, as the
+sandbox user, and runs none of the student's code. The grader runs one test at a time in a
+view, and each test still gets:
 
 - a view as fresh as a new one: before the fork, every other process of the view is killed
   and reaped and its private ``/tmp`` and ``/dev/shm`` are emptied (by that first process,
@@ -20,7 +21,8 @@ each test still gets:
   every process of the view still holding one of the test's pipes (a child that kept its
   stdout), and waits until they are gone.
 
-A view serves one grading (one submission): it ends with it, and every process in it.
+A view serves one grading (one submission): it ends with it, and every process in it. Two
+views of one grading share only the sandbox user (its keyrings, cleared before each test).
 """
 
 from __future__ import annotations
