@@ -107,12 +107,12 @@ raise NotImplementedError("calc_R_WL7_ref: no solution found")
 # InverseKinPointwise: reload, the hidden modules, dir_fd opens -------------------------------
 RELOAD = r"""
 import importlib, json, os
-import doorlab.ik
+import doorlab.control.ik
 ev = {}
-ik = importlib.reload(doorlab.ik)
+ik = importlib.reload(doorlab.control.ik)
 ev["reload_has_pointwise_ik"] = hasattr(ik, "pointwise_ik")
-for name in ("doorlab.ik_pointwise", "doorlab.geometry", "doorlab.laws", "doorlab.pset.folder"):
-    try:
+for name in ("doorlab.control.ik_pointwise", "doorlab.cell.geometry", "doorlab.control.laws",
+    "doorlab.pset.folder"): try:
         module = importlib.reload(importlib.import_module(name))
         ev[name] = "imported"
     except BaseException as e:

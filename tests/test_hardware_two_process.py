@@ -52,10 +52,10 @@ from lcm_fixtures import (  # noqa: F401
 )
 from realtime_host import host_watch
 
+from doorlab.cell.safety import SafetyLimits, check_command
 from doorlab.config import Scenario, load_scenario, validate
-from doorlab.episode import EpisodeResult
+from doorlab.episode.result import EpisodeResult
 from doorlab.hardware.ground_truth import GROUND_TRUTH_FILE, GroundTruth
-from doorlab.safety import SafetyLimits, check_command
 
 PRE_ARC = ["timeline.hold_duration=0.5", "timeline.approach_duration=3.0"]
 PRESET = Path(__file__).resolve().parents[1] / "examples" / "kuka_arm.yaml"
@@ -84,7 +84,7 @@ def scenario(controller: str, sets=PRE_ARC) -> Scenario:
 
 
 def arm_scenario(controller: str) -> Scenario:
-    from doorlab.commands import apply_overrides
+    from doorlab.cli.commands import apply_overrides
 
     s = apply_overrides(load_scenario(PRESET), ARM_TIMELINE)
     s.controller, s.doors = controller, "closed"
@@ -121,7 +121,7 @@ _ONE_PROCESS: dict[str, EpisodeResult] = {}
 def one_process(controller: str) -> EpisodeResult:
     """The one-process run with the same preset and timeline (once per controller)."""
     if controller not in _ONE_PROCESS:
-        from doorlab.controllers import run_controller
+        from doorlab.episode.controllers import run_controller
 
         _ONE_PROCESS[controller], _ = run_controller(arm_scenario(controller))
     return _ONE_PROCESS[controller]
@@ -130,9 +130,9 @@ def one_process(controller: str) -> EpisodeResult:
 def arc_figures(t: np.ndarray, q: np.ndarray, door: np.ndarray, window, s: Scenario):
     """(Q's max |radial error| over the arc [m], the left door opened at the arc's end [rad])
     from per-cycle joint positions q and hinge angles ``door`` at times t (episode time)."""
-    from doorlab.frames import p_L7Q
-    from doorlab.geometry import true_door_geometry
-    from doorlab.metrics import Kinematics
+    from doorlab.cell.frames import p_L7Q
+    from doorlab.cell.geometry import true_door_geometry
+    from doorlab.episode.metrics import Kinematics
 
     inside = (t >= window[0] - 1e-6) & (t <= window[1] + 1e-6)
     poses = Kinematics().poses(q[inside])

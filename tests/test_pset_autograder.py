@@ -28,7 +28,7 @@ import pytest
 from pset_attacks import attack_folder, evidence
 
 import doorlab
-from doorlab.cli import main
+from doorlab.cli.parser import main
 from doorlab.pset import autograder
 from doorlab.pset.folder import STUDENT_FILES, init_folder
 from doorlab.pset.grader import TESTS
@@ -162,7 +162,7 @@ def test_zip_holds_the_scripts_the_settings_and_this_doorlab_as_a_wheel(zip_path
         info_dir = f"doorlab-{doorlab.__version__}.dist-info"
         package_entries = {n for n in entries if not n.startswith(info_dir)}
         assert package_entries == {str(p) for p in autograder.package_files()}
-        assert {"doorlab/models/package.xml", "doorlab/pset/templates/README.md.j2"} <= entries
+        assert {"doorlab/cell/models/package.xml", "doorlab/pset/templates/README.md.j2"} <= entries
         assert not any("__pycache__" in n or n.endswith(".pyc") for n in entries)
         for name in ("METADATA", "WHEEL", "RECORD", "entry_points.txt"):
             assert f"{info_dir}/{name}" in entries

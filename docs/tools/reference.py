@@ -2,14 +2,15 @@
 
 A page asks for a generated block with a marker on a line of its own::
 
-    <!-- doorlab:cli -->            every command and option of doorlab.cli.build_parser()
+    <!-- doorlab:cli -->            every command and option of doorlab.cli.parser.build_parser()
     <!-- doorlab:scenario -->       every field of doorlab.config.Scenario
     <!-- doorlab:scenario-yaml -->  the default scenario as YAML
-    <!-- doorlab:exit-codes -->     doorlab.runs.EXIT_CODES and the signals' codes
+    <!-- doorlab:exit-codes -->     doorlab.outputs.runs.EXIT_CODES and the signals' codes
     <!-- doorlab:run-files -->      what a run folder holds
-    <!-- doorlab:metrics -->        the keys of metrics.json (doorlab.metrics.DoorMetrics)
-    <!-- doorlab:log-channels -->   the channels of log.npz (doorlab.episode.EpisodeResult)
-    <!-- doorlab:plan-log -->       the adaptive plan's own log (doorlab.adaptive.LOG_CHANNELS)
+    <!-- doorlab:metrics -->        the keys of metrics.json (doorlab.episode.metrics.DoorMetrics)
+    <!-- doorlab:log-channels -->   the channels of log.npz (doorlab.episode.result.EpisodeResult)
+    <!-- doorlab:plan-log -->       the adaptive plan's own log
+    (doorlab.control.adaptive.LOG_CHANNELS)
     <!-- doorlab:public-api -->     mkdocstrings blocks for every name of doorlab.__all__
     <!-- doorlab:api GROUP -->      mkdocstrings blocks for the modules of API_GROUPS[GROUP]
     <!-- doorlab:figure T/NAME -->  a figure of docs/figures with the command that made it
@@ -60,7 +61,7 @@ STATUS_MEANINGS = {
     "safety_stop": "a command broke a safety limit and was not sent (limit, joint and time in "
     "`metrics.json`; `--hardware`, or `station.safety.enabled` in simulation)",
 }
-"""What each status of :data:`doorlab.runs.EXIT_CODES` means (a new status without an entry
+"""What each status of :data:`doorlab.outputs.runs.EXIT_CODES` means (a new status without an entry
 here stops the build)."""
 
 RUN_FILES = {
@@ -73,7 +74,7 @@ RUN_FILES = {
     "hinge_estimate_error.png": "plans that estimate the hinge (`adaptive`): the distance of the "
     "running hinge estimate from the true axis over time",
 }
-"""Files of a run folder besides the plots of :data:`doorlab.plots.RUN_PLOT_NAMES` and the
+"""Files of a run folder besides the plots of :data:`doorlab.outputs.plots.RUN_PLOT_NAMES` and the
 manifest (a test compares a real run folder with this page)."""
 
 API_GROUPS = {
@@ -83,62 +84,62 @@ API_GROUPS = {
             "doorlab.config",
             "doorlab.config_checks",
             "doorlab.errors",
-            "doorlab.inputs",
+            "doorlab.runtime.inputs",
             "doorlab.constants",
         ],
     ),
     "cell": (
         "The cell: station, frames, geometry",
         [
-            "doorlab.station",
-            "doorlab.arm_cell",
+            "doorlab.cell.station",
+            "doorlab.cell.arm_cell",
             "doorlab.kuka",
-            "doorlab.models",
-            "doorlab.frames",
-            "doorlab.geometry",
-            "doorlab.door_model",
+            "doorlab.cell.models",
+            "doorlab.cell.frames",
+            "doorlab.cell.geometry",
+            "doorlab.cell.door_model",
         ],
     ),
     "control": (
         "Control laws, plans and controllers",
         [
-            "doorlab.laws",
-            "doorlab.plans",
-            "doorlab.ik",
-            "doorlab.ik_pointwise",
-            "doorlab.adaptive",
-            "doorlab.hinge_estimation",
-            "doorlab.controllers",
-            "doorlab.safety",
+            "doorlab.control.laws",
+            "doorlab.control.plans",
+            "doorlab.control.ik",
+            "doorlab.control.ik_pointwise",
+            "doorlab.control.adaptive",
+            "doorlab.control.hinge_estimation",
+            "doorlab.episode.controllers",
+            "doorlab.cell.safety",
         ],
     ),
     "episodes": (
         "Episodes and their results",
         [
-            "doorlab.schedule",
-            "doorlab.plan_runner",
+            "doorlab.episode.schedule",
+            "doorlab.episode.plan_runner",
             "doorlab.episode",
-            "doorlab.simulation",
-            "doorlab.metrics",
-            "doorlab.runs",
-            "doorlab.plots",
-            "doorlab.replay",
-            "doorlab.robustness",
-            "doorlab.reference",
-            "doorlab.legacy",
+            "doorlab.episode.simulation",
+            "doorlab.episode.metrics",
+            "doorlab.outputs.runs",
+            "doorlab.outputs.plots",
+            "doorlab.outputs.replay",
+            "doorlab.studies.robustness",
+            "doorlab.studies.reference",
+            "doorlab.studies.legacy",
         ],
     ),
     "command-line": (
         "The command line, processes and pages",
         [
             "doorlab.cli",
-            "doorlab.commands",
-            "doorlab.argtypes",
-            "doorlab.entry",
-            "doorlab.interrupts",
-            "doorlab.executor",
-            "doorlab.pages",
-            "doorlab.pdf",
+            "doorlab.cli.commands",
+            "doorlab.runtime.argtypes",
+            "doorlab.cli.entry",
+            "doorlab.runtime.interrupts",
+            "doorlab.runtime.executor",
+            "doorlab.outputs.pages",
+            "doorlab.runtime.pdf",
         ],
     ),
     "report": ("The report (doorlab report)", ["doorlab.report"]),
@@ -440,7 +441,7 @@ def cli_anchor(words: tuple[str, ...]) -> str:
 
 def cli_markdown() -> str:
     """One section per command: its help, usage and a table of its options."""
-    from doorlab.cli import build_parser
+    from doorlab.cli.parser import build_parser
 
     parser = build_parser()
     out = []
@@ -484,8 +485,8 @@ def cli_markdown() -> str:
 
 def exit_codes_markdown() -> str:
     """``doorlab run``'s exit codes by status, and the signals' codes."""
-    from doorlab.interrupts import INTERRUPTS
-    from doorlab.runs import EXIT_CODES
+    from doorlab.outputs.runs import EXIT_CODES
+    from doorlab.runtime.interrupts import INTERRUPTS
 
     missing = [s for s in EXIT_CODES if s not in STATUS_MEANINGS]
     if missing:
@@ -507,9 +508,9 @@ def exit_codes_markdown() -> str:
 
 
 def run_files_markdown() -> str:
-    """The files of a run folder: the plots from doorlab.plots, the rest from RUN_FILES."""
-    from doorlab import plots
-    from doorlab.runs import MANIFEST_NAME
+    """The files of a run folder: the plots from doorlab.outputs.plots, the rest from RUN_FILES."""
+    from doorlab.outputs import plots
+    from doorlab.runtime.folders import MANIFEST_NAME
 
     out = ["| file | what |", "|---|---|"]
     for name, text in RUN_FILES.items():
@@ -519,7 +520,9 @@ def run_files_markdown() -> str:
     for name in plots.RUN_PLOT_NAMES:
         function = getattr(plots, f"plot_{name}", None)
         if function is None or not _summary(function):
-            raise ValueError(f"run plot {name!r} has no documented doorlab.plots.plot_{name}")
+            raise ValueError(
+                f"run plot {name!r} has no documented doorlab.outputs.plots.plot_{name}"
+            )
         out.append(f"| `{name}.png` | {_cell(_summary(function))} |")
     for name, text in RUN_FILES.items():
         if name.endswith(".png"):
@@ -550,7 +553,7 @@ def _dataclass_table(cls: type, texts: dict[str, str], header: str) -> str:
 
 def metrics_markdown() -> str:
     """The keys of metrics.json: the fields of DoorMetrics."""
-    from doorlab.metrics import DoorMetrics
+    from doorlab.episode.metrics import DoorMetrics
 
     texts = {**attribute_comments(DoorMetrics), **docstring_attributes(DoorMetrics)}
     return _dataclass_table(DoorMetrics, texts, "key")
@@ -558,14 +561,14 @@ def metrics_markdown() -> str:
 
 def log_channels_markdown() -> str:
     """The channels of log.npz: the fields of EpisodeResult."""
-    from doorlab.episode import EpisodeResult
+    from doorlab.episode.result import EpisodeResult
 
     return _dataclass_table(EpisodeResult, docstring_attributes(EpisodeResult), "channel")
 
 
 def plan_log_markdown() -> str:
-    """The adaptive plan's per-tick channels (doorlab.adaptive.LOG_CHANNELS)."""
-    from doorlab import adaptive
+    """The adaptive plan's per-tick channels (doorlab.control.adaptive.LOG_CHANNELS)."""
+    from doorlab.control import adaptive
 
     comments = attribute_comments(adaptive, names=["LOG_CHANNELS"])
     out = ["| channel | unit | what |", "|---|---|---|"]
@@ -646,7 +649,7 @@ def public_api_markdown() -> str:
         value = getattr(doorlab, name)
         module = getattr(value, "__module__", None)
         if not isinstance(module, str) or not hasattr(value, "__qualname__"):
-            module = f"doorlab.{doorlab._LAZY[name]}"  # a constant: documented in its module
+            module = doorlab._LAZY[name]  # a constant: documented in its module
             summary = ""
         else:
             summary = _summary(value)

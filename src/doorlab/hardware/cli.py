@@ -12,7 +12,7 @@ from pathlib import Path
 from doorlab.config import Scenario
 from doorlab.errors import ConfigError, NoDriver
 from doorlab.hardware.protocol import resolve_lcm_url
-from doorlab.runs import EXIT_CODES
+from doorlab.outputs.runs import EXIT_CODES
 
 
 def _confirm(yes: bool):

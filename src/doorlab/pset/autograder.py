@@ -313,9 +313,9 @@ def run_autograder(
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -I -m doorlab.pset.autograder [--root ROOT] [--jobs N] [--reference FILE]
     [--seed N] [--check]``."""
-    from doorlab.argtypes import OneLineParser, bounded_int
     from doorlab.errors import interrupt_exit_code
-    from doorlab.interrupts import install_signal_handlers
+    from doorlab.runtime.argtypes import OneLineParser, bounded_int
+    from doorlab.runtime.interrupts import install_signal_handlers
 
     parser = OneLineParser(
         prog="run_autograder", description="Grade a Gradescope submission with doorlab."

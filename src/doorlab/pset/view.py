@@ -64,14 +64,14 @@ STUDENT_MODULES = (
     "doorlab.config",
     "doorlab.config_checks",
     "doorlab.constants",
-    "doorlab.door_model",
+    "doorlab.cell.door_model",
     "doorlab.errors",
-    "doorlab.frames",
-    "doorlab.ik",
-    "doorlab.inputs",
+    "doorlab.cell.frames",
+    "doorlab.control.ik",
+    "doorlab.runtime.inputs",
     "doorlab.kuka",
-    "doorlab.models",
-    "doorlab.station",
+    "doorlab.cell.models",
+    "doorlab.cell.station",
     "doorlab.pset",
     "doorlab.pset.channel",
     "doorlab.pset.honesty",
@@ -82,7 +82,7 @@ STUDENT_MODULES = (
 )
 """doorlab's modules in the student's view: what the folder's files and the worker import.
 Nothing else of doorlab is there (a test checks that none is a reference solution)."""
-STUDENT_DATA = ("doorlab/models",)
+STUDENT_DATA = ("doorlab/cell/models",)
 """Package folders copied whole (the SDF models)."""
 STUDENT_DISTRIBUTIONS = ("drake", "numpy", "matplotlib")
 """Distributions in the view, with everything they require."""
