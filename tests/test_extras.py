@@ -69,7 +69,7 @@ def test_what_runs_and_grades_imports_none_of_it():
         "doorlab.pset.roster",
         "doorlab.pset.views",
         "doorlab.pset.zygote",
-        "doorlab.executor",
+        "doorlab.runtime.executor",
     ]
     code = "import importlib\n" + "".join(f"importlib.import_module({m!r})\n" for m in modules)
     proc = _run(code)

@@ -31,7 +31,7 @@ from pathlib import Path
 import pset_fixtures
 import pytest
 
-from doorlab.cli import main
+from doorlab.cli.parser import main
 from doorlab.errors import ConfigError
 from doorlab.pset.batch import GRADES_CSV, RESULTS_JSON, summarize
 from doorlab.pset.folder import init_folder

@@ -3,7 +3,7 @@
 :func:`grade_class` finds the submissions (:mod:`doorlab.pset.roster`: Gradescope's export,
 or a folder of folders and zips), simulates doorlab's reference episodes once for the whole
 class (:func:`doorlab.pset.grader.grade_reference`; or takes an earlier grading's), and grades
-every submission through :mod:`doorlab.executor` (local worker processes, or a Dask cluster
+every submission through :mod:`doorlab.runtime.executor` (local worker processes, or a Dask cluster
 with ``scheduler``):
 
 - the one intake (:func:`doorlab.pset.grader.take_files`) runs here and sends the worker only
@@ -19,8 +19,8 @@ with ``scheduler``):
   rewritten atomically: Ctrl-C leaves a consistent sheet of the finished submissions, and
   ``--resume`` grades only the others (those whose results are in ``DIR`` are kept).
 
-``DIR`` is doorlab's folder (:mod:`doorlab.runs`: a manifest of what doorlab wrote; ``--force``
-replaces only such a folder). ``DIR/class.json`` holds the reference figures and the
+``DIR`` is doorlab's folder (:mod:`doorlab.outputs.runs`: a manifest of what doorlab wrote;
+``--force`` replaces only such a folder). ``DIR/class.json`` holds the reference figures and the
 assignment's digest, so a resumed class is graded against the same reference and assignment.
 """
 
@@ -132,7 +132,7 @@ class _Previous:
 def _check_out(out: Path, submissions: list[Submission], *, resume: bool, force: bool):
     """Checks that ``out`` may be written (writing nothing); returns what ``--resume`` keeps
     (None for a new class)."""
-    from doorlab.runs import check_replaceable, foreign_file
+    from doorlab.runtime.folders import check_replaceable, foreign_file
 
     if out.exists() and not out.is_dir():
         raise OutputError(f"--out {str(out)!r} is a file, not a folder")
@@ -170,7 +170,7 @@ def _check_out(out: Path, submissions: list[Submission], *, resume: bool, force:
 def _commit(out: Path, submission_id: str, results: dict) -> None:
     """``out/<id>/results.json``, atomically (a staging folder renamed into place)."""
     from doorlab.pset.grader import write_results
-    from doorlab.runs import MANIFEST_NAME, commit_output, prepare_output, record_written
+    from doorlab.runtime.folders import MANIFEST_NAME, commit_output, prepare_output, record_written
 
     target = out / submission_id
     label = f"{str(target)!r}"
@@ -179,7 +179,7 @@ def _commit(out: Path, submission_id: str, results: dict) -> None:
         write_results(results, staging / RESULTS_JSON)
         commit_output(staging, target)
     finally:
-        from doorlab.runs import discard_output
+        from doorlab.runtime.folders import discard_output
 
         discard_output(staging)
     record_written(out, [target / RESULTS_JSON, target / MANIFEST_NAME])
@@ -190,7 +190,7 @@ def _write_text(out: Path, name: str, text: str) -> None:
     import os
     import tempfile
 
-    from doorlab.runs import follow_umask, record_written
+    from doorlab.runtime.folders import follow_umask, record_written
 
     path = out / name
     fd, tmp = tempfile.mkstemp(prefix=f".{name}.", suffix=".tmp", dir=out)
@@ -270,7 +270,7 @@ def grade_class(
         GradingError: The reference episodes could not be simulated (nothing written).
         KeyboardInterrupt: After writing the sheet of the submissions finished so far.
     """
-    from doorlab.executor import CONNECT_TIMEOUT_S, check_scheduler
+    from doorlab.runtime.executor import CONNECT_TIMEOUT_S, check_scheduler
 
     source, out = Path(source), Path(out)
     submissions = find_submissions(source)
@@ -305,7 +305,7 @@ def grade_class(
     run.start(info, resume=resume, force=force, todo=todo)
     try:
         if todo:
-            from doorlab.executor import open_executor
+            from doorlab.runtime.executor import open_executor
 
             with open_executor(
                 jobs=min(jobs, len(todo)),
@@ -346,7 +346,7 @@ class _ClassRun:
 
     def start(self, info: dict, *, resume: bool, force: bool, todo: list) -> None:
         """Creates the folder (a new class) and writes the class's file and sheet."""
-        from doorlab.runs import staged_output
+        from doorlab.runtime.folders import staged_output
 
         if not (resume and self.out.is_dir()):
             with staged_output(self.out, force=force):

@@ -193,8 +193,8 @@ def grasp_configuration() -> np.ndarray:
 
 @functools.cache
 def _grasp_configuration() -> np.ndarray:
-    from doorlab.ik import solve_ik
-    from doorlab.station import make_controller_plant
+    from doorlab.cell.station import make_controller_plant
+    from doorlab.control.ik import solve_ik
 
     return solve_ik(
         make_controller_plant(),

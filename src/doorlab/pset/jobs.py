@@ -495,8 +495,8 @@ def _run(folder, todo: list[str], options: dict, request: dict, parallel: int, p
 def _warm(todo: list[str], options: dict[str, dict]) -> None:
     """Imports what the jobs need and computes what does not depend on the submission, once,
     before the jobs are forked (each would otherwise do it again)."""
+    from doorlab.cell.station import make_controller_plant
     from doorlab.pset import checks, episodes  # noqa: F401 - pydrake, the checks
-    from doorlab.station import make_controller_plant
 
     make_controller_plant()
     plans = [j for j in todo if j in ("student:velocity", "student:impedance")]

@@ -31,8 +31,8 @@ from pathlib import Path
 import yaml
 
 from doorlab.errors import ConfigError
-from doorlab.inputs import read_text_file
 from doorlab.pset.intake import shown_name
+from doorlab.runtime.inputs import read_text_file
 
 METADATA_NAME = "submission_metadata.yml"
 """Gradescope's list of the export's submissions and their students."""
