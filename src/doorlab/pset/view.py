@@ -376,6 +376,20 @@ def bwrap_argv(
             argv += ["--size", str(TMPFS_BYTES), "--perms", "1777", "--tmpfs", dest]
         else:
             argv += ["--bind", str(folder), dest]
+    # Folders on the way to a distribution bound from under /tmp or /dev/shm would be made in
+    # those writable places: each such top folder is a tmpfs of its own, read-only at the end.
+    private = ("/tmp", "/dev/shm")
+    tops = sorted(
+        {
+            "/".join(op[1].split("/")[: p.count("/") + 2])
+            for op in view.mounts
+            if op[0] == "dir"
+            for p in private
+            if op[1].startswith(p + "/")
+        }
+    )
+    for top in tops:
+        argv += ["--tmpfs", top]
     for op in view.mounts:
         kind = op[0]
         if kind == "dir":
@@ -390,6 +404,8 @@ def bwrap_argv(
     # The root itself (a tmpfs holding the mount points, the user's own in a user
     # namespace) read-only too: not recursive, so the three writable places stay writable.
     argv += ["--remount-ro", "/"]
+    for top in tops:
+        argv += ["--remount-ro", top]
     return [*argv, "--"]
 
 
