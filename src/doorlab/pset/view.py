@@ -61,6 +61,7 @@ PROBE_TIMEOUT_S = 30.0
 
 STUDENT_MODULES = (
     "doorlab",
+    "doorlab.cell",
     "doorlab.cell.door_model",
     "doorlab.cell.frames",
     "doorlab.cell.models",
@@ -68,6 +69,7 @@ STUDENT_MODULES = (
     "doorlab.config",
     "doorlab.config_checks",
     "doorlab.constants",
+    "doorlab.control",
     "doorlab.control.ik",
     "doorlab.errors",
     "doorlab.kuka",
@@ -77,11 +79,12 @@ STUDENT_MODULES = (
     "doorlab.pset.station_api",
     "doorlab.pset.task_helpers",
     "doorlab.pset.worker",
+    "doorlab.runtime",
     "doorlab.runtime.inputs",
 )
-"""doorlab's modules in the student's view: what the folder's files and the worker import
-(with the ``__init__`` of the packages that hold them: :func:`student_files`). Nothing else of
-doorlab is there (a test checks that none is a reference solution)."""
+"""doorlab's modules in the student's view: what the folder's files and the worker import, and
+the packages that hold them (their ``__init__``, docstrings only). Nothing else of doorlab is
+there (a test checks that none is a reference solution)."""
 STUDENT_DATA = ("doorlab/cell/models",)
 """Package folders copied whole (the SDF models)."""
 STUDENT_DISTRIBUTIONS = ("drake", "numpy", "matplotlib")
@@ -113,8 +116,6 @@ def student_files(package_dir: Path | None = None) -> list[str]:
             out.append(str(rel / "__init__.py"))
         else:
             out.append(str(rel) + ".py")
-        for parent in rel.parents[:-1]:  # the packages on the way (doorlab.cell for cell.frames)
-            out.append(str(parent / "__init__.py"))
     for folder in STUDENT_DATA:
         for path in sorted((package_dir.parent / folder).rglob("*")):
             if path.is_file() and "__pycache__" not in path.parts and path.suffix != ".pyc":
