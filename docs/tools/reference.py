@@ -602,23 +602,26 @@ def api_markdown(group: str) -> str:
 
 def packages_markdown() -> str:
     """The package's architecture: one row per API page, from the foundations up, with the
-    first paragraph of its package's docstring and its modules."""
+    first paragraph of its package's docstring (or the page's title) and its modules."""
     api_coverage()
-    out = ["| part | what it holds | modules |", "|---|---|---|"]
+    out = ["| part | what it holds |", "|---|---|"]
     for group, (title, modules) in API_GROUPS.items():
         first = importlib.import_module(modules[0])
-        is_package = len(modules) == 1 and hasattr(first, "__path__")
-        summary = _summary(first) if is_package else title
-        if is_package:
+        if len(modules) == 1 and hasattr(first, "__path__"):  # a sub-package
             names = sorted(
                 m.rsplit(".", 1)[1]
                 for m in package_modules()
-                if m.startswith(modules[0] + ".") and m.count(".") == modules[0].count(".") + 1
+                if m.startswith(modules[0] + ".")
+                and m.count(".") == modules[0].count(".") + 1
+                and not m.rsplit(".", 1)[1].startswith("_")  # not cli's __main__
             )
-            listed = f"`{modules[0]}`: " + ", ".join(names)
-        else:
-            listed = ", ".join(f"`{m}`" for m in modules)
-        out.append(f"| [{_cell(title)}]({group}.md) | {_cell(summary)} | {_cell(listed)} |")
+            part = f"[`{modules[0]}`]({group}.md)"
+            text = f"{_summary(first)} *Modules:* {', '.join(names)}."
+        else:  # modules at the top of the package
+            part = f"[`doorlab`]({group}.md)"
+            names = ", ".join(m.rsplit(".", 1)[1] for m in modules)
+            text = f"{title}, at the package's top. *Modules:* {names}."
+        out.append(f"| {_cell(part)} | {_cell(text)} |")
     return "\n".join(out) + "\n"
 
 
