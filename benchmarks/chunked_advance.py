@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """What advancing an episode in chunks costs (issue 19), side by side with one AdvanceTo.
 
-``doorlab.simulation.advance_interruptibly`` calls ``Simulator.AdvanceTo`` every
+``doorlab.episode.simulation.advance_interruptibly`` calls ``Simulator.AdvanceTo`` every
 ``ADVANCE_CHUNK_S`` of simulated time, so that Python's signal handlers (Ctrl-C, SIGTERM)
 run during an episode of C++ systems only (IK) or under real-time pacing. This script runs
 the default 24 s episode of IK (10 knots) and of the velocity plan, doors closed, with the
@@ -53,9 +53,9 @@ PROBE_CALLS = 2000
 def _timed_episode(controller: str, chunk: float, default: float) -> tuple[dict, float, object]:
     """One episode; (CPU s of the advance, its AdvanceTo calls and the fixed CPU s of one;
     the longest wall s between returns to Python; the result)."""
-    import doorlab.simulation as simulation
+    import doorlab.episode.simulation as simulation
     from doorlab.config import Scenario
-    from doorlab.controllers import run_controller
+    from doorlab.episode.controllers import run_controller
 
     original = simulation.advance_interruptibly
     advance_to = simulation.Simulator.AdvanceTo
@@ -105,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error("--repeats must be >= 1")
-    from doorlab.simulation import ADVANCE_CHUNK_S as chunk
+    from doorlab.episode.simulation import ADVANCE_CHUNK_S as chunk
 
     report = {"load_before": _load(), "chunk_s": chunk, "controllers": {}}
     for controller in ("ik", "velocity"):

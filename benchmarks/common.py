@@ -169,13 +169,13 @@ class Context:
         return self._cache[key]
 
     def plant(self):
-        from doorlab.station import make_controller_plant
+        from doorlab.cell.station import make_controller_plant
 
         return self.get("plant", make_controller_plant)
 
     def geometry(self):
         from doorlab import Scenario
-        from doorlab.geometry import default_door_geometry
+        from doorlab.cell.geometry import default_door_geometry
 
         return self.get("geometry", lambda: default_door_geometry(Scenario().arc.angle_end_deg))
 

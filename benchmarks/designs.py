@@ -16,7 +16,7 @@ Per repeat, three simulations of the same 24 s episode, each timed around
 ``new``
     The episode as ``doorlab.run_controller`` runs it (``EpisodeResult.wall_time_s``).
 ``old``
-    The 353b732 design (:mod:`doorlab.legacy`): PD actuators, the whole scene colliding,
+    The 353b732 design (:mod:`doorlab.studies.legacy`): PD actuators, the whole scene colliding,
     Python ticks from t = 0.
 
 Each is timed twice: wall-clock (``*_s``) and the CPU time of this process (``*_cpu_s``,
@@ -65,9 +65,9 @@ def build_floor(scenario, result):
     from pydrake.systems.primitives import ConstantVectorSource, TrajectorySource
     from pydrake.trajectories import PiecewisePolynomial
 
+    from doorlab.cell.station import build_station
     from doorlab.constants import Q_HOME
-    from doorlab.simulation import _initialize
-    from doorlab.station import build_station
+    from doorlab.episode.simulation import _initialize
 
     builder = DiagramBuilder()
     station = build_station(scenario.station)
@@ -147,7 +147,7 @@ class ReplayPlan:
         self._tau_ff = result.tau_feedforward
 
     def command(self, t: float, state):
-        from doorlab.plans import Command
+        from doorlab.control.plans import Command
 
         i = min(round((self._t0 + t) / self._period) + 1, len(self._t) - 1)
         return Command(self._q_ref[i], self._tau_ff[i])
@@ -155,11 +155,11 @@ class ReplayPlan:
 
 def replay_episode(scenario, result):
     """The episode's own machinery with :class:`ReplayPlan` as the arc plan (the grasp held
-    at the recorded start), returning its :class:`~doorlab.simulation.EpisodeResult`."""
+    at the recorded start), returning its :class:`~doorlab.episode.result.EpisodeResult`."""
     import numpy as np
 
-    from doorlab.plans import JointSpacePlan
-    from doorlab.simulation import run_episode
+    from doorlab.control.plans import JointSpacePlan
+    from doorlab.episode.simulation import run_episode
 
     arc_start = result.plan_starts[3]
     q_start = result.q_commanded[np.searchsorted(result.t, arc_start) - 1]
@@ -186,7 +186,7 @@ def time_episode(run, scenario) -> tuple[float, float, float]:
 def bench_designs(names: Sequence[str], settings: Settings, ctx: Context) -> list[Metric]:
     """floor / new / old for each selected ``design/<controller>_<doors>``, round-robin."""
     from doorlab import Scenario, run_controller
-    from doorlab.legacy import run_legacy_controller
+    from doorlab.studies.legacy import run_legacy_controller
 
     ctx.warm()
     recorded = {}

@@ -39,11 +39,11 @@ def spectral_radius(M: np.ndarray, K: np.ndarray, D: np.ndarray, h: float, impli
 
 def main() -> None:
     from doorlab import Scenario
-    from doorlab.commands import apply_overrides
+    from doorlab.cell.geometry import scenario_door_geometry
+    from doorlab.cell.station import joint_damping, make_controller_plant
+    from doorlab.cli.commands import apply_overrides
     from doorlab.constants import Q_HOME
-    from doorlab.controllers import _grasp_configuration
-    from doorlab.geometry import scenario_door_geometry
-    from doorlab.station import joint_damping, make_controller_plant
+    from doorlab.episode.controllers import _grasp_configuration
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--set", dest="overrides", action="append", default=[])

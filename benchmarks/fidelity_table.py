@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""doorlab's eight experiments next to the original station's (``doorlab.reference``).
+"""doorlab's eight experiments next to the original station's (``doorlab.studies.reference``).
 
 Reads the ``metrics.json`` of two ``doorlab report`` folders (no simulation is re-run):
 
@@ -27,7 +27,7 @@ import math
 import sys
 from pathlib import Path
 
-from doorlab.reference import ORIGINAL_STATION, ReferenceRun
+from doorlab.studies.reference import ORIGINAL_STATION, ReferenceRun
 
 BENCH_DIR = Path(__file__).resolve().parent
 LABELS = {

@@ -12,7 +12,7 @@ two ways (docs/explanation/model.md, "Inner loop gains"):
 For each ``station.inner_loop.dq_scale`` the script runs IK (10 knots) and velocity with the
 doors closed and open, and the impedance plan with both, and tabulates the tracking errors, the
 door at the arc's end (t = 21 s), the door's largest lag behind the plan and the statuses.
-Every figure comes from ``doorlab.metrics.compute_metrics``.
+Every figure comes from ``doorlab.episode.metrics.compute_metrics``.
 
 Usage::
 
@@ -46,7 +46,7 @@ QUICK_RUNS = (("velocity", "closed"), ("impedance", "closed"))
 
 
 def _scenario(controller: str, doors: str, scale: float, overrides: list[str]):
-    from doorlab.commands import apply_overrides
+    from doorlab.cli.commands import apply_overrides
     from doorlab.config import Scenario
 
     scenario = apply_overrides(Scenario(controller=controller, doors=doors), overrides)
@@ -56,9 +56,9 @@ def _scenario(controller: str, doors: str, scale: float, overrides: list[str]):
 
 def run_one(controller: str, doors: str, scale: float, overrides: list[str]) -> dict:
     """Worker: one episode, its metrics as a dict (status ``error`` if it raised)."""
-    from doorlab.controllers import run_controller
-    from doorlab.geometry import true_door_geometry
-    from doorlab.metrics import compute_metrics
+    from doorlab.cell.geometry import true_door_geometry
+    from doorlab.episode.controllers import run_controller
+    from doorlab.episode.metrics import compute_metrics
 
     scenario = _scenario(controller, doors, scale, overrides)
     row = {"controller": controller, "doors": doors, "dq_scale": scale}

@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
-"""The arm preset's modelling choices, measured side by side (README, "On the real arm").
+"""The arm preset's modelling choices, measured side by side (docs/guides/real-arm.md).
 
 KUKA does not publish how its joint impedance turns the dimensionless damping d into N m s/rad.
 doorlab takes D_i = 2 d sqrt(K_i M_ii) with M_ii the model's joint inertia at the problem
-set's grasp pose (``examples/kuka_arm.yaml``, :func:`doorlab.station.loop_gains`). This script
+set's grasp pose (``examples/kuka_arm.yaml``, :func:`doorlab.cell.station.loop_gains`). This script
 runs the four controllers on the preset, doors closed, three ways:
 
 - ``grasp_pose``: the preset (M_ii at Q_GRASP, constant);
@@ -14,7 +14,7 @@ runs the four controllers on the preset, doors closed, three ways:
 
 and tabulates the door at the arc's end, Q's max radial error, whether the handle was held,
 the peak |external torque| against kuka_driver's freeze limits, and how far D moved over the
-episode (``each_step``). Every figure comes from ``doorlab.metrics.compute_metrics``.
+episode (``each_step``). Every figure comes from ``doorlab.episode.metrics.compute_metrics``.
 
 Usage::
 
@@ -38,7 +38,7 @@ VARIANTS = ("grasp_pose", "each_step", "step_2ms")
 
 
 def _scenario(controller: str, variant: str, overrides: list[str]):
-    from doorlab.commands import apply_overrides
+    from doorlab.cli.commands import apply_overrides
     from doorlab.config import load_scenario, validate
 
     scenario = apply_overrides(load_scenario(PRESET), overrides)
@@ -52,12 +52,13 @@ def _each_step_episode(scenario):
     """The preset's episode with the joints' damping set from M_ii(q) before every plant step."""
     from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 
+    from doorlab.cell.frames import ARM_JOINTS
+    from doorlab.cell.station import make_controller_plant
     from doorlab.constants import Q_HOME
-    from doorlab.controllers import episode_plans
-    from doorlab.frames import ARM_JOINTS
+    from doorlab.episode.controllers import episode_plans
+    from doorlab.episode.schedule import make_schedule
+    from doorlab.episode.simulation import _result, build_simulated_episode
     from doorlab.kuka import CYCLE_PERIOD, kuka_damping
-    from doorlab.simulation import _result, build_simulated_episode, make_schedule
-    from doorlab.station import make_controller_plant
 
     plans, widths, arc = episode_plans(scenario)
     schedule = make_schedule(
@@ -97,11 +98,11 @@ def _each_step_episode(scenario):
 
 
 def run_case(controller: str, variant: str, overrides: list[str]) -> dict:
-    from doorlab.controllers import run_controller
+    from doorlab.cell.geometry import true_door_geometry
+    from doorlab.episode.controllers import run_controller
+    from doorlab.episode.metrics import compute_metrics
     from doorlab.errors import RunStopped
-    from doorlab.geometry import true_door_geometry
     from doorlab.kuka import external_torque_limits
-    from doorlab.metrics import compute_metrics
 
     scenario = _scenario(controller, variant, overrides)
     row = {"controller": controller, "variant": variant}

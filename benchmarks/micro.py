@@ -18,10 +18,11 @@ from common import (
 
 
 def _pointwise_ik(ctx: Context, knots: int):
-    """Pointwise IK along the arc exactly as ``doorlab.controllers.build_ik_plan`` calls it."""
+    """Pointwise IK along the arc exactly as ``doorlab.episode.controllers.build_ik_plan`` calls
+    it."""
     from doorlab import Scenario
     from doorlab.constants import Q_HOME
-    from doorlab.ik_pointwise import pointwise_ik
+    from doorlab.control.ik_pointwise import pointwise_ik
 
     scenario = Scenario(controller="ik")
     geometry = ctx.geometry()
@@ -44,7 +45,7 @@ def _arc_states(ctx: Context):
     from pydrake.trajectories import PiecewisePolynomial
 
     from doorlab import Scenario
-    from doorlab.plans import ArmState
+    from doorlab.control.plans import ArmState
 
     def build():
         ik = _pointwise_ik(ctx, 10)
@@ -74,7 +75,7 @@ def bench_tick(controller: str) -> Callable[[Settings, Context], list[Metric]]:
         import numpy as np
 
         from doorlab import Scenario
-        from doorlab.controllers import REGISTRY
+        from doorlab.episode.controllers import REGISTRY
 
         build = REGISTRY[controller].build
         scenario = Scenario(controller=controller)

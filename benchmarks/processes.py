@@ -108,7 +108,7 @@ print("PEAK_RSS_KIB", _peak_rss_kib())
 _IMPORT_CHILD = (
     _PEAK_RSS
     + """
-import doorlab, doorlab.controllers, doorlab.metrics
+import doorlab, doorlab.episode.controllers, doorlab.episode.metrics
 
 print("PEAK_RSS_KIB", _peak_rss_kib())
 """
@@ -162,7 +162,7 @@ def bench_memory(settings: Settings, ctx: Context) -> list[Metric]:
             info={
                 "method": MEMORY_METHOD,
                 "ru_maxrss_mib": baseline_maxrss,
-                "what": "import doorlab, doorlab.controllers, doorlab.metrics",
+                "what": "import doorlab, doorlab.episode.controllers, doorlab.episode.metrics",
             },
         ),
     ]

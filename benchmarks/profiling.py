@@ -18,8 +18,8 @@ def bench_profile(settings: Settings, ctx: Context) -> tuple[list[Metric], dict]
     import pstats
 
     from doorlab import Scenario, run_controller
-    from doorlab.plans import TaskSpaceVelocityPlan
-    from doorlab.simulation import PlanRunner
+    from doorlab.control.plans import TaskSpaceVelocityPlan
+    from doorlab.episode.plan_runner import PlanRunner
 
     ctx.warm()
     scenario = Scenario(controller="velocity", doors="closed")

@@ -88,9 +88,9 @@ def _student(folder: Path, root: Path, name: str):
 
 def _remote_ticks(folder: Path, root: Path, name: str, states) -> tuple[float, float]:
     """(wall, cpu) [s] of the ticks through the channel (cpu: both processes)."""
+    from doorlab.cell.frames import p_L7Q
     from doorlab.constants import Q_HOME
-    from doorlab.frames import p_L7Q
-    from doorlab.plans import ArmState
+    from doorlab.control.plans import ArmState
     from doorlab.pset.episodes import RemotePlan
 
     with _student(folder, root, name) as student:
@@ -106,8 +106,8 @@ def _remote_ticks(folder: Path, root: Path, name: str, states) -> tuple[float, f
 
 
 def _local_ticks(plans_module, states) -> tuple[float, float]:
-    from doorlab.frames import p_L7Q
-    from doorlab.plans import ArmState
+    from doorlab.cell.frames import p_L7Q
+    from doorlab.control.plans import ArmState
     from doorlab.pset.station_api import ProblemSetPlanAdapter
 
     old = importlib.import_module("open_left_door")

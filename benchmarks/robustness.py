@@ -24,14 +24,14 @@ import sys
 import time
 from pathlib import Path
 
-from doorlab.argtypes import OneLineParser, bounded_int
-from doorlab.commands import apply_overrides
+from doorlab.cli.commands import apply_overrides
 from doorlab.config import CONTROLLERS, Scenario
 from doorlab.errors import DoorlabError
-from doorlab.robustness import (
+from doorlab.outputs.plots import plot_hinge_convergence
+from doorlab.runtime.argtypes import OneLineParser, bounded_int
+from doorlab.studies.robustness import (
     ACCEPTANCE_YAW_ERRORS_DEG,
     largest_opening_yaw,
-    plot_hinge_convergence,
     plot_robustness,
     robustness_table,
     run_case,
@@ -126,9 +126,9 @@ def main(argv: list[str] | None = None) -> int:
 
     # Figures (from the rows; the convergence plot reruns the adaptive grid's episodes,
     # since the grid's worker processes return rows only).
-    from doorlab.geometry import true_door_geometry
-    from doorlab.plots import save_figure
-    from doorlab.robustness import case_scenario
+    from doorlab.cell.geometry import true_door_geometry
+    from doorlab.outputs.plots import save_figure
+    from doorlab.studies.robustness import case_scenario
 
     save_figure(plot_robustness(rows), args.out / "robustness.png")
     episodes = {}

@@ -15,7 +15,7 @@ Benchmarks (``--only`` takes names, groups such as ``episode``, or globs such as
     time / ``sim_s``; target >= 20) and ``e2e_s`` (the whole call: plans, IK, diagram, logs).
 ``tick/velocity``, ``tick/impedance``
     Wall time of one ``plan.command(t, ArmState(q, v, tau))`` [us] at configurations along the
-    arc, the plan built by ``doorlab.controllers.build_*_plan`` (target < 100 us).
+    arc, the plan built by ``doorlab.episode.controllers.build_*_plan`` (target < 100 us).
 ``ik/<n>_knots``
     ``pointwise_ik`` along the arc with n = 2, 5, 10 knots, as task 1 builds it (target for
     10 knots < 0.1 s).
@@ -347,7 +347,8 @@ def compare(new: dict, old: dict) -> tuple[str, list[str]]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from doorlab.argtypes import OneLineParser, bounded_int  # the CLI's one-line errors, exit 2
+    # the CLI's one-line errors, exit 2
+    from doorlab.runtime.argtypes import OneLineParser, bounded_int
 
     parser = OneLineParser(
         prog="run_benchmarks.py",

@@ -163,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
         f"sweep-{datetime.datetime.now().strftime('%Y%m%d-%H%M%S')}.json"
     )
     out.parent.mkdir(parents=True, exist_ok=True)
-    from doorlab.pages import drake_version
+    from doorlab.outputs.pages import drake_version
 
     out.write_text(
         json.dumps(

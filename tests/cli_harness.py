@@ -1,6 +1,6 @@
 """Running the ``doorlab`` command as a user would, for the hostile-input tests (issue 19).
 
-:func:`run_doorlab` starts ``python -m doorlab.entry ARGS`` (what the console script runs) in
+:func:`run_doorlab` starts ``python -m doorlab.cli.entry ARGS`` (what the console script runs) in
 a new session (its own process group, so a signal goes to it and its workers, as Ctrl-C in
 a terminal does), through a small launcher process that waits for it with ``os.wait4``: the
 child's peak resident memory (``ru_maxrss``) is then its own. (A pytest process that forks
@@ -91,7 +91,7 @@ def start_doorlab(
 ) -> tuple[subprocess.Popen, Path]:
     """Starts ``doorlab ARGV`` in a new session; returns the launcher and its report file."""
     report = home / f"wait4-{time.monotonic_ns()}.json"
-    command = [sys.executable, "-m", "doorlab.entry", *argv]
+    command = [sys.executable, "-m", "doorlab.cli.entry", *argv]
     process = subprocess.Popen(
         [
             sys.executable,

@@ -153,10 +153,10 @@ def alone(request):
 
 @cache
 def _run(controller: str, doors: str, knots: int | None, inner_loop: str = "stiffness"):
+    from doorlab.cell.geometry import default_door_geometry
     from doorlab.config import Scenario
-    from doorlab.controllers import run_controller
-    from doorlab.geometry import default_door_geometry
-    from doorlab.metrics import compute_metrics
+    from doorlab.episode.controllers import run_controller
+    from doorlab.episode.metrics import compute_metrics
 
     scenario = Scenario(controller=controller, doors=doors)
     scenario.station.inner_loop.kind = inner_loop

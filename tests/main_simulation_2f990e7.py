@@ -1,6 +1,7 @@
 """A frozen copy of ``doorlab/simulation.py`` at main 2f990e7 (before issue 18 split it into
 schedule, plan_runner, episode and simulation): the reference the split episode must match
-bit for bit (tests/test_episode_split.py). Do not edit it; only that test imports it.
+bit for bit (tests/test_episode_split.py). Do not edit it (its imports follow the modules'
+moves of issue 28, nothing else); only that test imports it.
 
 Its original docstring:
 
@@ -34,18 +35,18 @@ from pydrake.systems.primitives import (
 )
 from pydrake.trajectories import PiecewisePolynomial
 
+from doorlab.cell.frames import FINGER_JOINTS, LEFT_HINGE, RIGHT_HINGE
+from doorlab.cell.station import Station, build_station
 from doorlab.config import Scenario
 from doorlab.constants import NUM_JOINTS, Q_HOME
+from doorlab.control.plans import ArmState, JointSpacePlan, Plan
 from doorlab.errors import ConfigError, SimulationError
-from doorlab.frames import FINGER_JOINTS, LEFT_HINGE, RIGHT_HINGE
-from doorlab.plans import ArmState, JointSpacePlan, Plan
-from doorlab.station import Station, build_station
 
 HINGES = (LEFT_HINGE, RIGHT_HINGE)
 
 _SEPARATE_LOGGERS = False
 """Also log the station's channels one logger each, as the 353b732 design did (its cost,
-for :mod:`doorlab.legacy`; the logs come from the one multiplexed logger either way)."""
+for :mod:`doorlab.studies.legacy`; the logs come from the one multiplexed logger either way)."""
 _SEPARATE_LOG_PORTS = (
     "iiwa_position_commanded",
     "iiwa_position_measured",
@@ -262,7 +263,7 @@ class EpisodeResult:
         scenario_yaml: The scenario that produced the logs.
         plan_log: The arc plan's own per-tick table {channel: (m,)} (empty for plans that
             record nothing); its ``t`` column is the episode's time [s]. The adaptive plan's
-            channels are listed in :data:`doorlab.adaptive.LOG_CHANNELS`.
+            channels are listed in :data:`doorlab.control.adaptive.LOG_CHANNELS`.
     """
 
     t: np.ndarray
@@ -466,7 +467,7 @@ def run_episode(
     for i, port in enumerate(channels.values()):
         builder.Connect(port, mux.get_input_port(i))
     logger = LogVectorOutput(mux.get_output_port(), builder, timeline.log_period)
-    if _SEPARATE_LOGGERS:  # the 353b732 design's nine loggers, for doorlab.legacy (unused)
+    if _SEPARATE_LOGGERS:  # the 353b732 design's nine loggers, for doorlab.studies.legacy (unused)
         for name in _SEPARATE_LOG_PORTS:
             LogVectorOutput(station_system.GetOutputPort(name), builder, timeline.log_period)
         LogVectorOutput(tau_ff_port, builder, timeline.log_period)

@@ -15,7 +15,7 @@ import tempfile
 from pathlib import Path
 
 from doorlab.config import Scenario
-from doorlab.simulation import EpisodeResult
+from doorlab.episode.result import EpisodeResult
 
 SHORT_RUNS = ("ik_2_open", "velocity_open", "velocity_closed")
 """Experiments run into folders for the report tests (replay only for the last one)."""
@@ -54,7 +54,7 @@ def _root() -> Path:
 @functools.cache
 def short_result() -> tuple[EpisodeResult, Scenario]:
     """One real short episode (velocity plan, doors closed) and its scenario."""
-    from doorlab.controllers import run_controller
+    from doorlab.episode.controllers import run_controller
 
     scenario = short_scenario()
     result, _ = run_controller(scenario)
@@ -64,7 +64,7 @@ def short_result() -> tuple[EpisodeResult, Scenario]:
 @functools.cache
 def short_run_folders() -> dict[str, Path]:
     """Run folders of :data:`SHORT_RUNS` written by ``run_to_folder`` (name -> folder)."""
-    from doorlab.runs import run_to_folder
+    from doorlab.outputs.runs import run_to_folder
 
     runs_dir = _root() / "report" / "runs"
     runs_dir.mkdir(parents=True)
@@ -113,10 +113,10 @@ def single_run_report() -> Path:
     The run folder is written by hand (log, metrics, scenario) the way ``run_to_folder``
     writes it, so this costs one simulation shared with the plot and replay tests.
     """
-    from doorlab.geometry import default_door_geometry
-    from doorlab.metrics import compute_metrics
+    from doorlab.cell.geometry import default_door_geometry
+    from doorlab.episode.metrics import compute_metrics
     from doorlab.report import RunRecord, build_page
-    from doorlab.runs import write_json
+    from doorlab.runtime.folders import write_json
 
     result, scenario = short_result()
     report_dir = _root() / "single"
@@ -146,9 +146,9 @@ def robustness_report() -> tuple[Path, list]:
     import json
     import math
 
+    from doorlab.outputs.runs import run_to_folder
     from doorlab.report import RobustnessCase, RunRecord, build_page
-    from doorlab.robustness import case_scenario
-    from doorlab.runs import run_to_folder
+    from doorlab.studies.robustness import case_scenario
 
     folders = short_run_folders()
     report_dir = _root() / "robust"

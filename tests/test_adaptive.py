@@ -12,15 +12,15 @@ from functools import cache
 import numpy as np
 import pytest
 
-from doorlab.geometry import true_door_geometry
-from doorlab.metrics import hinge_estimate_error
-from doorlab.robustness import (
+from doorlab.cell.geometry import true_door_geometry
+from doorlab.episode.metrics import hinge_estimate_error
+from doorlab.episode.result import EpisodeResult
+from doorlab.studies.robustness import (
     ACCEPTANCE_YAW_ERRORS_DEG,
     OPEN_THRESHOLD_DEG,
     case_scenario,
     run_case,
 )
-from doorlab.simulation import EpisodeResult
 
 HINGE_TOLERANCE = 0.01
 """The acceptance's bound on the final hinge estimate error [m]: a centimetre is what a
@@ -78,7 +78,7 @@ def test_hinge_estimate_converges_and_the_plan_stops_at_its_target(yaw_deg):
 def test_running_estimates_are_logged_and_round_trip(tmp_path):
     """The plan's named per-tick estimates land in EpisodeResult.plan_log at episode times
     within the arc plan's window, and survive save/load bit for bit."""
-    from doorlab.adaptive import LOG_CHANNELS
+    from doorlab.control.adaptive import LOG_CHANNELS
 
     _, result, _ = adaptive_case(0.0)
     assert tuple(result.plan_log) == LOG_CHANNELS
@@ -104,7 +104,7 @@ def test_episodes_without_a_plan_log_load_with_an_empty_one(tmp_path, episode):
 def test_robustness_section_from_the_episodes():
     """The report's section is built from rows and logs only: the convergence plot shows
     exactly hinge_estimate_error in mm against the time since the arc started."""
-    from doorlab.robustness import robustness_section
+    from doorlab.studies.robustness import robustness_section
 
     row, result, scenario = adaptive_case(0.0)
     geometry = true_door_geometry(scenario)

@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-import doorlab.simulation as simulation
+import doorlab.episode.simulation as simulation
 from doorlab.config import Scenario
-from doorlab.controllers import run_controller
+from doorlab.episode.controllers import run_controller
 
 CHANNELS = (
     "t",

@@ -1,5 +1,5 @@
 """No "Exception ignored" at any exit: every process pool doorlab starts is ended with its
-manager thread joined (``doorlab.interrupts.end_pool``).
+manager thread joined (``doorlab.runtime.interrupts.end_pool``).
 
 CPython's exit hook for process pools (``concurrent.futures.process._python_exit``) wakes
 every pool's manager thread through a pipe, without the pool's lock; a manager thread still
@@ -17,8 +17,8 @@ import time
 
 import pytest
 
-from doorlab import runs
-from doorlab.executor import LocalExecutor
+from doorlab.outputs import runs
+from doorlab.runtime.executor import LocalExecutor
 
 
 def _manager_threads() -> list[threading.Thread]:

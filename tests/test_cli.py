@@ -1,7 +1,7 @@
 """Bad input to the ``doorlab`` command: exit code 2, one line on stderr, nothing written.
 
 Every case fails before any simulation starts (the successful runs are tested elsewhere).
-The CLI runs in-process through ``doorlab.cli.main`` and, for a few cases, as a subprocess
+The CLI runs in-process through ``doorlab.cli.parser.main`` and, for a few cases, as a subprocess
 (``python -m doorlab.cli``) to prove that no traceback reaches the user.
 """
 
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from doorlab.cli import USAGE_ERROR, main
+from doorlab.cli.parser import USAGE_ERROR, main
 from doorlab.config import CONTROLLERS, DOOR_STATES, INNER_LOOPS
 
 SRC_DIR = Path(__file__).resolve().parents[1] / "src"

@@ -11,11 +11,11 @@ import math
 import numpy as np
 import pytest
 
+from doorlab.cell.geometry import default_door_geometry
 from doorlab.config import CONTROLLERS, Scenario
-from doorlab.controllers import REGISTRY, get_controller, run_controller
+from doorlab.episode.controllers import REGISTRY, get_controller, run_controller
+from doorlab.episode.metrics import compute_metrics, compute_tracking
 from doorlab.errors import ConfigError
-from doorlab.geometry import default_door_geometry
-from doorlab.metrics import compute_metrics, compute_tracking
 
 DOOR_TARGET = math.radians(39.0)
 """The acceptance threshold: at least 39 of the arc's 41.2 deg."""

@@ -24,7 +24,7 @@ from cli_harness import (
     run_doorlab,
 )
 
-from doorlab.runs import MANIFEST_NAME
+from doorlab.runtime.folders import MANIFEST_NAME
 
 SHORT = [
     *("--set", "timeline.hold_duration=0.1", "--set", "timeline.approach_duration=1.0"),

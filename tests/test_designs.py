@@ -48,10 +48,10 @@ ORIENTATION_ABS_TOL_RAD = math.radians(0.01)
 
 def _metrics(name: str, legacy: bool) -> dict:
     """Worker: the metrics of one experiment with the current or the 353b732 design."""
-    from doorlab.controllers import run_controller
-    from doorlab.geometry import scenario_door_geometry
-    from doorlab.legacy import run_legacy_controller
-    from doorlab.metrics import compute_metrics
+    from doorlab.cell.geometry import scenario_door_geometry
+    from doorlab.episode.controllers import run_controller
+    from doorlab.episode.metrics import compute_metrics
+    from doorlab.studies.legacy import run_legacy_controller
 
     scenario = dict(EXPERIMENTS)[name]
     result, _ = (run_legacy_controller if legacy else run_controller)(scenario)

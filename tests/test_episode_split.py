@@ -3,7 +3,7 @@ logs of main's one-function ``run_episode`` bit for bit.
 
 The reference is a frozen copy of main's ``doorlab/simulation.py`` (2f990e7,
 ``main_simulation_2f990e7.py``), run here in the same process on the same station, so the
-comparison is exact: every channel of :class:`~doorlab.simulation.EpisodeResult`, the plan's
+comparison is exact: every channel of :class:`~doorlab.episode.result.EpisodeResult`, the plan's
 own log included, must be equal (``array_equal``, no tolerance). A shortened timeline keeps
 each episode under a second; every phase still runs (hold, move, grasp, arc, extra time) and
 every controller of the registry takes part (the IK plan runs all in C++ sources, the others
@@ -18,12 +18,12 @@ import main_simulation_2f990e7 as main_simulation
 import numpy as np
 import pytest
 
+from doorlab.cell.geometry import scenario_door_geometry
+from doorlab.cell.station import make_controller_plant
 from doorlab.config import Scenario, validate
-from doorlab.controllers import REGISTRY, get_controller
-from doorlab.geometry import scenario_door_geometry
-from doorlab.plans import JointSpacePlan
-from doorlab.simulation import run_episode
-from doorlab.station import make_controller_plant
+from doorlab.control.plans import JointSpacePlan
+from doorlab.episode.controllers import REGISTRY, get_controller
+from doorlab.episode.simulation import run_episode
 
 
 def short_scenario(controller: str, doors: str) -> Scenario:

@@ -31,7 +31,7 @@ def _run(code: str) -> subprocess.CompletedProcess:
     ],
 )
 def test_without_the_sweep_extra_the_commands_that_need_it_say_so(tmp_path, argv, needs):
-    code = f"import sys\nfrom doorlab.cli import main\nsys.exit(main({argv!r}))"
+    code = f"import sys\nfrom doorlab.cli.parser import main\nsys.exit(main({argv!r}))"
     proc = subprocess.run(
         [sys.executable, "-c", _HIDE + code],
         capture_output=True,
@@ -48,10 +48,10 @@ def test_without_the_sweep_extra_the_commands_that_need_it_say_so(tmp_path, argv
 
 def test_what_runs_and_grades_imports_none_of_it():
     modules = [
-        "doorlab.cli",
-        "doorlab.commands",
-        "doorlab.controllers",
-        "doorlab.runs",
+        "doorlab.cli.parser",
+        "doorlab.cli.commands",
+        "doorlab.episode.controllers",
+        "doorlab.outputs.runs",
         "doorlab.report.runner",
         "doorlab.pset.grader",
         "doorlab.pset.jobs",

@@ -7,8 +7,8 @@ import json
 import math
 from pathlib import Path
 
-from doorlab.reference import ORIGINAL_STATION
 from doorlab.report import EXPERIMENTS
+from doorlab.studies.reference import ORIGINAL_STATION
 
 SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "fidelity_table.py"
 

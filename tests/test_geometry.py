@@ -9,9 +9,9 @@ import pytest
 from pydrake.math import RollPitchYaw
 from pydrake.multibody.plant import MultibodyPlant
 
-from doorlab.frames import CUPBOARD_MODEL, LEFT_HANDLE_FRAME, LEFT_HINGE
-from doorlab.geometry import L7_PITCH, default_door_geometry
-from doorlab.station import add_cell
+from doorlab.cell.frames import CUPBOARD_MODEL, LEFT_HANDLE_FRAME, LEFT_HINGE
+from doorlab.cell.geometry import L7_PITCH, default_door_geometry
+from doorlab.cell.station import add_cell
 
 # Station facts §3-4. The facts give 4-7 significant digits, hence the tolerances.
 P_W_HINGE = np.array([0.7557, 0.2840, 0.4148])

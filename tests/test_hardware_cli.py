@@ -7,8 +7,8 @@ import time
 import numpy as np
 import pytest
 
-from doorlab.cli import main
-from doorlab.runs import write_manifest
+from doorlab.cli.parser import main
+from doorlab.runtime.folders import write_manifest
 
 
 @pytest.mark.parametrize(

@@ -15,14 +15,14 @@ import numpy as np
 import pytest
 from fake_driver import FakeDriver
 
+from doorlab.cell.safety import SafetyLimits, check_command
 from doorlab.config import Scenario, validate
 from doorlab.constants import Q_HOME
-from doorlab.episode import EpisodeResult
+from doorlab.episode.result import EpisodeResult
 from doorlab.errors import Interrupted, NoDriver
 from doorlab.hardware.episode import FIRST_COMMAND_DELAY, WATCHDOG_TIMEOUT
 from doorlab.hardware.link import DriverLink
 from doorlab.hardware.run import run_hardware_to_folder
-from doorlab.safety import SafetyLimits, check_command
 
 Q0 = Q_HOME + np.array([0.1, 0.1, 0.0, 0.2, 0.0, 0.0, 0.0])  # joint 4 off its limit
 

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from doorlab.geometry import true_door_geometry
+from doorlab.cell.geometry import true_door_geometry
+from doorlab.episode.metrics import Kinematics, handle_distance
 from doorlab.hardware.estimates import door_angle_estimate, handle_held, held_width
-from doorlab.metrics import Kinematics, handle_distance
 
 
 @pytest.mark.parametrize("controller", ["velocity", "impedance"])

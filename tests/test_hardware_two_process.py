@@ -9,9 +9,9 @@ with the client's answers held back (the test-only knob ``DOORLAB_TEST_ANSWER_DE
 command leaves that long after its status arrived) by 0, 1.5 and 3 ms, the episode is the
 one-process run's: the door at the arc's end within 0.05 deg and Q's max radial error within
 0.01 mm (with no command late it is the same bit for bit, as on memq: test_hardware_wiring.py;
-here the host makes a few late, README "A rehearsal on one machine"). A client 6 ms slow
-misses every cycle: each command acts a cycle later, the driver counts them all late
-(driver.json), and the door ends elsewhere (the test prints how far).
+here the host makes a few late: docs/guides/real-arm.md, "A rehearsal on one machine"). A
+client 6 ms slow misses every cycle: each command acts a cycle later, the driver counts them
+all late (driver.json), and the door ends elsewhere (the test prints how far).
 
 Q's radial error and the door are taken from the driver's ground truth (each 5 ms status's
 joint positions, the hinge at the same instant) and from the one-process run's per-cycle log
@@ -52,10 +52,10 @@ from lcm_fixtures import (  # noqa: F401
 )
 from realtime_host import host_watch
 
+from doorlab.cell.safety import SafetyLimits, check_command
 from doorlab.config import Scenario, load_scenario, validate
-from doorlab.episode import EpisodeResult
+from doorlab.episode.result import EpisodeResult
 from doorlab.hardware.ground_truth import GROUND_TRUTH_FILE, GroundTruth
-from doorlab.safety import SafetyLimits, check_command
 
 PRE_ARC = ["timeline.hold_duration=0.5", "timeline.approach_duration=3.0"]
 PRESET = Path(__file__).resolve().parents[1] / "examples" / "kuka_arm.yaml"
@@ -84,7 +84,7 @@ def scenario(controller: str, sets=PRE_ARC) -> Scenario:
 
 
 def arm_scenario(controller: str) -> Scenario:
-    from doorlab.commands import apply_overrides
+    from doorlab.cli.commands import apply_overrides
 
     s = apply_overrides(load_scenario(PRESET), ARM_TIMELINE)
     s.controller, s.doors = controller, "closed"
@@ -121,7 +121,7 @@ _ONE_PROCESS: dict[str, EpisodeResult] = {}
 def one_process(controller: str) -> EpisodeResult:
     """The one-process run with the same preset and timeline (once per controller)."""
     if controller not in _ONE_PROCESS:
-        from doorlab.controllers import run_controller
+        from doorlab.episode.controllers import run_controller
 
         _ONE_PROCESS[controller], _ = run_controller(arm_scenario(controller))
     return _ONE_PROCESS[controller]
@@ -130,9 +130,9 @@ def one_process(controller: str) -> EpisodeResult:
 def arc_figures(t: np.ndarray, q: np.ndarray, door: np.ndarray, window, s: Scenario):
     """(Q's max |radial error| over the arc [m], the left door opened at the arc's end [rad])
     from per-cycle joint positions q and hinge angles ``door`` at times t (episode time)."""
-    from doorlab.frames import p_L7Q
-    from doorlab.geometry import true_door_geometry
-    from doorlab.metrics import Kinematics
+    from doorlab.cell.frames import p_L7Q
+    from doorlab.cell.geometry import true_door_geometry
+    from doorlab.episode.metrics import Kinematics
 
     inside = (t >= window[0] - 1e-6) & (t <= window[1] + 1e-6)
     poses = Kinematics().poses(q[inside])

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from doorlab.config import Scenario, load_scenario, validate
-from doorlab.controllers import episode_plans, run_controller
+from doorlab.episode.controllers import episode_plans, run_controller
 from doorlab.hardware.episode import HardwareOutcome, run_hardware_episode
 from doorlab.hardware.link import DriverLink
 from doorlab.hardware.protocol import IIWA_STATUS_PERIOD

@@ -12,14 +12,14 @@ import math
 import numpy as np
 import pytest
 
-from doorlab.errors import ConfigError
-from doorlab.hinge_estimation import (
+from doorlab.control.hinge_estimation import (
     HingeEstimator,
     center_error_std,
     estimate_contact_wrench,
     fit_circle,
     signed_angle,
 )
+from doorlab.errors import ConfigError
 
 CENTER = np.array([0.7557, 0.2840])
 RADIUS = 0.2672
@@ -165,8 +165,8 @@ def test_invalid_estimator_settings_are_named():
 def jacobian_at_grasp():
     from pydrake.multibody.tree import JacobianWrtVariable
 
-    from doorlab.frames import L7_FRAME, p_L7Q
-    from doorlab.station import make_controller_plant
+    from doorlab.cell.frames import L7_FRAME, p_L7Q
+    from doorlab.cell.station import make_controller_plant
 
     plant = make_controller_plant()
     context = plant.CreateDefaultContext()

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from doorlab.cell.frames import L7_FRAME, p_L7Q
+from doorlab.cell.geometry import default_door_geometry
+from doorlab.cell.station import make_controller_plant
 from doorlab.constants import JOINT_POSITION_LIMITS, Q_HOME
+from doorlab.control.ik import solve_ik
+from doorlab.control.ik_pointwise import pointwise_ik
 from doorlab.errors import IkError
-from doorlab.frames import L7_FRAME, p_L7Q
-from doorlab.geometry import default_door_geometry
-from doorlab.ik import solve_ik
-from doorlab.ik_pointwise import pointwise_ik
-from doorlab.station import make_controller_plant
 
 POSITION_TOLERANCE = 0.001  # [m] the problem set's box half-width
 THETA_BOUND = 0.005 * np.pi  # [rad] the problem set's orientation bound
@@ -129,7 +129,7 @@ def test_the_grasp_aims_q_at_the_handle_plus_ik_grasp_offset(plant, geometry, of
     plus ``ik.grasp_offset`` (in W) and L7 within theta_bound of the arc's start orientation:
     the offset moves the grasp by itself, nothing else does."""
     from doorlab.config import Scenario
-    from doorlab.controllers import build_velocity_plan
+    from doorlab.episode.controllers import build_velocity_plan
 
     scenario = Scenario(controller="velocity")
     scenario.ik.grasp_offset = list(offset)

@@ -1,4 +1,4 @@
-"""doorlab.inputs: YAML within a budget, files that are regular and small, short quotes.
+"""doorlab.runtime.inputs: YAML within a budget, files that are regular and small, short quotes.
 
 These are the in-process checks of the reader; tests/test_hostile_cli.py runs the same
 inputs through the ``doorlab`` command as a user would.
@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from doorlab.errors import ConfigError
-from doorlab.inputs import (
+from doorlab.runtime.inputs import (
     MAX_FILE_BYTES,
     MAX_YAML_DEPTH,
     MAX_YAML_NODES,
@@ -155,7 +155,7 @@ def test_only_small_regular_files_are_read(tmp_path):
     ],
 )
 def test_scheduler_addresses_are_checked_with_their_port(address, ok):
-    from doorlab.executor import check_scheduler
+    from doorlab.runtime.executor import check_scheduler
 
     if ok:
         assert check_scheduler(address) == address

@@ -58,7 +58,7 @@ def short_arm(controller: str = "velocity", **timeline: float) -> Scenario:
 def arm_run():
     """The velocity plan on the preset, the arc cut to 1 s (its first second is what the
     filter and timing tests need), with its per-cycle status log."""
-    from doorlab.controllers import run_controller
+    from doorlab.episode.controllers import run_controller
 
     result, _ = run_controller(short_arm(arc_duration=1.0))
     return result
@@ -107,9 +107,9 @@ def test_a_command_acts_one_cycle_after_its_status(arm_run):
 def test_kukas_damping_in_n_m_s_per_rad():
     """kuka_joint_impedance: Kq = KUKA's stiffness, Dq = 2 d sqrt(K M_ii) with M_ii at
     Q_GRASP, the problem set's grasp pose, which the one-shot IK finds again (within 1 mrad)."""
-    from doorlab.controllers import get_controller
-    from doorlab.geometry import scenario_door_geometry
-    from doorlab.station import loop_gains, make_controller_plant
+    from doorlab.cell.geometry import scenario_door_geometry
+    from doorlab.cell.station import loop_gains, make_controller_plant
+    from doorlab.episode.controllers import get_controller
 
     scenario = Scenario(controller="velocity")
     plant = make_controller_plant()
@@ -136,7 +136,7 @@ def test_the_external_torque_stop_in_one_process():
     stops at the first cycle over a joint's limit (safety_stop, limit external_torque, the
     joint and the torque), as the driver exits; with the default 60 N m it runs through,
     and every status before the stop was within the lowered limits."""
-    from doorlab.controllers import run_controller
+    from doorlab.episode.controllers import run_controller
 
     scenario = short_arm("ik", arc_duration=2.0)
     scenario.station.safety.enabled = False  # the fast arc's gaps: not what is tested
@@ -183,7 +183,7 @@ def test_every_command_takes_the_preset(argv, tmp_path, capsys):
     --set after it that breaks the timeline shows the config was read and merged: exit 2
     naming the field, nothing run); sweeps take it as a SPEC's base (the shipped
     sweep_kuka_*.yaml, tests/test_sweep.py)."""
-    from doorlab.cli import main
+    from doorlab.cli.parser import main
 
     code = main([*argv[:-2], "--config", str(PRESET), *argv[-2:], "--out", str(tmp_path / "o")])
     assert code == 2

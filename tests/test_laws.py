@@ -7,9 +7,10 @@ import pytest
 from pydrake.math import RollPitchYaw, RotationMatrix
 from pydrake.multibody.tree import JacobianWrtVariable
 
+from doorlab.cell.frames import L7_FRAME, p_L7Q
+from doorlab.cell.station import make_controller_plant
 from doorlab.constants import Q_HOME
-from doorlab.frames import L7_FRAME, p_L7Q
-from doorlab.laws import (
+from doorlab.control.laws import (
     PoseError,
     desired_spatial_vector,
     impedance_law,
@@ -18,7 +19,6 @@ from doorlab.laws import (
     pseudo_inverse_solve,
     velocity_law,
 )
-from doorlab.station import make_controller_plant
 
 RNG = np.random.default_rng(7)
 Q_GRASP = np.array([0.05, 0.30, -0.02, -1.52, -0.04, 0.54, 0.07])  # near the handle
@@ -145,7 +145,7 @@ def test_orientation_error_does_not_flip_across_the_quaternion_hemisphere():
 
 def adaptive_command(J, **overrides):
     """adaptive_law with neutral inputs (no force, no orientation or height error)."""
-    from doorlab.laws import adaptive_law
+    from doorlab.control.laws import adaptive_law
 
     inputs = dict(
         theta_n_W=np.zeros(3),

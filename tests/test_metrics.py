@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from doorlab.geometry import default_door_geometry
-from doorlab.metrics import door_lag, door_opening
-from doorlab.simulation import EpisodeResult
+from doorlab.cell.geometry import default_door_geometry
+from doorlab.episode.metrics import door_lag, door_opening
+from doorlab.episode.result import EpisodeResult
 
 T0, T1, T_END = 11.0, 21.0, 24.0
 DELAY = 1.5  # [s] the synthetic door runs the plan's ramp this late
@@ -61,11 +61,11 @@ def test_default_inner_loop_is_damped_at_zeta_0_1_at_the_grasp():
     0.1 at the grasp pose (docs/explanation/model.md, "Inner loop gains"): the model gives that
     back within the gains' rounding (3 significant digits, so 1 %); dq_scale scales it; ID-PID
     has none."""
+    from doorlab.cell.geometry import scenario_door_geometry
+    from doorlab.cell.station import make_controller_plant
     from doorlab.config import Scenario
-    from doorlab.controllers import get_controller
-    from doorlab.geometry import scenario_door_geometry
-    from doorlab.metrics import joint_damping_ratios
-    from doorlab.station import make_controller_plant
+    from doorlab.episode.controllers import get_controller
+    from doorlab.episode.metrics import joint_damping_ratios
 
     scenario = Scenario(controller="velocity", doors="closed")
     arc = get_controller("velocity").build(

@@ -1,4 +1,4 @@
-"""Tests of the station model files in ``doorlab.models``.
+"""Tests of the station model files in ``doorlab.cell.models``.
 
 The reference numbers below are copied from shared/reference/station_facts.md
 (sections 1-3); the tests compare the SDF files against them.
@@ -26,7 +26,7 @@ from pydrake.multibody.tree import (
 )
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder
 
-from doorlab.models import (
+from doorlab.cell.models import (
     ARM_COLLISION_SHAPES,
     MODEL_NAMES,
     MODELS_DIR,
@@ -395,8 +395,8 @@ def test_iiwa_limits_match_data_sheet() -> None:
 
 def _arm_plants() -> list[tuple[MultibodyPlant, ModelInstanceIndex]]:
     """The arm alone, the controllers' plant and the simulation plant of the station."""
+    from doorlab.cell.station import build_station, make_controller_plant
     from doorlab.config import StationConfig
-    from doorlab.station import build_station, make_controller_plant
 
     sim = build_station(StationConfig())
     controller = make_controller_plant()

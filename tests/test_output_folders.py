@@ -1,5 +1,5 @@
-"""doorlab.runs' output folders in-process: the manifest rule of ``--force``, later writes
-recorded, the swap not cut short by a signal, staging folders removed at exit (issue 19;
+"""doorlab.runtime.folders' output folders in-process: the manifest rule of ``--force``, later
+writes recorded, the swap not cut short by a signal, staging folders removed at exit (issue 19;
 tests/test_data_loss.py runs the same through the CLI)."""
 
 from __future__ import annotations
@@ -10,11 +10,10 @@ import signal
 
 import pytest
 
-import doorlab.runs as runs
-from doorlab.cli import _interruption
+import doorlab.runtime.folders as folders
+from doorlab.cli.parser import _interruption
 from doorlab.errors import Interrupted, OutputError
-from doorlab.interrupts import deferred_signals
-from doorlab.runs import (
+from doorlab.runtime.folders import (
     MANIFEST_NAME,
     commit_output,
     discard_output,
@@ -25,6 +24,7 @@ from doorlab.runs import (
     remove_written,
     staged_output,
 )
+from doorlab.runtime.interrupts import deferred_signals
 
 
 def _written(out, files: dict[str, str]):
@@ -138,12 +138,12 @@ def test_a_signal_during_the_swap_is_raised_after_it(tmp_path):
                 os.kill(os.getpid(), signal.SIGTERM)
             original(src, dst)
 
-        runs.os.replace = replace_with_a_signal
+        folders.os.replace = replace_with_a_signal
         try:
             with pytest.raises(Interrupted):
                 commit_output(staging, out)
         finally:
-            runs.os.replace = original
+            folders.os.replace = original
         assert json.loads((out / "a.json").read_text()) == {}
         assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
     finally:
@@ -153,7 +153,7 @@ def test_a_signal_during_the_swap_is_raised_after_it(tmp_path):
 def test_staging_folders_left_by_a_caller_are_removed_at_exit(tmp_path):
     staging = prepare_output(tmp_path / "out", force=False)
     (staging / "half.json").write_text("{")
-    runs._remove_staged()  # what atexit runs
+    folders._remove_staged()  # what atexit runs
     assert not staging.exists()
 
 

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 from report_fixtures import single_run_report
 
-from doorlab import pdf
-from doorlab.cli import main
+from doorlab.cli.parser import main
+from doorlab.runtime import pdf
 
 
 def test_report_page_prints_to_a_pdf_with_pages(tmp_path: Path):

@@ -1,4 +1,4 @@
-"""Tests of ``doorlab.plots``: the figures carry the numbers of the results they are given.
+"""Tests of ``doorlab.outputs.plots``: the figures carry the numbers of the results they are given.
 
 Plots are checked by their data (line x/y arrays, labels, units), not by pixels. The episode is
 one real short run, simulated once per session (see ``report_fixtures``).
@@ -13,9 +13,9 @@ import pytest
 from matplotlib.figure import Figure
 from report_fixtures import short_result
 
-from doorlab import plots
-from doorlab.geometry import default_door_geometry
-from doorlab.metrics import Kinematics, compute_tracking
+from doorlab.cell.geometry import default_door_geometry
+from doorlab.episode.metrics import Kinematics, compute_tracking
+from doorlab.outputs import plots
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 MAX_PNG_BYTES = 150_000

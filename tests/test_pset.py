@@ -18,7 +18,7 @@ import numpy as np
 import pset_fixtures
 import pytest
 
-from doorlab.cli import main
+from doorlab.cli.parser import main
 from doorlab.pset.folder import STUDENT_FUNCTIONS, init_folder
 from doorlab.pset.grader import TESTS, grade, pretty_format_json_results
 
@@ -87,7 +87,7 @@ def test_init_writes_the_original_layout_with_stubs_or_solutions(tmp_path):
         "pset5_open_cabinet_door.ipynb",
         "test_pset_5a.py",
         "README.md",
-        ".doorlab-manifest.json",  # what pset init wrote (doorlab.runs.MANIFEST_NAME)
+        ".doorlab-manifest.json",  # what pset init wrote (doorlab.runtime.folders.MANIFEST_NAME)
     }
     for folder in (stubs, solutions):
         files = {str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file()}
@@ -367,7 +367,7 @@ def test_using_the_wrong_argument_fails_the_unit_test_naming_it(tmp_path_factory
             (
                 "ik_utils.py",
                 "l7_frame, p_L7Q, world_frame",
-                "l7_frame, __import__('doorlab.frames').frames.p_L7Q, world_frame",
+                "l7_frame, __import__('doorlab.cell.frames').cell.frames.p_L7Q, world_frame",
             ),
         ],
     )

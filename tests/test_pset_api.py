@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from pydrake.trajectories import PiecewisePolynomial
 
+from doorlab.cell.geometry import default_door_geometry
 from doorlab.constants import Q_HOME
+from doorlab.control.plans import ArmState
 from doorlab.errors import ConfigError
-from doorlab.geometry import default_door_geometry
-from doorlab.plans import ArmState
 from doorlab.pset import grader, task_helpers, verdicts
 from doorlab.pset.station_api import (
     ProblemSetJointSpacePlan,

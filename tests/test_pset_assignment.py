@@ -16,7 +16,7 @@ from pathlib import Path
 import pset_fixtures
 import pytest
 
-from doorlab.cli import main
+from doorlab.cli.parser import main
 from doorlab.pset import autograder
 from doorlab.pset.assignment import (
     Assignment,

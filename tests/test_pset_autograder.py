@@ -28,7 +28,7 @@ import pytest
 from pset_attacks import attack_folder, evidence
 
 import doorlab
-from doorlab.cli import main
+from doorlab.cli.parser import main
 from doorlab.pset import autograder
 from doorlab.pset.folder import STUDENT_FILES, init_folder
 from doorlab.pset.grader import TESTS
@@ -148,7 +148,7 @@ def test_zip_holds_the_scripts_the_settings_and_this_doorlab_as_a_wheel(zip_path
     assert settings["doorlab"] == doorlab.__version__
     assert settings["package_sha256"] == autograder.package_digest()
     assert settings["student_files"] == list(STUDENT_FILES)
-    assert settings["jobs"] == 1  # fits Gradescope's default 768 MB (README: its peak)
+    assert settings["jobs"] == 1  # fits Gradescope's default 768 MB (the teaching guide: its peak)
     assert settings["digest"] == autograder.zip_digest(settings)
     assert wheel_name == f"doorlab-{doorlab.__version__}-py3-none-any.whl"
 
@@ -162,7 +162,7 @@ def test_zip_holds_the_scripts_the_settings_and_this_doorlab_as_a_wheel(zip_path
         info_dir = f"doorlab-{doorlab.__version__}.dist-info"
         package_entries = {n for n in entries if not n.startswith(info_dir)}
         assert package_entries == {str(p) for p in autograder.package_files()}
-        assert {"doorlab/models/package.xml", "doorlab/pset/templates/README.md.j2"} <= entries
+        assert {"doorlab/cell/models/package.xml", "doorlab/pset/templates/README.md.j2"} <= entries
         assert not any("__pycache__" in n or n.endswith(".pyc") for n in entries)
         for name in ("METADATA", "WHEEL", "RECORD", "entry_points.txt"):
             assert f"{info_dir}/{name}" in entries
@@ -479,11 +479,11 @@ def test_run_autograder_falls_back_to_another_user_and_hides_the_grader(
     )
     hidden = [
         wheel,
-        package / "laws.py",
+        package / "control" / "laws.py",
         package / "pset" / "templates" / "open_left_door.py.j2",
         # checks.py compiled again by this grading, after the fallback hid its source: a
         # .pyc takes its source's mode.
-        *package.glob("__pycache__/laws.*.pyc"),
+        *package.glob("control/__pycache__/laws.*.pyc"),
         *package.glob("pset/__pycache__/checks.*.pyc"),
     ]
     assert len(hidden) >= 5

@@ -19,7 +19,7 @@ import pytest
 from package_index import clean_environment, fresh_venv, pip_install, require_index
 
 import doorlab
-from doorlab.cli import main
+from doorlab.cli.parser import main
 from doorlab.pset import handout
 from doorlab.pset.folder import STUDENT_FILES, render_folder
 from doorlab.pset.grader import TESTS

@@ -20,7 +20,7 @@ from package_index import INSTALL_TIMEOUT_S, clean_environment, require_index
 from packaging.utils import canonicalize_name
 
 import doorlab
-from doorlab.cli import main
+from doorlab.cli.parser import main
 from doorlab.pset import autograder
 
 BOOTSTRAP = {"setuptools"}

@@ -18,12 +18,12 @@ import pset_fixtures
 import pytest
 from cli_harness import assert_clean_exit, run_doorlab
 
-from doorlab.cli import main
+from doorlab.cli.parser import main
 from doorlab.pset import autograder, grader, intake
 from doorlab.pset.assignment import files_digest
 from doorlab.pset.folder import STUDENT_FILES, init_folder, render_folder
 from doorlab.pset.verdicts import TESTS
-from doorlab.runs import MANIFEST_NAME
+from doorlab.runtime.folders import MANIFEST_NAME
 
 SOLUTIONS = render_folder(solutions=True)
 STUBS = render_folder(solutions=False)

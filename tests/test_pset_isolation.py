@@ -29,7 +29,7 @@ import pytest
 from pset_attacks import attack_folder, evidence
 
 import doorlab
-from doorlab.cli import main
+from doorlab.cli.parser import main
 from doorlab.pset import isolation, view
 from doorlab.pset.autograder import wheel_bytes
 from doorlab.pset.folder import STUDENT_FUNCTIONS, init_folder
@@ -78,7 +78,8 @@ def test_every_graded_function_s_reference_is_in_the_table_and_off_the_student_s
     """Each graded function has its reference modules in verdicts' table; the objects that
     are doorlab's reference (the pointwise IK, the arc, the laws, the plans, the solutions'
     templates and renderer) live in those modules; none is on the student side."""
-    from doorlab import geometry, ik_pointwise, laws, plans
+    from doorlab.cell import geometry
+    from doorlab.control import ik_pointwise, laws, plans
     from doorlab.pset import folder
 
     assert set(REFERENCE_SOLUTIONS) == set(STUDENT_FUNCTIONS)
@@ -171,11 +172,11 @@ print("VIEW " + json.dumps(out))
         "/home",
         "/srv",
         "/root/.bashrc",
-        str(clone / "src" / "doorlab" / "laws.py"),
+        str(clone / "src" / "doorlab" / "control" / "laws.py"),
         str(clone / ".git"),
         str(work),
         tempfile.gettempdir() + "/" + os.listdir(tempfile.gettempdir())[0],
-        str(Path(doorlab.__file__).resolve().parent / "laws.py"),
+        str(Path(doorlab.__file__).resolve().parent / "control" / "laws.py"),
     ]
     proc = _in_view(work, probe, *outside)
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -303,7 +304,7 @@ def test_issue_24_attacks_from_the_stubs_score_zero_through_pset_grade(
 ):
     """The stubs, each function trying the issue's attacks: a world-readable solved folder,
     doorlab's wheel and sources anywhere on the machine, the clone's git history, reload of
-    doorlab.ik and the hidden modules, dir_fd opens, /proc of the grader, a unix socket and
+    doorlab.control.ik and the hidden modules, dir_fd opens, /proc of the grader, a unix socket and
     a TCP port outside, notes in /tmp and /dev/shm and 320 MiB of shared memory; escape
     sequences, NUL, a carriage return, invalid UTF-8 and a lone surrogate in the output.
     0 / 14; each attack found nothing; nothing left in /tmp or /dev/shm; neither the results
@@ -460,7 +461,7 @@ def _venv_with_doorlab(python: str, venv: Path) -> Path:
 def _cli(
     python: Path, *args: str, env: dict, user: int | None = None
 ) -> subprocess.CompletedProcess:
-    code = "import sys; from doorlab.cli import main; sys.exit(main(sys.argv[1:]))"
+    code = "import sys; from doorlab.cli.parser import main; sys.exit(main(sys.argv[1:]))"
     return subprocess.run(
         [str(python), "-I", "-c", code, *args],
         capture_output=True,
@@ -479,7 +480,7 @@ def test_insecure_grades_without_the_view_as_another_user_and_says_so(
     public, system_venv, reference_file
 ):
     """No bwrap, --insecure, as root: student code runs as the sandbox user; the honesty
-    guard (the second line) still catches doorlab.laws and a dir_fd open of laws.py; the
+    guard (the second line) still catches doorlab.control.laws and a dir_fd open of laws.py; the
     results and the summary's first line say it ran without the minimal root."""
     folder = init_folder(public / "insecure")
     path = folder / "manip_station_sim" / "robot_plans.py"
@@ -490,7 +491,7 @@ def test_insecure_grades_without_the_view_as_another_user_and_says_so(
     path.write_text(
         path.read_text().replace(
             stub,
-            "        from doorlab.laws import velocity_law\n"
+            "        from doorlab.control.laws import velocity_law\n"
             "        return velocity_law(q_iiwa, self.Jv_WL7q, err_xyz, R_L7L7r, control_period)",
         )
     )
@@ -509,7 +510,7 @@ def test_insecure_grades_without_the_view_as_another_user_and_says_so(
     assert 0 not in facts["student_uids"]
     assert proc.stdout.startswith("NOT ISOLATED (insecure)"), proc.stdout[:300]
     velocity = next(t for t in results["tests"] if "CalcPositionCommand" in t["name"])
-    assert "doorlab.laws" in velocity["output"], velocity["output"]
+    assert "doorlab.control.laws" in velocity["output"], velocity["output"]
 
 
 # As an ordinary user ------------------------------------------------------------------------
@@ -689,7 +690,7 @@ def test_the_guard_catches_dir_fd_opens_of_hidden_files(tmp_path):
     code = f"""
 import os, sys
 from doorlab.pset.honesty import Guard, HonestyError
-guard = Guard({{"doorlab.laws": "the laws"}}, [{str(hidden)!r}])
+guard = Guard({{"doorlab.control.laws": "the laws"}}, [{str(hidden)!r}])
 guard.install()
 fd = os.open({str(tmp_path)!r}, os.O_RDONLY)
 for name in ("laws.py", "notes.txt"):

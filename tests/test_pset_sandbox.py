@@ -23,7 +23,7 @@ from pathlib import Path
 import pset_fixtures
 import pytest
 
-from doorlab.cli import main
+from doorlab.cli.parser import main
 from doorlab.pset import sandbox
 from doorlab.pset.folder import init_folder
 from doorlab.pset.grader import TESTS, grade, write_results
@@ -492,8 +492,8 @@ def test_memory_file_output_and_time_limits_hold_and_results_stay_small(tmp_path
 
 def test_doorlab_reference_solutions_are_out_of_reach(tmp_path):
     """Each function takes doorlab's solution another way: rendering the --solutions files,
-    reading the templates, doorlab's pointwise IK, doorlab.laws, importlib on doorlab.plans
-    (the error caught): each test fails and says so."""
+    reading the templates, doorlab's pointwise IK, doorlab.control.laws, importlib on
+    doorlab.control.plans (the error caught): each test fails and says so."""
     folder = _stubs(tmp_path)
     _in_function(
         folder,
@@ -521,7 +521,7 @@ return namespace["calc_R_WL7_ref"](tau)
         folder,
         "ik",
         """
-from doorlab.ik_pointwise import pointwise_ik
+from doorlab.control.ik_pointwise import pointwise_ik
 result = pointwise_ik(plant, InterpolatePosition, InterpolateOrientation,
                       duration=duration, num_knots=num_knot_points,
                       q_guess=q_initial_guess, position_tolerance=position_tolerance,
@@ -536,7 +536,7 @@ return qtraj, result.q_knots
         folder,
         "velocity",
         """
-from doorlab.laws import velocity_law
+from doorlab.control.laws import velocity_law
 return velocity_law(q_iiwa, self.Jv_WL7q, err_xyz, R_L7L7r, control_period)
 """,
     )
@@ -546,7 +546,7 @@ return velocity_law(q_iiwa, self.Jv_WL7q, err_xyz, R_L7L7r, control_period)
         """
 import importlib
 try:
-    plans = importlib.import_module("doorlab.plans")
+    plans = importlib.import_module("doorlab.control.plans")
 except ImportError:
     return np.zeros(7)
 return plans.impedance_law(self.Jv_WL7q, err_xyz)
@@ -560,9 +560,9 @@ return plans.impedance_law(self.Jv_WL7q, err_xyz)
     assert "FileNotFoundError" in tests[UNIT["calc_R_WL7_ref"]]["output"]
     for name, module in (
         ("calc_p_Q", "doorlab.pset.folder"),
-        ("InverseKinPointwise", "doorlab.ik_pointwise"),
-        ("IiwaTaskSpaceVelocityPlan.CalcPositionCommand", "doorlab.laws"),
-        ("IiwaTaskSpaceImpedancePlan.CalcTorqueCommand", "doorlab.plans"),
+        ("InverseKinPointwise", "doorlab.control.ik_pointwise"),
+        ("IiwaTaskSpaceVelocityPlan.CalcPositionCommand", "doorlab.control.laws"),
+        ("IiwaTaskSpaceImpedancePlan.CalcTorqueCommand", "doorlab.control.plans"),
     ):
         output = tests[UNIT[name]]["output"]
         assert "doorlab's reference solutions" in output and module in output, output

@@ -1,4 +1,5 @@
-"""Tests of ``doorlab.replay``: a self-contained HTML replay recorded from the logged positions.
+"""Tests of ``doorlab.outputs.replay``: a self-contained HTML replay recorded from the logged
+positions.
 
 Meshcat's ``StaticHtml`` embeds every scene command as a base64 msgpack data URI
 (``fetch("data:application/octet-binary;base64,...")``); the recorded animation is the command
@@ -16,7 +17,7 @@ import pytest
 from report_fixtures import short_result
 
 from doorlab.errors import ConfigError
-from doorlab.replay import replay_frame_times, replay_rows, save_replay
+from doorlab.outputs.replay import replay_frame_times, replay_rows, save_replay
 
 DATA_URI = re.compile(r"data:application/octet-binary;base64,([A-Za-z0-9+/=]+)")
 

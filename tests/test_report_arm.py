@@ -5,7 +5,7 @@ conditions, whose logs feed the freeze ratio and the figure) and hand-written me
 other cases, so that the page is checked against numbers the test knows.
 
 The short runs are structure fixtures (a 2 s arc): the physics of the full runs is the
-report's and README's, measured by ``doorlab report``.
+report's and the real-arm guide's, measured by ``doorlab report``.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import pytest
 from report_fixtures import short_scenario
 
 from doorlab.config import Scenario, arm_preset
-from doorlab.controllers import REGISTRY
+from doorlab.episode.controllers import REGISTRY
 from doorlab.report import make_arm_cases, make_experiments
 from doorlab.report.experiments import ARM_CONDITIONS, ARM_TUNING, arm_condition
 
@@ -96,8 +96,8 @@ def arm_base() -> Scenario:
 def arm_report() -> tuple[Path, list]:
     import tempfile
 
+    from doorlab.outputs.runs import run_to_folder
     from doorlab.report import RunRecord, build_page
-    from doorlab.runs import run_to_folder
 
     base = arm_base()
     cases, new = make_arm_cases(base, ())
@@ -128,7 +128,7 @@ def _section(page: str) -> str:
 def test_the_section_prints_the_folders_metrics():
     """A row per case with its folder's numbers; the real runs' peak |external torque| against
     kuka_driver's limits from their logs; the figure embedded; summary.json lists the cases."""
-    from doorlab.episode import EpisodeResult
+    from doorlab.episode.result import EpisodeResult
     from doorlab.kuka import external_torque_limits
 
     folder, grid = arm_report()
@@ -161,8 +161,8 @@ def test_the_answer_explains_the_impedance_plan_with_the_models_numbers():
     """The answer quotes the joint damping of both loops as computed from the model (KUKA's
     2 sqrt(K M_ii) at the grasp pose, doorlab's Dq + h Kq), the delay's K x 5 ms, and the
     doors of the three impedance runs; a finding per controller and one on the freeze."""
-    from doorlab.pages import format_number
-    from doorlab.station import joint_damping
+    from doorlab.cell.station import joint_damping
+    from doorlab.outputs.pages import format_number
 
     folder, grid = arm_report()
     section = _section((folder / "index.html").read_text(encoding="utf-8"))

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from report_fixtures import single_run_report
 
-from doorlab.pdf import HEADLESS_FLAGS
+from doorlab.runtime.pdf import HEADLESS_FLAGS
 
 CHECK_SCRIPT = """
 <script>

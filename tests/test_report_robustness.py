@@ -17,9 +17,9 @@ import pytest
 from report_fixtures import FAILED_ERROR, ROBUST_YAW_DEG, robustness_report, short_scenario
 
 from doorlab.config import Scenario
-from doorlab.controllers import REGISTRY
+from doorlab.episode.controllers import REGISTRY
 from doorlab.report import make_experiments, make_robustness_cases, run_report
-from doorlab.robustness import ACCEPTANCE_YAW_ERRORS_DEG
+from doorlab.studies.robustness import ACCEPTANCE_YAW_ERRORS_DEG
 
 
 def _section(page: str) -> str:
@@ -136,7 +136,7 @@ def test_cli_no_robustness_reaches_run_report(tmp_path: Path, monkeypatch, capsy
     """``doorlab report --no-robustness`` asks run_report for no robustness runs, ``--no-arm``
     for no runs on the arm; the default asks for both; --help names the flags."""
     import doorlab.report
-    from doorlab.cli import main
+    from doorlab.cli.parser import main
 
     calls, arms = [], []
 

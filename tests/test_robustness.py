@@ -9,7 +9,7 @@ import pytest
 
 from doorlab.config import Scenario
 from doorlab.errors import ConfigError
-from doorlab.robustness import (
+from doorlab.studies.robustness import (
     RobustnessRow,
     case_scenario,
     plot_robustness,
@@ -117,7 +117,7 @@ def test_largest_yaw_scans_to_the_first_failure_then_bisects(monkeypatch):
     40 deg, the scan (from 10 deg in 2.5 deg steps) stops at the first failure, 15 deg, and
     bisection brackets 13.7 deg to the tolerance; the island of success further out is not
     reported."""
-    import doorlab.robustness as robustness
+    import doorlab.studies.robustness as robustness
 
     calls = []
 
@@ -137,7 +137,7 @@ def test_largest_yaw_scans_to_the_first_failure_then_bisects(monkeypatch):
 
 
 def test_largest_yaw_reports_the_cap_when_nothing_fails(monkeypatch):
-    import doorlab.robustness as robustness
+    import doorlab.studies.robustness as robustness
 
     monkeypatch.setattr(
         robustness, "run_case", lambda base, c, yaw: (row(c, math.degrees(yaw)), None)
@@ -152,7 +152,7 @@ def test_rows_from_a_sweep_table():
     a failed run's handle) become None."""
     import pandas as pd
 
-    from doorlab.robustness import rows_from_sweep
+    from doorlab.studies.robustness import rows_from_sweep
 
     frame = pd.DataFrame(
         {

@@ -11,12 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from doorlab import plots
-from doorlab.cli import main
+from doorlab.cli.parser import main
 from doorlab.config import Scenario
+from doorlab.episode.result import EpisodeResult
 from doorlab.errors import OutputError
-from doorlab.runs import MANIFEST_NAME, run_to_folder
-from doorlab.simulation import EpisodeResult
+from doorlab.outputs import plots
+from doorlab.outputs.runs import run_to_folder
+from doorlab.runtime.folders import MANIFEST_NAME
 
 METRICS_KEYS = {
     "controller", "doors", "knots", "max_radial_error_m", "rms_radial_error_m",
@@ -150,13 +151,13 @@ def test_a_handle_yanked_too_fast_slips_and_is_reported(tmp_path, capsys):
 def test_a_failed_simulation_is_a_diverged_run(tmp_path, monkeypatch, capsys):
     """When the physics fails, the folder holds metrics.json with status diverged and the
     error, and the CLI exits 5 (the failure itself is tested in test_simulation)."""
-    from doorlab import controllers
+    from doorlab.episode import controllers
     from doorlab.errors import SimulationError
 
     def failing(scenario, **kwargs):
         raise SimulationError("the simulation failed at t = 12.345 s: contact solver diverged")
 
-    monkeypatch.setattr(controllers, "run_controller", failing)
+    monkeypatch.setattr(controllers, "simulate_controller", failing)
     out = tmp_path / "boom"
     assert main(["run", "--out", str(out)]) == 5
     metrics = json.loads((out / "metrics.json").read_text())
@@ -179,7 +180,7 @@ def test_a_cupboard_out_of_reach_is_an_ik_failure(tmp_path, capsys):
 def test_adaptive_run_folder_has_its_estimates(tmp_path):
     """An adaptive run (short timeline, doors closed) writes the plan's per-tick estimates
     into log.npz, the hinge estimate error into metrics.json and its plot as PNG."""
-    from doorlab.adaptive import LOG_CHANNELS
+    from doorlab.control.adaptive import LOG_CHANNELS
 
     out = tmp_path / "adaptive"
     outcome = run_to_folder(

@@ -1,4 +1,4 @@
-"""The command checks of doorlab.safety: the pure checks, and the same checks in simulation
+"""The command checks of doorlab.cell.safety: the pure checks, and the same checks in simulation
 (``station.safety.enabled``), which stop a run before the plant steps with a bad command."""
 
 from __future__ import annotations
@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from doorlab.cell.safety import SafetyLimits, check_command
 from doorlab.config import SafetyConfig, Scenario, validate
 from doorlab.constants import (
     JOINT_POSITION_LIMITS,
@@ -16,7 +17,6 @@ from doorlab.constants import (
     Q_HOME,
 )
 from doorlab.errors import ConfigError, SafetyStop
-from doorlab.safety import SafetyLimits, check_command
 
 PERIOD = 0.005
 Q = np.array([0.1, 0.5, -0.2, -1.5, 0.3, 1.0, 0.2])
@@ -110,7 +110,7 @@ def short(controller: str) -> Scenario:
 def test_the_checks_in_simulation_pass_the_shipped_plan_and_change_nothing():
     """With the default limits the velocity plan runs to its end, bit for bit as without the
     checks (the monitor only reads)."""
-    from doorlab.controllers import run_controller
+    from doorlab.episode.controllers import run_controller
 
     scenario = short("velocity")
     unchecked, _ = run_controller(scenario)
@@ -124,7 +124,7 @@ def test_a_simulated_run_stops_at_the_first_command_over_a_limit():
     """A torque fraction the impedance plan's first J^T F exceeds: the run stops at that tick
     (the first tick whose tau_ff breaks the bound in an unchecked run logged every tick), and
     the logs up to the stop are the unchecked run's."""
-    from doorlab.controllers import run_controller
+    from doorlab.episode.controllers import run_controller
 
     scenario = short("impedance")
     scenario.timeline.log_period = scenario.timeline.control_period
@@ -154,8 +154,8 @@ def test_doorlab_run_reports_a_safety_stop_with_exit_8(tmp_path):
     the stop are in log.npz."""
     import json
 
-    from doorlab.cli import main
-    from doorlab.episode import EpisodeResult
+    from doorlab.cli.parser import main
+    from doorlab.episode.result import EpisodeResult
 
     out = tmp_path / "run"
     sets = [

@@ -22,7 +22,7 @@ from pydrake.lcm import DrakeLcm
 from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from doorlab.cli import main
+from doorlab.cli.parser import main
 from doorlab.config import Scenario
 from doorlab.constants import DOOR_ANGLES, Q_HOME
 from doorlab.hardware import protocol
@@ -35,7 +35,7 @@ from doorlab.hardware.protocol import (
 )
 from doorlab.hardware.sim_cell import add_sim_driver
 from doorlab.hardware.sim_driver import SimDriver
-from doorlab.runs import write_manifest
+from doorlab.runtime.folders import write_manifest
 
 H = 0.002
 """The plant's time step of the default scenario [s]."""

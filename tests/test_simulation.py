@@ -9,9 +9,11 @@ import pytest
 
 from doorlab.config import Scenario
 from doorlab.constants import Q_HOME
+from doorlab.control.plans import JointSpacePlan
+from doorlab.episode.plan_runner import PlanRunner
+from doorlab.episode.result import EpisodeResult
+from doorlab.episode.schedule import PLAN_SETTLE_TIME, make_schedule
 from doorlab.errors import ConfigError
-from doorlab.plans import JointSpacePlan
-from doorlab.simulation import PLAN_SETTLE_TIME, EpisodeResult, PlanRunner, make_schedule
 
 Q_START = Q_HOME + 0.1
 
@@ -107,9 +109,9 @@ def test_episode_result_round_trips_through_npz(tmp_path):
 def test_a_plan_sending_nan_stops_the_run_with_a_simulation_error():
     """A buggy plan (NaN q_ref) is caught by the plant and reported with the time, not a
     raw Drake traceback."""
+    from doorlab.control.plans import Command
+    from doorlab.episode.simulation import run_episode
     from doorlab.errors import SimulationError
-    from doorlab.plans import Command
-    from doorlab.simulation import run_episode
 
     class NanPlan:
         name, duration = "nan", 0.5
@@ -129,7 +131,7 @@ def test_joint_space_plans_in_cpp_send_what_the_runner_sent():
     logged q_ref equals, sample for sample, the plans evaluated at the runner's ticks, each
     sample in force from the first plant step after its tick (the log at a tick shows the
     previous tick's command, as the runner's discrete state did)."""
-    from doorlab.simulation import run_episode
+    from doorlab.episode.simulation import run_episode
 
     scenario = Scenario()
     scenario.timeline.hold_duration = 0.2
@@ -156,8 +158,8 @@ def test_a_tick_sees_the_arm_after_the_steps_up_to_it_and_acts_from_the_next(tim
     to get wrong: with events at t_k itself, about one in five (5 ms ticks, 2 ms steps) saw
     the arm a step earlier and acted a step sooner. A 3 ms step checks a grid the ticks share
     less often (every third tick on a step)."""
-    from doorlab.plans import Command
-    from doorlab.simulation import run_episode
+    from doorlab.control.plans import Command
+    from doorlab.episode.simulation import run_episode
 
     seen: list[tuple[float, np.ndarray, np.ndarray]] = []
 

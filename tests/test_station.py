@@ -1,7 +1,7 @@
-"""Physics acceptance tests of the station (``doorlab.station.build_station``).
+"""Physics acceptance tests of the station (``doorlab.cell.station.build_station``).
 
 Each test simulates the station Diagram directly (input ports fixed) or through
-``doorlab.simulation.run_episode``, only as long as its property needs. Numbers come from
+``doorlab.episode.simulation.run_episode``, only as long as its property needs. Numbers come from
 shared/reference/station_facts.md and the default ``StationConfig``.
 """
 
@@ -13,14 +13,15 @@ from pydrake.multibody.math import SpatialForce
 from pydrake.multibody.plant import ExternallyAppliedSpatialForce
 from pydrake.systems.analysis import Simulator
 
+from doorlab.cell.frames import GRIPPER_BODY, L7_FRAME, LEFT_HANDLE_FRAME
+from doorlab.cell.geometry import default_door_geometry
+from doorlab.cell.station import Station, build_station, joint_damping, make_controller_plant
 from doorlab.config import Scenario, StationConfig
 from doorlab.constants import JOINT_TORQUE_LIMITS, NUM_JOINTS, Q_HOME
-from doorlab.frames import GRIPPER_BODY, L7_FRAME, LEFT_HANDLE_FRAME
-from doorlab.geometry import default_door_geometry
-from doorlab.ik import solve_ik
-from doorlab.plans import JointSpacePlan
-from doorlab.simulation import EpisodeResult, run_episode
-from doorlab.station import Station, build_station, joint_damping, make_controller_plant
+from doorlab.control.ik import solve_ik
+from doorlab.control.plans import JointSpacePlan
+from doorlab.episode.result import EpisodeResult
+from doorlab.episode.simulation import run_episode
 
 DEFAULT = StationConfig()
 KQ = np.array(DEFAULT.inner_loop.kq)  # [N m/rad]

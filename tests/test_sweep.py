@@ -21,10 +21,10 @@ import pandas as pd
 import pytest
 import yaml
 
-from doorlab.cli import main
+from doorlab.cli.parser import main
 from doorlab.config import Scenario
 from doorlab.errors import ConfigError
-from doorlab.runs import staged_output
+from doorlab.runtime.folders import staged_output
 from doorlab.sweep import load_spec, parse_spec, plan_runs, read_table, run_one, run_sweep
 from doorlab.sweep.results import RESULTS_CSV, RESULTS_PARQUET, TIMING_COLUMNS, write_table
 from doorlab.sweep.spec import scenario_key
@@ -224,9 +224,9 @@ def test_bad_command_line_is_exit_2(tmp_path: Path, capsys, argv, expected):
 
 
 def test_an_unreachable_scheduler_is_exit_2_and_writes_nothing(tmp_path, capsys, monkeypatch):
-    import doorlab.executor
+    import doorlab.runtime.executor
 
-    monkeypatch.setattr(doorlab.executor, "CONNECT_TIMEOUT_S", 2.0)
+    monkeypatch.setattr(doorlab.runtime.executor, "CONNECT_TIMEOUT_S", 2.0)
     out = tmp_path / "out"
     argv = ["sweep", "--grid", "impedance.kv=100", "--out", str(out)]
     assert main([*argv, "--scheduler", "tcp://127.0.0.1:9"]) == 2  # port 9: nobody listens
@@ -237,12 +237,12 @@ def test_an_unreachable_scheduler_is_exit_2_and_writes_nothing(tmp_path, capsys,
 
 def test_an_exception_in_a_run_is_a_row(monkeypatch):
     """A bug inside a run (here: the controller raises) gives status error, not a crash."""
-    import doorlab.controllers
+    import doorlab.episode.controllers
 
     def broken(scenario):
         raise RuntimeError("the physics engine caught fire")
 
-    monkeypatch.setattr(doorlab.controllers, "run_controller", broken)
+    monkeypatch.setattr(doorlab.episode.controllers, "run_controller", broken)
     row = run_one(Scenario())
     assert row["status"] == "error"
     assert row["error"] == "RuntimeError: the physics engine caught fire"

@@ -1,16 +1,17 @@
 """The site's reference, generated from the code: a MkDocs hook and the Markdown it writes.
 
-A page asks for a generated block with a marker on a line of its own::
+A page asks for a generated block with a marker on a line of its own (modules are doorlab's)::
 
-    <!-- doorlab:cli -->            every command and option of doorlab.cli.build_parser()
-    <!-- doorlab:scenario -->       every field of doorlab.config.Scenario
+    <!-- doorlab:cli -->            every command and option of cli.parser.build_parser()
+    <!-- doorlab:scenario -->       every field of config.Scenario
     <!-- doorlab:scenario-yaml -->  the default scenario as YAML
-    <!-- doorlab:exit-codes -->     doorlab.runs.EXIT_CODES and the signals' codes
+    <!-- doorlab:exit-codes -->     outputs.runs.EXIT_CODES and the signals' codes
     <!-- doorlab:run-files -->      what a run folder holds
-    <!-- doorlab:metrics -->        the keys of metrics.json (doorlab.metrics.DoorMetrics)
-    <!-- doorlab:log-channels -->   the channels of log.npz (doorlab.episode.EpisodeResult)
-    <!-- doorlab:plan-log -->       the adaptive plan's own log (doorlab.adaptive.LOG_CHANNELS)
+    <!-- doorlab:metrics -->        the keys of metrics.json (episode.metrics.DoorMetrics)
+    <!-- doorlab:log-channels -->   the channels of log.npz (episode.result.EpisodeResult)
+    <!-- doorlab:plan-log -->       the adaptive plan's own log (control.adaptive.LOG_CHANNELS)
     <!-- doorlab:public-api -->     mkdocstrings blocks for every name of doorlab.__all__
+    <!-- doorlab:packages -->       the package's parts, foundations first (API_GROUPS)
     <!-- doorlab:api GROUP -->      mkdocstrings blocks for the modules of API_GROUPS[GROUP]
     <!-- doorlab:figure T/NAME -->  a figure of docs/figures with the command that made it
     <!-- doorlab:figure-text T/NAME -->  a text the figure script kept (a run's summary)
@@ -60,7 +61,7 @@ STATUS_MEANINGS = {
     "safety_stop": "a command broke a safety limit and was not sent (limit, joint and time in "
     "`metrics.json`; `--hardware`, or `station.safety.enabled` in simulation)",
 }
-"""What each status of :data:`doorlab.runs.EXIT_CODES` means (a new status without an entry
+"""What each status of :data:`doorlab.outputs.runs.EXIT_CODES` means (a new status without an entry
 here stops the build)."""
 
 RUN_FILES = {
@@ -73,81 +74,42 @@ RUN_FILES = {
     "hinge_estimate_error.png": "plans that estimate the hinge (`adaptive`): the distance of the "
     "running hinge estimate from the true axis over time",
 }
-"""Files of a run folder besides the plots of :data:`doorlab.plots.RUN_PLOT_NAMES` and the
+"""Files of a run folder besides the plots of :data:`doorlab.outputs.plots.RUN_PLOT_NAMES` and the
 manifest (a test compares a real run folder with this page)."""
 
 API_GROUPS = {
     "configuration": (
-        "Configuration, errors and inputs",
+        "Configuration, errors and constants",
         [
             "doorlab.config",
             "doorlab.config_checks",
             "doorlab.errors",
-            "doorlab.inputs",
             "doorlab.constants",
-        ],
-    ),
-    "cell": (
-        "The cell: station, frames, geometry",
-        [
-            "doorlab.station",
-            "doorlab.arm_cell",
             "doorlab.kuka",
-            "doorlab.models",
-            "doorlab.frames",
-            "doorlab.geometry",
-            "doorlab.door_model",
         ],
     ),
-    "control": (
-        "Control laws, plans and controllers",
-        [
-            "doorlab.laws",
-            "doorlab.plans",
-            "doorlab.ik",
-            "doorlab.ik_pointwise",
-            "doorlab.adaptive",
-            "doorlab.hinge_estimation",
-            "doorlab.controllers",
-            "doorlab.safety",
-        ],
-    ),
+    "runtime": ("Inputs, output folders, signals and processes", ["doorlab.runtime"]),
+    "cell": ("The cell: models, station, the lab arm, the door", ["doorlab.cell"]),
+    "control": ("Control laws and plans", ["doorlab.control"]),
     "episodes": (
-        "Episodes and their results",
-        [
-            "doorlab.schedule",
-            "doorlab.plan_runner",
-            "doorlab.episode",
-            "doorlab.simulation",
-            "doorlab.metrics",
-            "doorlab.runs",
-            "doorlab.plots",
-            "doorlab.replay",
-            "doorlab.robustness",
-            "doorlab.reference",
-            "doorlab.legacy",
-        ],
+        "Episodes: timeline, wiring, simulation, controllers, metrics",
+        ["doorlab.episode"],
     ),
-    "command-line": (
-        "The command line, processes and pages",
-        [
-            "doorlab.cli",
-            "doorlab.commands",
-            "doorlab.argtypes",
-            "doorlab.entry",
-            "doorlab.interrupts",
-            "doorlab.executor",
-            "doorlab.pages",
-            "doorlab.pdf",
-        ],
+    "outputs": ("A run's outputs: folder, plots, replay, pages", ["doorlab.outputs"]),
+    "studies": (
+        "Studies: robustness, the original station, the former design",
+        ["doorlab.studies"],
     ),
+    "hardware": ("The real arm and the simulated driver", ["doorlab.hardware"]),
     "report": ("The report (doorlab report)", ["doorlab.report"]),
     "sweep": ("Sweeps (doorlab sweep)", ["doorlab.sweep"]),
     "pset": ("The problem set and its grader (doorlab pset)", ["doorlab.pset"]),
-    "hardware": ("The real arm and the simulated driver", ["doorlab.hardware"]),
+    "command-line": ("The command line", ["doorlab.cli"]),
 }
-"""The API reference's pages: page -> (title, modules); a package stands for its submodules.
-Every module of ``src/doorlab`` must be in exactly one group (else the build stops)."""
+"""The API reference's pages, from the bottom of the package up (a module imports only from
+its own group and the groups above it in this table: tests/test_imports.py): page -> (title,
+modules); a package stands for its submodules. Every module of ``src/doorlab`` must be in
+exactly one group (else the build stops)."""
 
 UNIT = re.compile(r"\[([^\]\[,]+)\]")
 """A unit in a comment: the first ``[...]`` without a comma (``[0, 1]`` is a range)."""
@@ -440,7 +402,7 @@ def cli_anchor(words: tuple[str, ...]) -> str:
 
 def cli_markdown() -> str:
     """One section per command: its help, usage and a table of its options."""
-    from doorlab.cli import build_parser
+    from doorlab.cli.parser import build_parser
 
     parser = build_parser()
     out = []
@@ -484,8 +446,8 @@ def cli_markdown() -> str:
 
 def exit_codes_markdown() -> str:
     """``doorlab run``'s exit codes by status, and the signals' codes."""
-    from doorlab.interrupts import INTERRUPTS
-    from doorlab.runs import EXIT_CODES
+    from doorlab.outputs.runs import EXIT_CODES
+    from doorlab.runtime.interrupts import INTERRUPTS
 
     missing = [s for s in EXIT_CODES if s not in STATUS_MEANINGS]
     if missing:
@@ -507,9 +469,9 @@ def exit_codes_markdown() -> str:
 
 
 def run_files_markdown() -> str:
-    """The files of a run folder: the plots from doorlab.plots, the rest from RUN_FILES."""
-    from doorlab import plots
-    from doorlab.runs import MANIFEST_NAME
+    """The files of a run folder: the plots from doorlab.outputs.plots, the rest from RUN_FILES."""
+    from doorlab.outputs import plots
+    from doorlab.runtime.folders import MANIFEST_NAME
 
     out = ["| file | what |", "|---|---|"]
     for name, text in RUN_FILES.items():
@@ -519,7 +481,9 @@ def run_files_markdown() -> str:
     for name in plots.RUN_PLOT_NAMES:
         function = getattr(plots, f"plot_{name}", None)
         if function is None or not _summary(function):
-            raise ValueError(f"run plot {name!r} has no documented doorlab.plots.plot_{name}")
+            raise ValueError(
+                f"run plot {name!r} has no documented doorlab.outputs.plots.plot_{name}"
+            )
         out.append(f"| `{name}.png` | {_cell(_summary(function))} |")
     for name, text in RUN_FILES.items():
         if name.endswith(".png"):
@@ -550,7 +514,7 @@ def _dataclass_table(cls: type, texts: dict[str, str], header: str) -> str:
 
 def metrics_markdown() -> str:
     """The keys of metrics.json: the fields of DoorMetrics."""
-    from doorlab.metrics import DoorMetrics
+    from doorlab.episode.metrics import DoorMetrics
 
     texts = {**attribute_comments(DoorMetrics), **docstring_attributes(DoorMetrics)}
     return _dataclass_table(DoorMetrics, texts, "key")
@@ -558,14 +522,14 @@ def metrics_markdown() -> str:
 
 def log_channels_markdown() -> str:
     """The channels of log.npz: the fields of EpisodeResult."""
-    from doorlab.episode import EpisodeResult
+    from doorlab.episode.result import EpisodeResult
 
     return _dataclass_table(EpisodeResult, docstring_attributes(EpisodeResult), "channel")
 
 
 def plan_log_markdown() -> str:
-    """The adaptive plan's per-tick channels (doorlab.adaptive.LOG_CHANNELS)."""
-    from doorlab import adaptive
+    """The adaptive plan's per-tick channels (doorlab.control.adaptive.LOG_CHANNELS)."""
+    from doorlab.control import adaptive
 
     comments = attribute_comments(adaptive, names=["LOG_CHANNELS"])
     out = ["| channel | unit | what |", "|---|---|---|"]
@@ -636,6 +600,31 @@ def api_markdown(group: str) -> str:
     return "\n".join(out)
 
 
+def packages_markdown() -> str:
+    """The package's architecture: one row per API page, from the foundations up, with the
+    first paragraph of its package's docstring (or the page's title) and its modules."""
+    api_coverage()
+    out = ["| part | what it holds |", "|---|---|"]
+    for group, (title, modules) in API_GROUPS.items():
+        first = importlib.import_module(modules[0])
+        if len(modules) == 1 and hasattr(first, "__path__"):  # a sub-package
+            names = sorted(
+                m.rsplit(".", 1)[1]
+                for m in package_modules()
+                if m.startswith(modules[0] + ".")
+                and m.count(".") == modules[0].count(".") + 1
+                and not m.rsplit(".", 1)[1].startswith("_")  # not cli's __main__
+            )
+            part = f"[`{modules[0]}`]({group}.md)"
+            text = f"{_summary(first)} *Modules:* {', '.join(names)}."
+        else:  # modules at the top of the package
+            part = f"[`doorlab`]({group}.md)"
+            names = ", ".join(m.rsplit(".", 1)[1] for m in modules)
+            text = f"{title}, at the package's top. *Modules:* {names}."
+        out.append(f"| {_cell(part)} | {_cell(text)} |")
+    return "\n".join(out) + "\n"
+
+
 def public_api_markdown() -> str:
     """A table of every name of ``doorlab.__all__``: where it is defined (linked to its
     documentation on the module pages) and its docstring's first line."""
@@ -646,7 +635,7 @@ def public_api_markdown() -> str:
         value = getattr(doorlab, name)
         module = getattr(value, "__module__", None)
         if not isinstance(module, str) or not hasattr(value, "__qualname__"):
-            module = f"doorlab.{doorlab._LAZY[name]}"  # a constant: documented in its module
+            module = doorlab._LAZY[name]  # a constant: documented in its module
             summary = ""
         else:
             summary = _summary(value)
@@ -704,6 +693,7 @@ GENERATORS = {
     "log-channels": log_channels_markdown,
     "plan-log": plan_log_markdown,
     "public-api": public_api_markdown,
+    "packages": packages_markdown,
     "api": api_markdown,
     "figure": figure_markdown,
     "figure-text": figure_text_markdown,

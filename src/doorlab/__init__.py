@@ -18,17 +18,17 @@ from doorlab.errors import ConfigError, DoorlabError, IkError, OutputError, Simu
 __version__ = "0.1.0"
 
 _LAZY = {
-    "Scenario": "config",
-    "load_scenario": "config",
-    "validate": "config",
-    "REGISTRY": "controllers",
-    "get_controller": "controllers",
-    "run_controller": "controllers",
-    "EpisodeResult": "simulation",
-    "run_episode": "simulation",
+    "Scenario": "doorlab.config",
+    "load_scenario": "doorlab.config",
+    "validate": "doorlab.config",
+    "REGISTRY": "doorlab.episode.controllers",
+    "get_controller": "doorlab.episode.controllers",
+    "run_controller": "doorlab.episode.controllers",
+    "EpisodeResult": "doorlab.episode.result",
+    "run_episode": "doorlab.episode.simulation",
 }
 """The API that needs pydrake, imported on first use: ``import doorlab`` stays light, so the
-``doorlab`` command handles signals before its imports (:mod:`doorlab.entry`)."""
+``doorlab`` command handles signals before its imports (:mod:`doorlab.cli.entry`)."""
 
 
 __all__ = [
@@ -54,7 +54,7 @@ def __getattr__(name: str):
         raise AttributeError(f"module 'doorlab' has no attribute {name!r}")
     import importlib
 
-    value = getattr(importlib.import_module(f"doorlab.{module}"), name)
+    value = getattr(importlib.import_module(module), name)
     globals()[name] = value
     return value
 

@@ -37,13 +37,13 @@ from doorlab.config_checks import (  # noqa: F401 (the bounds, named here too)
 )
 from doorlab.constants import DOOR_ANGLES
 from doorlab.errors import ConfigError
-from doorlab.inputs import load_yaml, quote, quote_text, read_text_file, yaml_float_spelling
 from doorlab.kuka import (
     EXTERNAL_TORQUE_LIMIT,
     KUKA_DAMPING,
     KUKA_STIFFNESS,
     VELOCITY_FILTER_CUTOFF,
 )
+from doorlab.runtime.inputs import load_yaml, quote, quote_text, read_text_file, yaml_float_spelling
 
 CONTROLLERS = ("ik", "velocity", "impedance", "adaptive")
 """Names of the door-opening controllers: the problem set's tasks 1-3, then the adaptive plan."""
@@ -133,7 +133,7 @@ class GripperConfig:
 
 @dataclass
 class SafetyConfig:
-    """Limits every arm command is checked against before it goes out (:mod:`doorlab.safety`).
+    """Limits every arm command is checked against before it goes out (:mod:`doorlab.cell.safety`).
 
     Always on for ``doorlab run --hardware``; in simulation only when ``enabled``, to rehearse a
     plan under the real run's limits.
@@ -350,7 +350,8 @@ def update_scenario(scenario: Scenario, document: str) -> Scenario:
     Raises:
         ConfigError: Invalid YAML, unknown keys, wrong types or out-of-range values.
     """
-    data = load_yaml(document)  # within doorlab.inputs' budget, so Drake's parse below is too
+    # within doorlab.runtime.inputs' budget, so Drake's parse below is too
+    data = load_yaml(document)
     if data is None:
         return validate(scenario)
     _check_shape(data, Scenario, "")

@@ -11,7 +11,7 @@ import math
 
 from doorlab.constants import NUM_JOINTS
 from doorlab.errors import ConfigError
-from doorlab.inputs import quote
+from doorlab.runtime.inputs import quote
 
 MAX_EPISODE_DURATION = 600.0
 """Longest timeline [s]: the sum of its durations (hold, approach, grasp, arc, extra_time; each

@@ -65,11 +65,11 @@ def interrupt_exit_code(error: KeyboardInterrupt) -> int:
 
 class RunStopped(DoorlabError):
     """A run stopped before its end for a reason that is a result, not a bug: its status
-    (``safety_stop``, ``driver_lost``) sets the exit code (:data:`doorlab.runs.EXIT_CODES`).
+    (``safety_stop``, ``driver_lost``) sets the exit code (:data:`doorlab.outputs.runs.EXIT_CODES`).
 
     Attributes:
         status: The run's status.
-        result: The logs up to the stop (an :class:`doorlab.episode.EpisodeResult`), or None.
+        result: The logs up to the stop (an :class:`doorlab.episode.result.EpisodeResult`), or None.
     """
 
     status = "stopped"
@@ -80,10 +80,10 @@ class RunStopped(DoorlabError):
 
 
 class SafetyStop(RunStopped):
-    """A command broke a safety limit; it was not sent (:mod:`doorlab.safety`).
+    """A command broke a safety limit; it was not sent (:mod:`doorlab.cell.safety`).
 
     Attributes:
-        violation: The :class:`doorlab.safety.Violation` (limit, joint, value, bound, time).
+        violation: The :class:`doorlab.cell.safety.Violation` (limit, joint, value, bound, time).
     """
 
     status = "safety_stop"

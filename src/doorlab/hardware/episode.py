@@ -15,7 +15,7 @@ Safety, in the order it acts (the values are the module's constants):
   never sees them and no command answers (echoes) them;
 - the watchdog: no fresh status for ``WATCHDOG_TIMEOUT`` (10 periods, 50 ms) stops
   commanding (status ``driver_lost``);
-- every command is checked (:mod:`doorlab.safety`); one that breaks a limit is not sent and
+- every command is checked (:mod:`doorlab.cell.safety`); one that breaks a limit is not sent and
   the run stops (status ``safety_stop``); one that is ready more than ``STALE_ANSWER`` (5 ms)
   after its status arrived is dropped (the arm holds the previous one; the next status gets a
   fresh answer);
@@ -37,16 +37,17 @@ from pydrake.common.yaml import yaml_dump_typed
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder
 
+from doorlab.cell.safety import SafetyLimits, Violation, check_command
 from doorlab.config import Scenario
-from doorlab.episode import EpisodeLogger, EpisodeResult, schedule_fields, wire_commands
+from doorlab.control.plans import Plan
+from doorlab.episode.result import EpisodeResult, schedule_fields
+from doorlab.episode.schedule import ScheduledPlan, make_schedule
+from doorlab.episode.wiring import EpisodeLogger, wire_commands
 from doorlab.errors import NoDriver
 from doorlab.hardware.estimates import door_angle_estimate, hardware_plant_positions
 from doorlab.hardware.interface import HardwareCell, build_hardware_cell
 from doorlab.hardware.link import DriverLink, Status
 from doorlab.hardware.protocol import IIWA_STATUS_PERIOD as STATUS_PERIOD
-from doorlab.plans import Plan
-from doorlab.safety import SafetyLimits, Violation, check_command
-from doorlab.schedule import ScheduledPlan, make_schedule
 
 WATCHDOG_PERIODS = 10
 WATCHDOG_TIMEOUT = WATCHDOG_PERIODS * STATUS_PERIOD
@@ -374,7 +375,7 @@ def run_hardware_episode(
         scenario: A validated scenario (timeline, gripper, ``station.safety``'s limits; its
             physics settings do not apply: the arm's own inner loop runs).
         plans, gripper_widths, q_start, arc_plan_index: As for
-            :func:`doorlab.simulation.run_episode`.
+            :func:`doorlab.episode.simulation.run_episode`.
         link: The LCM link (a status already received: :meth:`DriverLink.wait_first_status`).
         wait: How long to wait for a fresh status at the start [s].
         answer_delay: For tests: each command leaves no sooner than this after its status

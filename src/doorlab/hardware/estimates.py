@@ -21,11 +21,11 @@ from functools import cache
 import numpy as np
 from pydrake.multibody.plant import MultibodyPlant
 
+from doorlab.cell.frames import FINGER_JOINTS, LEFT_HINGE, RIGHT_HINGE, p_L7Q
+from doorlab.cell.geometry import scenario_door_geometry
+from doorlab.cell.station import add_cell
 from doorlab.config import Scenario
-from doorlab.frames import FINGER_JOINTS, LEFT_HINGE, RIGHT_HINGE, p_L7Q
-from doorlab.geometry import scenario_door_geometry
-from doorlab.metrics import Kinematics
-from doorlab.station import add_cell
+from doorlab.episode.metrics import Kinematics
 
 HANDLE_THICKNESS = 0.010
 """The handle's thickness between the finger pads [m] (the cupboard model's handle)."""

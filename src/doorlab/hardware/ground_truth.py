@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from doorlab.frames import LEFT_HINGE, RIGHT_HINGE
+from doorlab.cell.frames import LEFT_HINGE, RIGHT_HINGE
+from doorlab.cell.station import Station
 from doorlab.hardware.protocol import IIWA_STATUS_PERIOD, UTIME_WARMUP_STATUSES
-from doorlab.station import Station
 
 GROUND_TRUTH_FILE = "ground_truth.npz"
 DRIVER_FILE = "driver.json"

@@ -1,9 +1,9 @@
 """The real cell over LCM: the iiwa's and the WSG's drivers behind the simulated station's ports.
 
 :func:`build_hardware_cell` returns a Diagram with the port names of
-:data:`doorlab.episode.CELL_INPUTS` and :data:`doorlab.episode.CELL_OUTPUTS`, so the episode's
-wiring, plan runner and logger (:mod:`doorlab.episode`) drive it as they drive the simulated
-station. Inside, Drake's LCM systems and the drivers' message converters:
+:data:`doorlab.episode.wiring.CELL_INPUTS` and :data:`doorlab.episode.wiring.CELL_OUTPUTS`, so the
+episode's wiring, plan runner and logger (:mod:`doorlab.episode`) drive it as they drive the
+simulated station. Inside, Drake's LCM systems and the drivers' message converters:
 
 - ``IIWA_STATUS`` (``lcmt_iiwa_status``, drake-iiwa-driver, every 5 ms) ->
   ``LcmSubscriberSystem`` -> ``IiwaStatusReceiver``: ``iiwa_position_measured``,

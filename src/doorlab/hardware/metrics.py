@@ -18,13 +18,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from doorlab.cell.geometry import scenario_door_geometry
 from doorlab.config import Scenario
 from doorlab.constants import JOINT_SPEED_LIMITS, JOINT_TORQUE_LIMITS
-from doorlab.episode import EpisodeResult
-from doorlab.geometry import scenario_door_geometry
+from doorlab.episode.metrics import Kinematics, compute_tracking
+from doorlab.episode.result import EpisodeResult
 from doorlab.hardware.episode import HardwareOutcome, describe_latency
 from doorlab.hardware.estimates import held_width
-from doorlab.metrics import Kinematics, compute_tracking
 
 
 @dataclass(frozen=True)

@@ -18,22 +18,23 @@ from pathlib import Path
 
 import numpy as np
 
+from doorlab.cell.frames import ARM_JOINTS, p_L7Q
+from doorlab.cell.geometry import true_door_geometry
 from doorlab.config import Scenario, validate
+from doorlab.episode.metrics import Kinematics
+from doorlab.episode.schedule import PLAN_SETTLE_TIME
 from doorlab.errors import IkError, interrupt_exit_code
-from doorlab.frames import ARM_JOINTS, p_L7Q
 from doorlab.hardware.episode import HardwareOutcome, run_hardware_episode
 from doorlab.hardware.link import DriverLink, Status
 from doorlab.hardware.metrics import HardwareMetrics, compute_hardware_metrics
-from doorlab.metrics import Kinematics
-from doorlab.runs import (
-    EXIT_CODES,
+from doorlab.outputs.runs import EXIT_CODES
+from doorlab.runtime.folders import (
     check_replaceable,
     commit_output,
     discard_output,
     prepare_output,
     write_json,
 )
-from doorlab.schedule import PLAN_SETTLE_TIME
 
 
 @dataclass(frozen=True)
@@ -98,9 +99,10 @@ def describe_plan(scenario: Scenario, q_start: np.ndarray, status: Status, url: 
 
 
 def check_out_dir(out_dir: Path, *, force: bool) -> None:
-    """Refuses an ``out_dir`` that may not be written (:func:`doorlab.runs.check_replaceable`:
-    exists without ``force``, or holds a file doorlab did not write) before anything waits or
-    moves; :func:`doorlab.runs.prepare_output` checks again when the folder is made."""
+    """Refuses an ``out_dir`` that may not be written
+    (:func:`doorlab.runtime.folders.check_replaceable`: exists without ``force``, or holds a file
+    doorlab did not write) before anything waits or moves;
+    :func:`doorlab.runtime.folders.prepare_output` checks again when the folder is made."""
     check_replaceable(out_dir, force=force)
 
 
@@ -134,7 +136,7 @@ def run_hardware_to_folder(
         NoDriver: No status within ``wait`` (nothing written).
         ConfigError, OutputError: Bad input (nothing written).
     """
-    from doorlab.controllers import episode_plans
+    from doorlab.episode.controllers import episode_plans
 
     validate(scenario)
     out_dir = Path(out_dir)
@@ -191,11 +193,11 @@ def _write(
     if outcome.status != "ok":
         return
     if plots:
-        from doorlab.runs import _write_plots
+        from doorlab.outputs.plots import save_run_plots
 
-        _write_plots(result, scenario, str(staging))
+        save_run_plots(result, true_door_geometry(scenario), staging)
     if replay:
-        from doorlab.replay import save_replay
+        from doorlab.outputs.replay import save_replay
 
         save_replay(result, staging / "replay.html", scenario=scenario)
 

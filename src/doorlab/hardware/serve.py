@@ -59,7 +59,7 @@ def serve(
     Raises:
         OutputError: ``out`` cannot be written. LcmUnavailable: nothing arrives on the bus.
     """
-    from doorlab.runs import commit_output, discard_output, prepare_output
+    from doorlab.runtime.folders import commit_output, discard_output, prepare_output
 
     staging = prepare_output(out, force=force) if out is not None else None
     try:

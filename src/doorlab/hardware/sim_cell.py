@@ -1,13 +1,13 @@
 """doorlab's simulated arm behind the real drivers' LCM protocol, as a diagram (``doorlab
 sim-driver`` runs it as a process: :mod:`doorlab.hardware.sim_driver`).
 
-The arm is :func:`doorlab.arm_cell.build_arm_cell`'s: the station (the scenario's physics and
+The arm is :func:`doorlab.cell.arm_cell.build_arm_cell`'s: the station (the scenario's physics and
 inner loop: ``kuka_joint_impedance`` for KUKA's loop) behind kuka_driver's cycle, the same
 cell a one-process run with ``station.driver.timing: kuka_driver`` builds, from the same
 scenario fields. Around it, the protocol as the drivers speak it (:mod:`doorlab.kuka`, read
 from drake-iiwa-driver's ``kuka-driver/kuka_driver.cc``):
 
-- each cycle t_k = k x 5 ms (events ``c`` after it, :func:`doorlab.arm_cell.cycle_offset`):
+- each cycle t_k = k x 5 ms (events ``c`` after it, :func:`doorlab.cell.arm_cell.cycle_offset`):
   the newest ``IIWA_COMMAND`` read before the cycle is applied from it on (``joint_position``
   clamped to the joint limits less 1 deg, ``joint_torque`` the feed-forward torque); then the
   external torques are checked (over kuka_driver's limits the driver stops, as it exits); then
@@ -107,7 +107,7 @@ from pydrake.systems.primitives import (
 )
 from pydrake.trajectories import PiecewisePolynomial
 
-from doorlab.arm_cell import (
+from doorlab.cell.arm_cell import (
     STATUS_SIZE,
     STATUS_SLICES,
     WATCH_DELAY,
@@ -116,6 +116,7 @@ from doorlab.arm_cell import (
     build_arm_cell,
     read_cycle_log,
 )
+from doorlab.cell.station import Station
 from doorlab.config import Scenario
 from doorlab.constants import NUM_JOINTS, Q_HOME
 from doorlab.errors import ConfigError
@@ -130,7 +131,6 @@ from doorlab.hardware.protocol import (
     WSG_STATUS_CHANNEL,
     WSG_STATUS_PERIOD,
 )
-from doorlab.station import Station
 
 _UTIME_HORIZON = 1e8
 """The utime source is defined up to this simulation time [s] (three years)."""
@@ -175,7 +175,7 @@ class SimDriverSystems:
     """The simulated driver's systems in a diagram (returned by :func:`add_sim_driver`).
 
     Attributes:
-        arm: The arm cell (:class:`doorlab.arm_cell.ArmCell`; a subsystem named ``arm``).
+        arm: The arm cell (:class:`doorlab.cell.arm_cell.ArmCell`; a subsystem named ``arm``).
         iiwa_command_subscriber, wsg_command_subscriber: The command subscribers.
         iiwa_status_publisher, wsg_status_publisher: The status publishers.
         logger: The ground-truth logger (None unless ``record``).
@@ -295,7 +295,8 @@ class SimDriverSystems:
         return cycle[first] - (answered + 1)
 
     def cycle_log(self, root_context: Context) -> dict[str, np.ndarray]:
-        """Every cycle's status (needs ``record=True``; :func:`doorlab.arm_cell.read_cycle_log`)."""
+        """Every cycle's status (needs ``record=True``;
+        :func:`doorlab.cell.arm_cell.read_cycle_log`)."""
         if self.cycle_logger is None:
             raise ConfigError("the driver was built without record=True: no cycle log")
         return read_cycle_log(self.cycle_logger, root_context)

@@ -21,7 +21,7 @@ from pydrake.lcm import DrakeLcm
 from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 from pydrake.systems.framework import Context, DiagramBuilder, EventStatus
 
-from doorlab.arm_cell import ExternalTorqueFreeze
+from doorlab.cell.arm_cell import ExternalTorqueFreeze
 from doorlab.config import Scenario, validate
 from doorlab.constants import Q_HOME
 from doorlab.errors import ConfigError, SimulationError
@@ -260,7 +260,7 @@ class SimDriver:
 
     def write_output(self, staging: Path) -> None:
         """Writes ``ground_truth.npz``, ``driver.json`` and ``scenario.yaml`` into ``staging``
-        (a folder from :func:`doorlab.runs.prepare_output`)."""
+        (a folder from :func:`doorlab.runtime.folders.prepare_output`)."""
         self.ground_truth().save(staging / GROUND_TRUTH_FILE)
         (staging / DRIVER_FILE).write_text(json.dumps(_finite(self.summary()), indent=2) + "\n")
         (staging / SCENARIO_FILE).write_text(yaml_dump_typed(self.scenario))

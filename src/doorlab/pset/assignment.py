@@ -34,8 +34,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from doorlab.errors import ConfigError, OutputError
-from doorlab.inputs import load_yaml, quote, read_text_file
 from doorlab.pset import verdicts
+from doorlab.runtime.inputs import load_yaml, quote, read_text_file
 
 VISIBILITIES = ("visible", "hidden", "after_due_date", "after_published")
 """Gradescope's visibility settings (its Autograder Specifications)."""
@@ -202,7 +202,7 @@ def parse_assignment(document: str) -> Assignment:
     Raises:
         ConfigError: Invalid YAML, unknown keys, wrong types or out-of-range values.
     """
-    data = load_yaml(document)  # within doorlab.inputs' budget (no aliases, bounded)
+    data = load_yaml(document)  # within doorlab.runtime.inputs' budget (no aliases, bounded)
     if data is None:
         return validate_assignment(Assignment())
     # The scenario's checker (any dataclass schema) and Drake's loader, imported here: the

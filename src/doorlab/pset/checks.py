@@ -21,16 +21,16 @@ import math
 import numpy as np
 from pydrake.math import RollPitchYaw, RotationMatrix
 
+from doorlab.cell.frames import p_L7Q
+from doorlab.cell.geometry import default_door_geometry
+from doorlab.cell.station import make_controller_plant
 from doorlab.constants import JOINT_POSITION_LIMITS, Q_HOME
-from doorlab.frames import p_L7Q
-from doorlab.geometry import default_door_geometry
-from doorlab.ik_pointwise import pointwise_ik
-from doorlab.laws import orientation_error
+from doorlab.control.ik_pointwise import pointwise_ik
+from doorlab.control.laws import orientation_error
 from doorlab.pset.channel import ProtocolError, as_array
 from doorlab.pset.episodes import trajectory_from_answer
 from doorlab.pset.station_api import ArmKinematics
 from doorlab.pset.student import StudentProcess
-from doorlab.station import make_controller_plant
 
 POSITION_ATOL = 1e-6
 """Agreement of positions with the reference [m]: the same formula in double precision."""

@@ -17,10 +17,10 @@ from pydrake.math import RollPitchYaw
 from pydrake.polynomial import Polynomial
 from pydrake.trajectories import PiecewisePolynomial
 
+from doorlab.cell.frames import p_L7Q
+from doorlab.cell.geometry import default_door_geometry
 from doorlab.config import Scenario
 from doorlab.constants import NUM_JOINTS, Q_HOME
-from doorlab.frames import p_L7Q
-from doorlab.geometry import default_door_geometry
 from doorlab.pset.channel import MAX_DEGREE, MAX_SEGMENTS, ProtocolError, as_array
 from doorlab.pset.student import StudentProcess
 
@@ -125,7 +125,7 @@ class RemotePlan:
 
     def command(self, t: float, state):
         """The student's q_ref (7,) [rad] and tau_ff (7,) [N m] at t [s]."""
-        from doorlab.plans import Command
+        from doorlab.control.plans import Command
         from doorlab.pset.station_api import StudentCodeError
 
         q_cmd = state.q if self._q_cmd is None else self._q_cmd
@@ -144,7 +144,7 @@ class RemotePlan:
 
 
 def _episode_figures(result, scenario: Scenario) -> dict:
-    from doorlab.metrics import compute_metrics, compute_tracking
+    from doorlab.episode.metrics import compute_metrics, compute_tracking
 
     g = default_door_geometry()
     m = compute_metrics(result, scenario, g)
@@ -168,7 +168,7 @@ def _episode_figures(result, scenario: Scenario) -> dict:
 def reference_episode(controller: str) -> dict:
     """doorlab's reference solution: IK 10 knots and velocity with the doors open, impedance
     with them closed."""
-    from doorlab.controllers import run_controller
+    from doorlab.episode.controllers import run_controller
 
     doors = "closed" if controller == "impedance" else "open"
     scenario = Scenario(controller=controller, doors=doors)
@@ -180,8 +180,8 @@ def grasp_configuration() -> np.ndarray:
     """Where the task cell's plans 2 and 3 start: the 2019 notebook's ``SolveOneShotIk`` at the
     handle, L7 pitched by 3 pi / 4, from q_home (7,) [rad] (computed here, not by the
     student's copy)."""
-    from doorlab.ik import solve_ik
-    from doorlab.station import make_controller_plant
+    from doorlab.cell.station import make_controller_plant
+    from doorlab.control.ik import solve_ik
 
     return solve_ik(
         make_controller_plant(),
@@ -204,9 +204,9 @@ def student_episode(
     plan alone; ``student`` on the student's."""
     from dataclasses import replace
 
-    from doorlab.plans import JointSpacePlan
+    from doorlab.control.plans import JointSpacePlan
+    from doorlab.episode.simulation import run_episode
     from doorlab.pset.station_api import problem_set_scenario
-    from doorlab.simulation import run_episode
 
     doors = "closed" if controller == "impedance" else "open"
     angle = DOOR_CLOSED if controller == "impedance" else DOOR_OPEN

@@ -1,9 +1,9 @@
 """``doorlab pset init``: writes the problem-set folder (student stubs or solutions).
 
 The folder is rendered from Jinja2 templates (package data, ``templates/``) into a staging
-sibling and renamed into place (:func:`doorlab.runs.staged_output`), so it appears complete or
-not at all, and carries doorlab's manifest: ``--force`` replaces it only while every file in it
-is the one ``pset init`` wrote.
+sibling and renamed into place (:func:`doorlab.runtime.folders.staged_output`), so it appears
+complete or not at all, and carries doorlab's manifest: ``--force`` replaces it only while every
+file in it is the one ``pset init`` wrote.
 """
 
 from __future__ import annotations
@@ -157,7 +157,7 @@ def render_folder(solutions: bool, assignment=None) -> dict[str, str]:
 def check_destination(out: Path, *, force: bool) -> None:
     """Raises OutputError if ``out`` cannot be (re)written: it exists without ``force``, or
     holds a file ``pset init`` did not write or that changed since (a student's work)."""
-    from doorlab.runs import check_replaceable
+    from doorlab.runtime.folders import check_replaceable
 
     check_replaceable(out, force=force, label=str(out))
 
@@ -175,7 +175,7 @@ def init_folder(out: str | Path, *, solutions: bool = False, force: bool = False
         OutputError: ``out`` exists without ``force``, is a file, is under a file, or holds
             a file that is not ``pset init``'s or was edited.
     """
-    from doorlab.runs import staged_output
+    from doorlab.runtime.folders import staged_output
 
     out = Path(out)
     check_destination(out, force=force)

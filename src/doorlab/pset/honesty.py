@@ -14,7 +14,7 @@ student's process, where this guard, installed before any of the student's code 
   audit hook, which Python cannot remove.
 
 Where the view cannot be built (``--insecure``; Gradescope's fallback to a separate user) this
-is what catches an ``import doorlab.laws``, so the grader's results say which line held
+is what catches an ``import doorlab.control.laws``, so the grader's results say which line held
 (``extra_data.sandbox``). No grader can catch a student who copies the published solutions
 by hand.
 """

@@ -7,7 +7,7 @@ student code: the five student functions live in the folder.
 
 A *problem-set plan* has ``duration`` and ``CalcPositionCommand(q_iiwa, q_cmd, v_iiwa,
 tau_iiwa, t_plan, control_period)`` / ``CalcTorqueCommand(...)`` (same arguments);
-:class:`ProblemSetPlanAdapter` turns one into a doorlab :class:`~doorlab.plans.Plan`.
+:class:`ProblemSetPlanAdapter` turns one into a doorlab :class:`~doorlab.control.plans.Plan`.
 """
 
 from __future__ import annotations
@@ -23,19 +23,19 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import JacobianWrtVariable
 from pydrake.trajectories import PiecewisePolynomial
 
+from doorlab.cell.frames import L7_FRAME
+from doorlab.cell.station import make_controller_plant
 from doorlab.config import Scenario, validate
 from doorlab.constants import NUM_JOINTS
 from doorlab.errors import ConfigError
-from doorlab.frames import L7_FRAME
-from doorlab.station import make_controller_plant
 
 if TYPE_CHECKING:
-    from doorlab.plans import ArmState, Command
-    from doorlab.simulation import EpisodeResult
+    from doorlab.control.plans import ArmState, Command
+    from doorlab.episode.result import EpisodeResult
 
-# doorlab.plans and doorlab.simulation (which hold or load doorlab's reference control laws)
-# are imported where an episode runs, not here: the grader's student process imports this
-# module for the plans' base classes and must not load the reference solutions
+# doorlab.control.plans and doorlab.episode.simulation (which hold or load doorlab's reference
+# control laws) are imported where an episode runs, not here: the grader's student process imports
+# this module for the plans' base classes and must not load the reference solutions
 # (doorlab.pset.honesty).
 
 _ZERO = np.zeros(NUM_JOINTS)
@@ -104,7 +104,7 @@ class ProblemSetPlanAdapter:
 
     def command(self, t: float, state: ArmState) -> Command:
         """Asks the plan for q_ref (7,) [rad] and tau_ff (7,) [N m] at t [s]."""
-        from doorlab.plans import Command
+        from doorlab.control.plans import Command
 
         q_cmd = state.q if self._q_cmd is None else self._q_cmd
         args = (state.q, q_cmd.copy(), state.v, state.tau_external, t, self.control_period)
@@ -279,7 +279,7 @@ class StationRun:
                 "the first plan must be a JointSpacePlan (its trajectory's start is where the "
                 "arm moves before the plans run)"
             )
-        from doorlab.simulation import run_episode
+        from doorlab.episode.simulation import run_episode
 
         scenario = problem_set_scenario(
             self.scenario,

@@ -2,11 +2,11 @@
 on doorlab's door model, kinematics and plots.
 
 Every constant is read from doorlab's cupboard model
-(:func:`doorlab.door_model.default_door_constants`), so the folder's numbers and the
+(:func:`doorlab.cell.door_model.default_door_constants`), so the folder's numbers and the
 simulated cell cannot drift apart. The handle's arc and L7's orientation along it
 (``InterpolateArc``, ``InterpolateYawAngle``) are the handout's: the 2019 folder provided
 them, with their formulas in their docstrings, and so does this one. They are written here
-from those formulas, apart from doorlab's own arc (:mod:`doorlab.geometry`, the reference the
+from those formulas, apart from doorlab's own arc (:mod:`doorlab.cell.geometry`, the reference the
 grader checks ``calc_p_Q`` and ``calc_R_WL7_ref`` against, which the student's process does
 not see); a test checks that the two agree.
 """
@@ -22,10 +22,10 @@ import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.multibody.plant import MultibodyPlant
 
+from doorlab.cell.door_model import default_door_constants
+from doorlab.cell.frames import L7_FRAME
+from doorlab.cell.station import make_controller_plant
 from doorlab.constants import L7_PITCH
-from doorlab.door_model import default_door_constants
-from doorlab.frames import L7_FRAME
-from doorlab.station import make_controller_plant
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

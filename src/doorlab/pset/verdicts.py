@@ -317,26 +317,26 @@ _LAWS = "doorlab's control laws (the reference solution of tasks 2 and 3)"
 _PLANS = "doorlab's task-space plans (the reference solution of tasks 2 and 3)"
 REFERENCE_SOLUTIONS: dict[str, dict[str, str]] = {
     "ik_utils.InverseKinPointwise": {
-        "doorlab.ik_pointwise": "doorlab's pointwise IK (the reference solution of task 1)",
+        "doorlab.control.ik_pointwise": "doorlab's pointwise IK (the reference solution of task 1)",
     },
-    "open_left_door.calc_p_Q": {"doorlab.geometry": _ARC},
-    "open_left_door.calc_R_WL7_ref": {"doorlab.geometry": _ARC},
+    "open_left_door.calc_p_Q": {"doorlab.cell.geometry": _ARC},
+    "open_left_door.calc_R_WL7_ref": {"doorlab.cell.geometry": _ARC},
     "IiwaTaskSpaceVelocityPlan.CalcPositionCommand": {
-        "doorlab.laws": _LAWS,
-        "doorlab.plans": _PLANS,
+        "doorlab.control.laws": _LAWS,
+        "doorlab.control.plans": _PLANS,
     },
     "IiwaTaskSpaceImpedancePlan.CalcTorqueCommand": {
-        "doorlab.laws": _LAWS,
-        "doorlab.plans": _PLANS,
+        "doorlab.control.laws": _LAWS,
+        "doorlab.control.plans": _PLANS,
     },
 }
 """Per graded function (``doorlab.pset.folder.STUDENT_FUNCTIONS``), the modules that hold
 doorlab's reference solution of it, and what they hold."""
 BUILT_ON_REFERENCES = {
-    "doorlab.controllers": "doorlab's controllers (the reference solutions of tasks 1-3)",
-    "doorlab.adaptive": "doorlab's adaptive plan (built on the reference control laws)",
-    "doorlab.legacy": "doorlab's former episode design (runs the reference controllers)",
-    "doorlab.simulation": "doorlab's episodes (they run the reference plans)",
+    "doorlab.episode.controllers": "doorlab's controllers (the reference solutions of tasks 1-3)",
+    "doorlab.control.adaptive": "doorlab's adaptive plan (built on the reference control laws)",
+    "doorlab.studies.legacy": "doorlab's former episode design (runs the reference controllers)",
+    "doorlab.episode.simulation": "doorlab's episodes (they run the reference plans)",
 }
 """Modules that run or re-export the reference solutions."""
 _GRADER = "the grader (its expected answers)"

@@ -61,27 +61,31 @@ PROBE_TIMEOUT_S = 30.0
 
 STUDENT_MODULES = (
     "doorlab",
+    "doorlab.cell",
+    "doorlab.cell.door_model",
+    "doorlab.cell.frames",
+    "doorlab.cell.models",
+    "doorlab.cell.station",
     "doorlab.config",
     "doorlab.config_checks",
     "doorlab.constants",
-    "doorlab.door_model",
+    "doorlab.control",
+    "doorlab.control.ik",
     "doorlab.errors",
-    "doorlab.frames",
-    "doorlab.ik",
-    "doorlab.inputs",
     "doorlab.kuka",
-    "doorlab.models",
-    "doorlab.station",
     "doorlab.pset",
     "doorlab.pset.channel",
     "doorlab.pset.honesty",
     "doorlab.pset.station_api",
     "doorlab.pset.task_helpers",
     "doorlab.pset.worker",
+    "doorlab.runtime",
+    "doorlab.runtime.inputs",
 )
-"""doorlab's modules in the student's view: what the folder's files and the worker import.
-Nothing else of doorlab is there (a test checks that none is a reference solution)."""
-STUDENT_DATA = ("doorlab/models",)
+"""doorlab's modules in the student's view: what the folder's files and the worker import, and
+the packages that hold them (their ``__init__``, docstrings only). Nothing else of doorlab is
+there (a test checks that none is a reference solution)."""
+STUDENT_DATA = ("doorlab/cell/models",)
 """Package folders copied whole (the SDF models)."""
 STUDENT_DISTRIBUTIONS = ("drake", "numpy", "matplotlib")
 """Distributions in the view, with everything they require."""

@@ -43,10 +43,10 @@ def _preload() -> None:
     import pydrake.solvers  # noqa: F401
     import pydrake.trajectories  # noqa: F401
 
+    import doorlab.cell.door_model  # noqa: F401
+    import doorlab.cell.frames  # noqa: F401
     import doorlab.constants  # noqa: F401
-    import doorlab.door_model  # noqa: F401
-    import doorlab.frames  # noqa: F401
-    import doorlab.ik  # noqa: F401
+    import doorlab.control.ik  # noqa: F401
     import doorlab.pset.station_api  # noqa: F401
     import doorlab.pset.task_helpers  # noqa: F401
 

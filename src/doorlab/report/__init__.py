@@ -2,8 +2,8 @@
 
 - :mod:`doorlab.report.experiments`: the experiment set as data (:data:`EXPERIMENTS`, the
   robustness grid, :class:`RunRecord`);
-- :mod:`doorlab.report.runner`: :func:`run_report` (the runs through :mod:`doorlab.executor`,
-  locally or on a Dask cluster, then the page);
+- :mod:`doorlab.report.runner`: :func:`run_report` (the runs through
+  :mod:`doorlab.runtime.executor`, locally or on a Dask cluster, then the page);
 - :mod:`doorlab.report.folders`: reading run folders (metrics, logs, trackings);
 - :mod:`doorlab.report.context`, :mod:`doorlab.report.answers` and
   :mod:`doorlab.report.closed_door`: the problem set's six questions
@@ -16,7 +16,7 @@
 so a page can be rebuilt without simulating.
 """
 
-from doorlab.pages import SIGNIFICANT_DIGITS, format_number, metric_unit
+from doorlab.outputs.pages import SIGNIFICANT_DIGITS, format_number, metric_unit
 from doorlab.report.answers import QUESTIONS, TASK_TITLES
 from doorlab.report.experiments import (
     EXPERIMENTS,

@@ -9,7 +9,7 @@ from __future__ import annotations
 import html
 import math
 
-from doorlab.pages import format_number
+from doorlab.outputs.pages import format_number
 from doorlab.report.closed_door import closed_sentence, contact_paragraph, damping_paragraph
 from doorlab.report.context import (
     AnswerPage,

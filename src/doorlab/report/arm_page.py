@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from markupsafe import Markup
 
-from doorlab.pages import Figures, format_number
+from doorlab.outputs.pages import Figures, format_number
 from doorlab.report.experiments import (
     ARM_CONDITIONS,
     ARM_COST_YAW_DEG,
@@ -57,7 +57,7 @@ class ArmRow:
     @property
     def opened(self) -> bool:
         """The door opened: status ok, >= OPEN_THRESHOLD_DEG at the arc's end, held."""
-        from doorlab.robustness import OPEN_THRESHOLD_DEG
+        from doorlab.studies.robustness import OPEN_THRESHOLD_DEG
 
         return bool(
             self.status == "ok" and self.handle_held and self.door_arc_end_deg >= OPEN_THRESHOLD_DEG
@@ -66,7 +66,7 @@ class ArmRow:
 
 def _freeze(folder: Path, limit: float) -> tuple[float, int | None]:
     """The largest |tau_external| / kuka_driver's limit over the run, and its joint."""
-    from doorlab.episode import EpisodeResult
+    from doorlab.episode.result import EpisodeResult
     from doorlab.kuka import external_torque_limits
 
     try:
@@ -139,12 +139,12 @@ def drag_model(cell, arm) -> DragModel:
     """:class:`DragModel` of the scenarios of doorlab's cell and of the arm."""
     from pydrake.multibody.tree import JacobianWrtVariable
 
+    from doorlab.cell.frames import L7_FRAME, p_L7Q
+    from doorlab.cell.geometry import scenario_door_geometry
+    from doorlab.cell.station import joint_damping, loop_gains, make_controller_plant
     from doorlab.constants import Q_GRASP
-    from doorlab.frames import L7_FRAME, p_L7Q
-    from doorlab.geometry import scenario_door_geometry
     from doorlab.hardware.estimates import HANDLE_THICKNESS
     from doorlab.kuka import CYCLE_PERIOD
-    from doorlab.station import joint_damping, loop_gains, make_controller_plant
 
     plant = make_controller_plant()
     context = plant.CreateDefaultContext()
@@ -191,7 +191,7 @@ def _mm(value: float) -> str:
 
 def _plan_findings(rows: Sequence[ArmRow]) -> list[str]:
     """One sentence per controller: the door under the three conditions, opened or not."""
-    from doorlab.robustness import OPEN_THRESHOLD_DEG
+    from doorlab.studies.robustness import OPEN_THRESHOLD_DEG
 
     findings = []
     plain = [r for r in rows if not r.case.tuned and not r.case.yaw_error_rad]
@@ -263,7 +263,7 @@ def _tuning_findings(rows: Sequence[ArmRow]) -> list[str]:
 
 
 def _freeze_finding(rows: Sequence[ArmRow], limit: float) -> str:
-    from doorlab.frames import ARM_JOINTS
+    from doorlab.cell.frames import ARM_JOINTS
 
     on_arm = [r for r in rows if r.case.condition == "arm" and math.isfinite(r.freeze_ratio)]
     if not on_arm:
@@ -339,8 +339,8 @@ def _door_figure(rows: Sequence[ArmRow], out_dir: Path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from doorlab.episode import EpisodeResult
-    from doorlab.metrics import door_opening
+    from doorlab.episode.metrics import door_opening
+    from doorlab.episode.result import EpisodeResult
 
     controllers = list(dict.fromkeys(r.case.controller for r in rows))
     fig, axes = plt.subplots(1, len(controllers), figsize=(4 * len(controllers), 3.2), sharey=True)
@@ -391,10 +391,10 @@ def arm_context(
     Returns:
         {"rows", "figures", "findings", "answer", "threshold"}.
     """
+    from doorlab.cell.frames import ARM_JOINTS
     from doorlab.config import Scenario
-    from doorlab.frames import ARM_JOINTS
     from doorlab.report.experiments import arm_condition
-    from doorlab.robustness import OPEN_THRESHOLD_DEG
+    from doorlab.studies.robustness import OPEN_THRESHOLD_DEG
 
     base = base if base is not None else Scenario()
     cell, arm = arm_condition(base, "cell"), arm_condition(base, "arm")

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from doorlab.pages import format_number
+from doorlab.outputs.pages import format_number
 from doorlab.report.context import AnswerPage, door_lag_deg, ratio_phrase, span
 from doorlab.report.folders import LoadedRun
 
@@ -94,7 +94,7 @@ def closed_sentence(page: AnswerPage, closed: str, opened: str, *, explain: bool
 
 def damping_paragraph(run: LoadedRun) -> str:
     """The inner loop's damping behind the impedance plan's lag (issue 12's trade-off)."""
-    from doorlab.metrics import joint_damping_ratios
+    from doorlab.episode.metrics import joint_damping_ratios
 
     if run.result is None or run.scenario is None:
         return ""

@@ -13,8 +13,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from doorlab.metrics import Tracking
-from doorlab.pages import Figures, format_number, metric_unit
+from doorlab.episode.metrics import Tracking
+from doorlab.outputs.pages import Figures, format_number, metric_unit
 from doorlab.report.folders import LoadedRun, line_style
 
 
@@ -84,7 +84,7 @@ class AnswerPage:
 
     # -- figures ---------------------------------------------------------------------------
     def tracking_figures(self, key: str, runs: list[LoadedRun], what: str) -> str:
-        from doorlab.plots import plot_orientation_error, plot_radial_error
+        from doorlab.outputs.plots import plot_orientation_error, plot_radial_error
 
         if not runs:
             return ""
@@ -105,7 +105,7 @@ class AnswerPage:
         )
 
     def path_figure(self, key: str, runs: list[LoadedRun], what: str) -> str:
-        from doorlab.plots import plot_q_path
+        from doorlab.outputs.plots import plot_q_path
 
         if not runs:
             return ""
@@ -120,7 +120,7 @@ class AnswerPage:
         )
 
     def door_figure(self, key: str, runs: list[LoadedRun], what: str) -> str:
-        from doorlab.plots import plot_door_angle
+        from doorlab.outputs.plots import plot_door_angle
 
         if not runs:
             return ""
@@ -137,7 +137,7 @@ class AnswerPage:
         )
 
     def torque_figure(self, key: str, runs: list[LoadedRun], what: str) -> str:
-        from doorlab.plots import plot_external_torque_norm
+        from doorlab.outputs.plots import plot_external_torque_norm
 
         if not runs:
             return ""

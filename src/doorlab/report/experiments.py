@@ -83,7 +83,7 @@ def make_robustness_cases(
     """The robustness grid: every controller of the registry on every yaw error, doors closed.
 
     Args:
-        base: The scenario the cases vary (:func:`doorlab.robustness.case_scenario`).
+        base: The scenario the cases vary (:func:`doorlab.studies.robustness.case_scenario`).
         experiments: Runs already in the report: a case whose scenario equals one of them
             reuses that run instead of running it twice.
         yaw_errors_deg: The yaw errors [deg] (default: the acceptance grid, -10 to +10).
@@ -93,8 +93,8 @@ def make_robustness_cases(
     """
     import math
 
-    from doorlab.controllers import REGISTRY
-    from doorlab.robustness import ACCEPTANCE_YAW_ERRORS_DEG, case_scenario
+    from doorlab.episode.controllers import REGISTRY
+    from doorlab.studies.robustness import ACCEPTANCE_YAW_ERRORS_DEG, case_scenario
 
     base = base if base is not None else Scenario()
     yaws = ACCEPTANCE_YAW_ERRORS_DEG if yaw_errors_deg is None else tuple(yaw_errors_deg)
@@ -120,7 +120,7 @@ class RunRecord:
     Attributes:
         name: Experiment name (the folder's name), e.g. ``ik_10_open``.
         run_dir: The run folder (``metrics.json``, ``log.npz``, plots, ``replay.html``).
-        status: Run status (:data:`doorlab.metrics.STATUSES`, or ``error`` when the worker
+        status: Run status (:data:`doorlab.episode.metrics.STATUSES`, or ``error`` when the worker
             raised); the page re-reads it from ``metrics.json``.
         message: Why the run failed ("" when it did not).
         elapsed_s: Wall-clock time of the whole run, plots and replay included [s].
@@ -204,7 +204,7 @@ def make_arm_cases(
         (the cases, the (name, scenario) runs still to run).
     """
     from doorlab.config import update_scenario
-    from doorlab.controllers import REGISTRY
+    from doorlab.episode.controllers import REGISTRY
 
     base = base if base is not None else Scenario()
     yaw = math.radians(ARM_COST_YAW_DEG)

@@ -8,11 +8,11 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from doorlab.cell.geometry import DoorGeometry, true_door_geometry
 from doorlab.config import Scenario
-from doorlab.geometry import DoorGeometry, true_door_geometry
-from doorlab.metrics import Kinematics, Tracking, compute_tracking
+from doorlab.episode.metrics import Kinematics, Tracking, compute_tracking
+from doorlab.episode.result import EpisodeResult
 from doorlab.report.experiments import EXPERIMENTS, RunRecord
-from doorlab.simulation import EpisodeResult
 
 
 @dataclass

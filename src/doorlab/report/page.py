@@ -13,8 +13,8 @@ from pathlib import Path
 
 from markupsafe import Markup
 
-from doorlab.metrics import Kinematics
-from doorlab.pages import (
+from doorlab.episode.metrics import Kinematics
+from doorlab.outputs.pages import (
     SIGNIFICANT_DIGITS,
     Figures,
     drake_version,
@@ -28,14 +28,14 @@ from doorlab.report.answers import ANSWERS, QUESTIONS, TASK_TITLES
 from doorlab.report.context import AnswerPage
 from doorlab.report.experiments import ArmCase, RobustnessCase, RunRecord
 from doorlab.report.folders import LoadedRun, load_run
-from doorlab.runs import write_json
+from doorlab.runtime.folders import write_json
 
 TEXT_KEYS = ("controller", "doors", "status")
 
 
 def _metrics_table(page: AnswerPage, out_dir: Path) -> dict:
     """Headers and rows of the table of every metrics.json key of every run."""
-    from doorlab.metrics import DoorMetrics
+    from doorlab.episode.metrics import DoorMetrics
 
     keys: list[str] = [f.name for f in DoorMetrics.__dataclass_fields__.values()]
     for run in page.runs.values():

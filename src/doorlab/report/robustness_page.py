@@ -2,7 +2,7 @@
 
 Built from the robustness runs' folders only (``metrics.json``; ``log.npz`` and
 ``scenario.yaml`` of the adaptive runs for the hinge-estimate plot): the table, the figures
-and the findings come from :func:`doorlab.robustness.robustness_section`, so every number
+and the findings come from :func:`doorlab.studies.robustness.robustness_section`, so every number
 on it is a measured one.
 """
 
@@ -16,7 +16,7 @@ from pathlib import Path
 
 from markupsafe import Markup
 
-from doorlab.pages import Figures
+from doorlab.outputs.pages import Figures
 from doorlab.report.experiments import RobustnessCase, RunRecord
 
 
@@ -33,9 +33,9 @@ def _adaptive_episode(case: RobustnessCase, record: RunRecord):
     """(episode, TRUE door geometry) of an adaptive run with logs, else None."""
     from pydrake.common.yaml import yaml_load_typed
 
+    from doorlab.cell.geometry import true_door_geometry
     from doorlab.config import Scenario
-    from doorlab.geometry import true_door_geometry
-    from doorlab.simulation import EpisodeResult
+    from doorlab.episode.result import EpisodeResult
 
     folder = Path(record.run_dir)
     if case.controller != "adaptive" or not (folder / "log.npz").is_file():
@@ -72,7 +72,7 @@ def robustness_context(
     Returns:
         {"yaws", "controllers", "threshold", "headers", "rows", "figures", "findings"}.
     """
-    from doorlab.robustness import OPEN_THRESHOLD_DEG, robustness_section, row_from_metrics
+    from doorlab.studies.robustness import OPEN_THRESHOLD_DEG, robustness_section, row_from_metrics
 
     rows = [row_from_metrics(_metrics(case, record), case.yaw_error_rad) for case, record in grid]
     adaptive = {}

@@ -1,7 +1,7 @@
 """Runs the report: :func:`run_report` runs the experiments (:mod:`doorlab.report.experiments`)
-through one executor (:mod:`doorlab.executor`: local worker processes, or a Dask cluster), each
-worker writing a run folder with :func:`doorlab.runs.run_to_folder` and shipping its files
-back, then :func:`doorlab.report.page.build_page` writes the page. The whole report folder is
+through one executor (:mod:`doorlab.runtime.executor`: local worker processes, or a Dask cluster),
+each worker writing a run folder with :func:`doorlab.outputs.runs.run_to_folder` and shipping its
+files back, then :func:`doorlab.report.page.build_page` writes the page. The whole report folder is
 written atomically (staging folder, renamed at the end).
 """
 
@@ -28,7 +28,7 @@ from doorlab.report.experiments import (
 
 
 def _write_json(path: Path, data: dict) -> None:
-    from doorlab.runs import write_json
+    from doorlab.runtime.folders import write_json
 
     write_json(path, data)
 
@@ -63,7 +63,7 @@ def _run_experiment(
     """
     import tempfile
 
-    from doorlab.runs import run_to_folder
+    from doorlab.outputs.runs import run_to_folder
 
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="doorlab_run_", dir=work_dir) as tmp:
@@ -144,9 +144,9 @@ def run_report(
         progress: Show a progress bar on stderr.
         experiments: (name, scenario) pairs to run instead of ``make_experiments(base)``.
         scheduler: Run on this Dask cluster (``tcp://HOST:PORT``) instead of ``jobs`` local
-            processes (:mod:`doorlab.executor`).
+            processes (:mod:`doorlab.runtime.executor`).
         scheduler_timeout_s: Each step of connecting to ``scheduler`` [s] (default
-            :data:`doorlab.executor.CONNECT_TIMEOUT_S`).
+            :data:`doorlab.runtime.executor.CONNECT_TIMEOUT_S`).
         robustness: Also run the robustness grid (:func:`make_robustness_cases` on ``base``,
             reusing the experiments' identical runs; no replay) and add its section.
         arm: Also run the "On the arm" cases (:func:`make_arm_cases` on ``base``, reusing
@@ -161,8 +161,8 @@ def run_report(
         ConfigError: ``jobs`` < 1, duplicate or unsafe experiment names, invalid ``base``.
         OutputError: ``out_dir`` exists (without ``force``) or cannot be written.
     """
-    from doorlab.executor import CONNECT_TIMEOUT_S, check_scheduler, open_executor
-    from doorlab.runs import staged_output
+    from doorlab.runtime.executor import CONNECT_TIMEOUT_S, check_scheduler, open_executor
+    from doorlab.runtime.folders import staged_output
 
     if scheduler is not None:
         check_scheduler(scheduler)

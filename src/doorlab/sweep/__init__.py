@@ -2,7 +2,7 @@
 
 ``doorlab sweep SPEC.yaml`` and :func:`run_sweep` run every combination of controllers, door
 states and axis values (:mod:`doorlab.sweep.spec`) through one executor
-(:mod:`doorlab.executor`), collect one row per run (:mod:`doorlab.sweep.results`) and write
+(:mod:`doorlab.runtime.executor`), collect one row per run (:mod:`doorlab.sweep.results`) and write
 the sweep page (:mod:`doorlab.sweep.page`).
 
 Running and the table (pandas) are imported on first use, so reading and checking a SPEC

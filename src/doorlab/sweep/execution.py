@@ -42,7 +42,7 @@ _local = threading.local()
 def _kinematics():
     """This thread's forward kinematics (a Dask worker may run runs in several threads; a
     Kinematics holds one Context, so threads must not share it)."""
-    from doorlab.metrics import Kinematics
+    from doorlab.episode.metrics import Kinematics
 
     if not hasattr(_local, "kinematics"):
         _local.kinematics = Kinematics()
@@ -56,10 +56,10 @@ def run_one(scenario: Scenario) -> dict:
         ``status``, ``error``, ``run_wall_time_s`` [s] and every key of ``metrics.json`` the
         run produced (none for ik_failed, diverged, safety_stop and error).
     """
-    from doorlab.controllers import run_controller
-    from doorlab.geometry import true_door_geometry
-    from doorlab.metrics import compute_metrics
-    from doorlab.runs import status_message
+    from doorlab.cell.geometry import true_door_geometry
+    from doorlab.episode.controllers import run_controller
+    from doorlab.episode.metrics import compute_metrics
+    from doorlab.outputs.runs import status_message
 
     start = time.perf_counter()
     base = {"controller": scenario.controller, "doors": scenario.doors}
@@ -86,10 +86,10 @@ def _check_dir(out_dir: Path, *, resume: bool, force: bool) -> pd.DataFrame | No
     """Checks ``out_dir`` may be written (writing nothing); returns the table to resume from.
 
     A new sweep needs a missing or empty folder, or with ``force`` one holding nothing but
-    an earlier sweep's files, unchanged (:func:`doorlab.runs.check_replaceable`); a resumed
-    one rewrites only its own files, so those must be doorlab's and unchanged.
+    an earlier sweep's files, unchanged (:func:`doorlab.runtime.folders.check_replaceable`); a
+    resumed one rewrites only its own files, so those must be doorlab's and unchanged.
     """
-    from doorlab.runs import check_replaceable, foreign_file
+    from doorlab.runtime.folders import check_replaceable, foreign_file
 
     if out_dir.exists() and not out_dir.is_dir():
         raise OutputError(f"--out {str(out_dir)!r} is a file, not a folder")
@@ -117,7 +117,7 @@ def _check_dir(out_dir: Path, *, resume: bool, force: bool) -> pd.DataFrame | No
 def _make_dir(out_dir: Path, *, resume: bool, force: bool) -> None:
     """Creates ``out_dir`` (empty, with a manifest: it replaces an earlier sweep's folder), or
     with ``resume`` keeps it."""
-    from doorlab.runs import staged_output
+    from doorlab.runtime.folders import staged_output
 
     if resume and out_dir.is_dir():
         return
@@ -157,7 +157,7 @@ def run_sweep(
         jobs: Local worker processes (ignored with ``scheduler``).
         scheduler: Dask scheduler address ``tcp://HOST:PORT`` (None: local processes).
         scheduler_timeout_s: Each step of connecting to it [s] (default
-            :data:`doorlab.executor.CONNECT_TIMEOUT_S`).
+            :data:`doorlab.runtime.executor.CONNECT_TIMEOUT_S`).
         resume: Keep the rows of ``out_dir``'s table and run only the missing runs.
         force: Start over in an existing ``out_dir``.
         progress: Show a progress bar (counts, failures, ETA) on stderr.
@@ -171,7 +171,7 @@ def run_sweep(
             ``resume`` or ``force``) or cannot be written.
         KeyboardInterrupt: After writing the table of the runs finished so far.
     """
-    from doorlab.executor import CONNECT_TIMEOUT_S, check_scheduler, open_executor
+    from doorlab.runtime.executor import CONNECT_TIMEOUT_S, check_scheduler, open_executor
 
     if not isinstance(spec, SweepSpec):
         spec = load_spec(spec)

@@ -49,7 +49,7 @@ FAILED_MARKER = {"marker": "x", "color": "black", "s": 46, "linewidths": 1.6, "z
 
 def metric_display(key: str) -> tuple[str, float]:
     """(unit, scale) a metric is shown in: lengths in mm, angles in deg."""
-    from doorlab.pages import metric_unit
+    from doorlab.outputs.pages import metric_unit
 
     return metric_unit(key)
 

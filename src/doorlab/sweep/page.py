@@ -10,8 +10,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from doorlab.pages import Figures, format_number, machine_rows, metric_header, metric_unit, render
-from doorlab.runs import record_written, remove_written, write_json
+from doorlab.outputs.pages import (
+    Figures,
+    format_number,
+    machine_rows,
+    metric_header,
+    metric_unit,
+    render,
+)
+from doorlab.runtime.folders import record_written, remove_written, write_json
 from doorlab.sweep.figures import headline_metrics, plot_heatmaps, plot_metrics_vs_axis
 from doorlab.sweep.spec import Axis, SweepSpec
 

@@ -3,7 +3,7 @@
 Columns, in order: ``run`` (position in the sweep), ``key`` (hash of the run's full scenario),
 ``controller``, ``doors``, one column per axis (its dotted field name, the field's unit),
 ``status``, ``error``, ``run_wall_time_s`` (the whole run in its worker: IK, simulation and
-metrics [s]), then every key of ``metrics.json`` (:class:`doorlab.metrics.DoorMetrics`) not
+metrics [s]), then every key of ``metrics.json`` (:class:`doorlab.episode.metrics.DoorMetrics`) not
 already listed. Runs that produced no metrics (ik_failed, diverged, safety_stop: a safety limit,
 kuka_driver's external-torque stop included, stopped the episode; error) have empty metrics.
 """
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from doorlab.metrics import DoorMetrics
+from doorlab.episode.metrics import DoorMetrics
 
 RESULTS_PARQUET = "results.parquet"
 RESULTS_CSV = "results.csv"
@@ -81,7 +81,7 @@ def make_table(rows: Sequence[dict], axes: Sequence[str]) -> pd.DataFrame:
 
 
 def _atomic(path: Path, write) -> None:
-    from doorlab.runs import follow_umask
+    from doorlab.runtime.folders import follow_umask
 
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
@@ -97,7 +97,7 @@ def _atomic(path: Path, write) -> None:
 def write_table(frame: pd.DataFrame, out_dir: Path) -> None:
     """Writes ``results.parquet`` and ``results.csv`` into ``out_dir``, each atomically, and
     records them in the folder's manifest (so ``--force`` knows them for doorlab's)."""
-    from doorlab.runs import record_written
+    from doorlab.runtime.folders import record_written
 
     out_dir = Path(out_dir)
     _atomic(out_dir / RESULTS_PARQUET, lambda p: frame.to_parquet(p, index=False))

@@ -44,7 +44,7 @@ from doorlab.config import (
     validate,
 )
 from doorlab.errors import ConfigError
-from doorlab.inputs import (
+from doorlab.runtime.inputs import (
     load_yaml,
     load_yaml_value,
     quote,
@@ -308,7 +308,7 @@ def parse_spec(data: object, *, base_dir: Path | None = None) -> SweepSpec:
     for key in data:
         if key not in SPEC_KEYS:
             raise ConfigError(f"unknown key {quote(key)}; valid keys: {', '.join(SPEC_KEYS)}")
-    from doorlab.controllers import REGISTRY
+    from doorlab.episode.controllers import REGISTRY
 
     # The typed keys: the scenario's shape check (naming the key), then yaml_load_typed.
     typed = {k: v for k, v in data.items() if k not in ("scenario", "axes")}
@@ -370,7 +370,7 @@ def parse_spec(data: object, *, base_dir: Path | None = None) -> SweepSpec:
 def _check_draft_count(data: dict, axes: dict, prefix: str) -> None:
     """:func:`check_run_count` on a SPEC not yet parsed (controllers and doors as written, or
     their defaults: every controller, one door state)."""
-    from doorlab.controllers import REGISTRY
+    from doorlab.episode.controllers import REGISTRY
 
     controllers, doors, samples = (data.get(k) for k in ("controllers", "doors", "samples"))
     try:

@@ -1,0 +1,6 @@
+"""The ``doorlab`` command: the parser (:mod:`~doorlab.cli.parser`), what each command does
+(:mod:`~doorlab.cli.commands`) and the console script (:mod:`~doorlab.cli.entry`); ``python
+-m doorlab.cli`` runs it too.
+
+The top of the package: nothing else imports it.
+"""

@@ -1,0 +1,227 @@
+"""The registry of the door-opening controllers and the episode each one runs.
+
+Each controller turns a scenario into the arc plan and the configuration it starts from;
+:func:`run_controller` wraps it in the problem set's episode: close the gripper on the handle at
+the start configuration, then follow the arc (:func:`episode_plans`, for either cell; the
+simulated episode is :func:`doorlab.episode.simulation.run_episode`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.geometry import Meshcat
+from pydrake.multibody.plant import MultibodyPlant
+
+from doorlab.cell.geometry import DoorGeometry, scenario_door_geometry
+from doorlab.cell.station import make_controller_plant
+from doorlab.config import Scenario, validate
+from doorlab.constants import Q_HOME
+from doorlab.control.adaptive import AdaptivePlan, velocity_lead
+from doorlab.control.ik import solve_ik
+from doorlab.control.ik_pointwise import IkResult, pointwise_ik
+from doorlab.control.plans import (
+    JointSpacePlan,
+    Plan,
+    TaskSpaceImpedancePlan,
+    TaskSpaceVelocityPlan,
+)
+from doorlab.episode.result import EpisodeResult
+from doorlab.episode.simulation import run_episode
+from doorlab.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class ArcPlan:
+    """What a controller runs along the arc.
+
+    Attributes:
+        plan: The door-opening plan. q_start: Where it starts (7,) [rad].
+        ik: The pointwise IK behind the plan (task 1 only).
+    """
+
+    plan: Plan
+    q_start: np.ndarray
+    ik: IkResult | None = None
+
+
+@dataclass(frozen=True)
+class Controller:
+    """A registered controller: its CLI name, the problem set's task number and a builder."""
+
+    name: str
+    task: int
+    title: str
+    summary: str
+    build: Callable[[Scenario, DoorGeometry, MultibodyPlant], ArcPlan]
+
+
+def _grasp_configuration(
+    scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPlant
+) -> np.ndarray:
+    """One-shot IK: Q at the handle (plus ``ik.grasp_offset``), L7 at the arc's initial
+    orientation."""
+    return solve_ik(
+        plant,
+        geometry.p_WQ_ref(0.0) + np.asarray(scenario.ik.grasp_offset, dtype=float),
+        geometry.R_WL7_ref(0.0),
+        Q_HOME,
+        position_tolerance=scenario.ik.grasp_position_tolerance,
+        theta_bound=scenario.ik.theta_bound,
+    )
+
+
+def build_ik_plan(scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPlant) -> ArcPlan:
+    """Task 1: IK at knots along the arc, joined by a cubic joint spline."""
+    duration = scenario.timeline.arc_duration
+    ik = pointwise_ik(
+        plant,
+        geometry.p_WQ_ref,
+        geometry.R_WL7_ref,
+        duration=duration,
+        num_knots=scenario.ik.knots,
+        q_guess=Q_HOME,
+        position_tolerance=scenario.ik.position_tolerance,
+        theta_bound=scenario.ik.theta_bound,
+        centered=scenario.ik.objective == "centered",
+    )
+    plan = JointSpacePlan.cubic(ik.times, ik.q_knots, name="ik")
+    return ArcPlan(plan, ik.q_knots[0], ik)
+
+
+def build_velocity_plan(
+    scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPlant
+) -> ArcPlan:
+    """Task 2: differential IK, q_ref = q + J^+ V_des dt (``velocity.lead: inner_loop``: the
+    inner loop's lead instead of dt)."""
+    period = scenario.timeline.control_period
+    lead = None
+    if scenario.velocity.lead == "inner_loop":
+        lead = velocity_lead(scenario.station.inner_loop, period)
+    plan = TaskSpaceVelocityPlan(
+        geometry, scenario.timeline.arc_duration, plant, scenario.velocity, period, lead
+    )
+    return ArcPlan(plan, _grasp_configuration(scenario, geometry, plant))
+
+
+def build_impedance_plan(
+    scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPlant
+) -> ArcPlan:
+    """Task 3: tau_ff = J^T F, q_ref = q."""
+    plan = TaskSpaceImpedancePlan(
+        geometry, scenario.timeline.arc_duration, plant, scenario.impedance
+    )
+    return ArcPlan(plan, _grasp_configuration(scenario, geometry, plant))
+
+
+def build_adaptive_plan(
+    scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPlant
+) -> ArcPlan:
+    """The adaptive plan: grasp at the believed handle, then nothing from the model."""
+    plan = AdaptivePlan(
+        scenario.timeline.arc_duration,
+        plant,
+        scenario.adaptive,
+        scenario.timeline.control_period,
+        velocity_lead(scenario.station.inner_loop, scenario.timeline.control_period),
+    )
+    return ArcPlan(plan, _grasp_configuration(scenario, geometry, plant))
+
+
+REGISTRY: dict[str, Controller] = {
+    c.name: c
+    for c in (
+        Controller(
+            "ik",
+            1,
+            "Pointwise IK",
+            "IK at knots along the handle arc, cubic joint spline, position commands",
+            build_ik_plan,
+        ),
+        Controller(
+            "velocity",
+            2,
+            "Jacobian velocity mapping",
+            "q_dot = J^+ V_des from the pose error, q_ref = q + q_dot dt",
+            build_velocity_plan,
+        ),
+        Controller(
+            "impedance",
+            3,
+            "Jacobian-transpose impedance",
+            "tau_ff = J^T F from the pose error, q_ref = q",
+            build_impedance_plan,
+        ),
+        Controller(
+            "adaptive",
+            4,
+            "Adaptive, unknown hinge",
+            "velocity along the estimated tangent, radial force compliance, hinge fitted "
+            "online from Q's path; nothing from the model after the grasp",
+            build_adaptive_plan,
+        ),
+    )
+}
+"""Controllers by CLI name, in the problem set's task order, then the adaptive plan."""
+
+
+def get_controller(name: str) -> Controller:
+    """The registered controller ``name``.
+
+    Raises:
+        ConfigError: Unknown name (the message lists the valid ones).
+    """
+    if name not in REGISTRY:
+        raise ConfigError(f"unknown controller {name!r}; choose one of {', '.join(REGISTRY)}")
+    return REGISTRY[name]
+
+
+def run_controller(
+    scenario: Scenario, *, meshcat: Meshcat | None = None, realtime_rate: float = 0.0
+) -> tuple[EpisodeResult, ArcPlan]:
+    """Runs the scenario's controller through one episode (the problem set's task cell),
+    after checking the scenario (:func:`doorlab.config.validate`).
+
+    Returns:
+        The episode logs and the arc plan that ran.
+
+    Raises:
+        ConfigError: Invalid scenario. IkError: No IK solution. SimulationError: Physics failed.
+    """
+    return simulate_controller(validate(scenario), meshcat=meshcat, realtime_rate=realtime_rate)
+
+
+def simulate_controller(
+    scenario: Scenario, *, meshcat: Meshcat | None = None, realtime_rate: float = 0.0
+) -> tuple[EpisodeResult, ArcPlan]:
+    """:func:`run_controller` for a scenario already validated (a run folder's, whose
+    scenario was checked before the folder was touched): its plans, then the episode.
+
+    Raises:
+        IkError: No IK solution. SimulationError: Physics failed.
+    """
+    plans, widths, arc = episode_plans(scenario)
+    result = run_episode(
+        scenario, plans, widths, q_start=arc.q_start, meshcat=meshcat, realtime_rate=realtime_rate
+    )
+    return result, arc
+
+
+def episode_plans(scenario: Scenario) -> tuple[list[Plan], list[float], ArcPlan]:
+    """The problem set's task cell as plans, for either cell: close the gripper on the handle at the
+    arc plan's start configuration, then the arc plan.
+
+    Returns:
+        The plans, their gripper setpoints [m] and the arc plan.
+
+    Raises:
+        ConfigError: Unknown controller. IkError: No IK solution.
+    """
+    controller = get_controller(scenario.controller)
+    geometry = scenario_door_geometry(scenario)
+    arc = controller.build(scenario, geometry, make_controller_plant())
+    grasp = JointSpacePlan.hold(arc.q_start, scenario.timeline.grasp_duration, name="grasp")
+    width = scenario.station.gripper.grasp_width
+    return [grasp, arc.plan], [width, width], arc
