@@ -625,6 +625,19 @@ def packages_markdown() -> str:
     return "\n".join(out) + "\n"
 
 
+def _attribute_docstring(module: str, name: str) -> str:
+    """The first line of the string literal that follows ``name = ...`` at the top of
+    ``module`` (the convention this package documents its constants by), or ""."""
+    source = Path(inspect.getsourcefile(importlib.import_module(module))).read_text()
+    body = ast.parse(source).body
+    for node, after in zip(body, body[1:], strict=False):
+        targets = node.targets if isinstance(node, ast.Assign) else [getattr(node, "target", None)]
+        if any(isinstance(t, ast.Name) and t.id == name for t in targets):
+            if isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant):
+                return str(after.value.value).strip().split("\n\n")[0].replace("\n", " ")
+    return ""
+
+
 def public_api_markdown() -> str:
     """A table of every name of ``doorlab.__all__``: where it is defined (linked to its
     documentation on the module pages) and its docstring's first line."""
@@ -635,8 +648,8 @@ def public_api_markdown() -> str:
         value = getattr(doorlab, name)
         module = getattr(value, "__module__", None)
         if not isinstance(module, str) or not hasattr(value, "__qualname__"):
-            module = doorlab._LAZY[name]  # a constant: documented in its module
-            summary = ""
+            module = doorlab._LAZY[name]  # a constant: its docstring follows it in its module
+            summary = _attribute_docstring(module, name)
         else:
             summary = _summary(value)
         out.append(f"| [`{name}`][{module}.{name}] | `{module}` | {_cell(summary)} |")
