@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The arm preset's modelling choices, measured side by side (README, "On the real arm").
+"""The arm preset's modelling choices, measured side by side (docs/guides/real-arm.md).
 
 KUKA does not publish how its joint impedance turns the dimensionless damping d into N m s/rad.
 doorlab takes D_i = 2 d sqrt(K_i M_ii) with M_ii the model's joint inertia at the problem

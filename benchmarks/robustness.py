@@ -27,11 +27,11 @@ from pathlib import Path
 from doorlab.cli.commands import apply_overrides
 from doorlab.config import CONTROLLERS, Scenario
 from doorlab.errors import DoorlabError
+from doorlab.outputs.plots import plot_hinge_convergence
 from doorlab.runtime.argtypes import OneLineParser, bounded_int
 from doorlab.studies.robustness import (
     ACCEPTANCE_YAW_ERRORS_DEG,
     largest_opening_yaw,
-    plot_hinge_convergence,
     plot_robustness,
     robustness_table,
     run_case,

@@ -1,6 +1,7 @@
-"""A frozen copy of ``doorlab/episode/simulation.py`` at main 2f990e7 (before issue 18 split it into
+"""A frozen copy of ``doorlab/simulation.py`` at main 2f990e7 (before issue 18 split it into
 schedule, plan_runner, episode and simulation): the reference the split episode must match
-bit for bit (tests/test_episode_split.py). Do not edit it; only that test imports it.
+bit for bit (tests/test_episode_split.py). Do not edit it (its imports follow the modules'
+moves of issue 28, nothing else); only that test imports it.
 
 Its original docstring:
 

@@ -111,14 +111,15 @@ import doorlab.control.ik
 ev = {}
 ik = importlib.reload(doorlab.control.ik)
 ev["reload_has_pointwise_ik"] = hasattr(ik, "pointwise_ik")
-for name in ("doorlab.control.ik_pointwise", "doorlab.cell.geometry", "doorlab.control.laws",
-    "doorlab.pset.folder"): try:
+hidden = ("doorlab.control.ik_pointwise", "doorlab.cell.geometry", "doorlab.control.laws")
+for name in (*hidden, "doorlab.pset.folder"):
+    try:
         module = importlib.reload(importlib.import_module(name))
         ev[name] = "imported"
     except BaseException as e:
         ev[name] = type(e).__name__
-folder = os.open(os.path.dirname(ik.__file__), os.O_RDONLY)
-for name in ("ik_pointwise.py", "laws.py", "geometry.py"):
+folder = os.open(os.path.dirname(os.path.dirname(ik.__file__)), os.O_RDONLY)  # doorlab/
+for name in ("control/ik_pointwise.py", "control/laws.py", "cell/geometry.py"):
     try:
         os.close(os.open(name, os.O_RDONLY, dir_fd=folder))
         ev["dir_fd " + name] = "opened"

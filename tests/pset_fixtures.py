@@ -124,7 +124,7 @@ def notebook_cells() -> list[str]:
         pytest.skip(
             f"needs the 2019 notebook: set {NOTEBOOK_ENV} to a copy of "
             "pset5_open_cabinet_door.ipynb (github.com/pangtao22/6-881-examples, "
-            "robot_control/) or of its text (README: Tests and benchmarks)"
+            "robot_control/) or of its text (docs/development.md)"
         )
     try:
         text = path.read_text()

@@ -1,7 +1,7 @@
 """The split episode (schedule, plan runner, shared wiring and logger, simulation) gives the
 logs of main's one-function ``run_episode`` bit for bit.
 
-The reference is a frozen copy of main's ``doorlab/episode/simulation.py`` (2f990e7,
+The reference is a frozen copy of main's ``doorlab/simulation.py`` (2f990e7,
 ``main_simulation_2f990e7.py``), run here in the same process on the same station, so the
 comparison is exact: every channel of :class:`~doorlab.episode.result.EpisodeResult`, the plan's
 own log included, must be equal (``array_equal``, no tolerance). A shortened timeline keeps

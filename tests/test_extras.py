@@ -52,7 +52,7 @@ def test_without_the_sweep_extra_the_commands_that_need_it_say_so(tmp_path, argv
 
 def test_what_runs_and_grades_imports_none_of_it():
     modules = [
-        "doorlab.cli",
+        "doorlab.cli.parser",
         "doorlab.cli.commands",
         "doorlab.episode.controllers",
         "doorlab.outputs.runs",

@@ -9,9 +9,9 @@ with the client's answers held back (the test-only knob ``DOORLAB_TEST_ANSWER_DE
 command leaves that long after its status arrived) by 0, 1.5 and 3 ms, the episode is the
 one-process run's: the door at the arc's end within 0.05 deg and Q's max radial error within
 0.01 mm (with no command late it is the same bit for bit, as on memq: test_hardware_wiring.py;
-here the host makes a few late, README "A rehearsal on one machine"). A client 6 ms slow
-misses every cycle: each command acts a cycle later, the driver counts them all late
-(driver.json), and the door ends elsewhere (the test prints how far).
+here the host makes a few late: docs/guides/real-arm.md, "A rehearsal on one machine"). A
+client 6 ms slow misses every cycle: each command acts a cycle later, the driver counts them
+all late (driver.json), and the door ends elsewhere (the test prints how far).
 
 Q's radial error and the door are taken from the driver's ground truth (each 5 ms status's
 joint positions, the hinge at the same instant) and from the one-process run's per-cycle log

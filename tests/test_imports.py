@@ -79,3 +79,52 @@ def test_no_import_cycle_among_doorlabs_modules():
 def test_find_cycle_finds_one():
     assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert find_cycle({"a": {"b"}, "b": set()}) is None
+
+
+LAYERS = (
+    ("doorlab.errors", "doorlab.constants"),
+    ("doorlab",),
+    ("doorlab.kuka", "doorlab.runtime"),
+    ("doorlab.config_checks",),
+    ("doorlab.config",),
+    ("doorlab.cell",),
+    ("doorlab.control",),
+    ("doorlab.episode",),
+    ("doorlab.outputs",),
+    ("doorlab.studies",),
+    ("doorlab.hardware",),
+    ("doorlab.report", "doorlab.sweep", "doorlab.pset"),
+    ("doorlab.cli",),
+)
+"""doorlab's parts from the bottom up: a module imports only from its own part and from the
+parts of lower layers. ``doorlab`` itself is its ``__init__``: it imports ``doorlab.errors``
+and loads its public names from above on first use (by name, which this walk does not see),
+and the modules that need ``doorlab.__version__`` import it. The folder tree reads as this
+architecture (issue 28)."""
+
+
+def part_of(module: str) -> str:
+    """The part of LAYERS a module belongs to: ``doorlab.cell.station`` -> ``doorlab.cell``."""
+    return ".".join(module.split(".")[:2])
+
+
+def test_imports_only_go_down_the_layers():
+    layer = {part: i for i, parts in enumerate(LAYERS) for part in parts}
+    graph = import_graph()
+    assert [m for m in graph if part_of(m) not in layer] == [], "a part missing from LAYERS"
+    upward = [
+        f"{a} -> {b}"
+        for a, targets in graph.items()
+        for b in targets
+        if part_of(a) != part_of(b) and layer[part_of(b)] >= layer[part_of(a)]
+    ]
+    assert upward == [], "imports that do not go down the layers:\n" + "\n".join(sorted(upward))
+    # the walk sees the layers: the episode uses the control laws, the CLI everything
+    assert "doorlab.control.plans" in graph["doorlab.episode.schedule"]
+    assert "doorlab.outputs.runs" in graph["doorlab.cli.commands"]
+
+
+def test_every_flat_module_is_a_foundation():
+    """Only the foundations sit at the top of the package: the rest is in sub-packages."""
+    flat = sorted(p.stem for p in PACKAGE_DIR.glob("*.py"))
+    assert flat == ["__init__", "config", "config_checks", "constants", "errors", "kuka"]

@@ -1,5 +1,5 @@
-"""doorlab.outputs.runs' output folders in-process: the manifest rule of ``--force``, later writes
-recorded, the swap not cut short by a signal, staging folders removed at exit (issue 19;
+"""doorlab.runtime.folders' output folders in-process: the manifest rule of ``--force``, later
+writes recorded, the swap not cut short by a signal, staging folders removed at exit (issue 19;
 tests/test_data_loss.py runs the same through the CLI)."""
 
 from __future__ import annotations

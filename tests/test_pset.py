@@ -367,7 +367,7 @@ def test_using_the_wrong_argument_fails_the_unit_test_naming_it(tmp_path_factory
             (
                 "ik_utils.py",
                 "l7_frame, p_L7Q, world_frame",
-                "l7_frame, __import__('doorlab.cell.frames').frames.p_L7Q, world_frame",
+                "l7_frame, __import__('doorlab.cell.frames').cell.frames.p_L7Q, world_frame",
             ),
         ],
     )

@@ -148,7 +148,7 @@ def test_zip_holds_the_scripts_the_settings_and_this_doorlab_as_a_wheel(zip_path
     assert settings["doorlab"] == doorlab.__version__
     assert settings["package_sha256"] == autograder.package_digest()
     assert settings["student_files"] == list(STUDENT_FILES)
-    assert settings["jobs"] == 1  # fits Gradescope's default 768 MB (README: its peak)
+    assert settings["jobs"] == 1  # fits Gradescope's default 768 MB (the teaching guide: its peak)
     assert settings["digest"] == autograder.zip_digest(settings)
     assert wheel_name == f"doorlab-{doorlab.__version__}-py3-none-any.whl"
 
@@ -479,11 +479,11 @@ def test_run_autograder_falls_back_to_another_user_and_hides_the_grader(
     )
     hidden = [
         wheel,
-        package / "laws.py",
+        package / "control" / "laws.py",
         package / "pset" / "templates" / "open_left_door.py.j2",
         # checks.py compiled again by this grading, after the fallback hid its source: a
         # .pyc takes its source's mode.
-        *package.glob("__pycache__/laws.*.pyc"),
+        *package.glob("control/__pycache__/laws.*.pyc"),
         *package.glob("pset/__pycache__/checks.*.pyc"),
     ]
     assert len(hidden) >= 5

@@ -172,11 +172,11 @@ print("VIEW " + json.dumps(out))
         "/home",
         "/srv",
         "/root/.bashrc",
-        str(clone / "src" / "doorlab" / "laws.py"),
+        str(clone / "src" / "doorlab" / "control" / "laws.py"),
         str(clone / ".git"),
         str(work),
         tempfile.gettempdir() + "/" + os.listdir(tempfile.gettempdir())[0],
-        str(Path(doorlab.__file__).resolve().parent / "laws.py"),
+        str(Path(doorlab.__file__).resolve().parent / "control" / "laws.py"),
     ]
     proc = _in_view(work, probe, *outside)
     assert proc.returncode == 0, proc.stderr[-3000:]

@@ -5,7 +5,7 @@ conditions, whose logs feed the freeze ratio and the figure) and hand-written me
 other cases, so that the page is checked against numbers the test knows.
 
 The short runs are structure fixtures (a 2 s arc): the physics of the full runs is the
-report's and README's, measured by ``doorlab report``.
+report's and the real-arm guide's, measured by ``doorlab report``.
 """
 
 from __future__ import annotations

@@ -157,7 +157,7 @@ def test_a_failed_simulation_is_a_diverged_run(tmp_path, monkeypatch, capsys):
     def failing(scenario, **kwargs):
         raise SimulationError("the simulation failed at t = 12.345 s: contact solver diverged")
 
-    monkeypatch.setattr(controllers, "run_controller", failing)
+    monkeypatch.setattr(controllers, "simulate_controller", failing)
     out = tmp_path / "boom"
     assert main(["run", "--out", str(out)]) == 5
     metrics = json.loads((out / "metrics.json").read_text())

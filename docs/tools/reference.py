@@ -1,17 +1,17 @@
 """The site's reference, generated from the code: a MkDocs hook and the Markdown it writes.
 
-A page asks for a generated block with a marker on a line of its own::
+A page asks for a generated block with a marker on a line of its own (modules are doorlab's)::
 
-    <!-- doorlab:cli -->            every command and option of doorlab.cli.parser.build_parser()
-    <!-- doorlab:scenario -->       every field of doorlab.config.Scenario
+    <!-- doorlab:cli -->            every command and option of cli.parser.build_parser()
+    <!-- doorlab:scenario -->       every field of config.Scenario
     <!-- doorlab:scenario-yaml -->  the default scenario as YAML
-    <!-- doorlab:exit-codes -->     doorlab.outputs.runs.EXIT_CODES and the signals' codes
+    <!-- doorlab:exit-codes -->     outputs.runs.EXIT_CODES and the signals' codes
     <!-- doorlab:run-files -->      what a run folder holds
-    <!-- doorlab:metrics -->        the keys of metrics.json (doorlab.episode.metrics.DoorMetrics)
-    <!-- doorlab:log-channels -->   the channels of log.npz (doorlab.episode.result.EpisodeResult)
-    <!-- doorlab:plan-log -->       the adaptive plan's own log
-    (doorlab.control.adaptive.LOG_CHANNELS)
+    <!-- doorlab:metrics -->        the keys of metrics.json (episode.metrics.DoorMetrics)
+    <!-- doorlab:log-channels -->   the channels of log.npz (episode.result.EpisodeResult)
+    <!-- doorlab:plan-log -->       the adaptive plan's own log (control.adaptive.LOG_CHANNELS)
     <!-- doorlab:public-api -->     mkdocstrings blocks for every name of doorlab.__all__
+    <!-- doorlab:packages -->       the package's parts, foundations first (API_GROUPS)
     <!-- doorlab:api GROUP -->      mkdocstrings blocks for the modules of API_GROUPS[GROUP]
     <!-- doorlab:figure T/NAME -->  a figure of docs/figures with the command that made it
     <!-- doorlab:figure-text T/NAME -->  a text the figure script kept (a run's summary)
@@ -79,76 +79,37 @@ manifest (a test compares a real run folder with this page)."""
 
 API_GROUPS = {
     "configuration": (
-        "Configuration, errors and inputs",
+        "Configuration, errors and constants",
         [
             "doorlab.config",
             "doorlab.config_checks",
             "doorlab.errors",
-            "doorlab.runtime.inputs",
             "doorlab.constants",
-        ],
-    ),
-    "cell": (
-        "The cell: station, frames, geometry",
-        [
-            "doorlab.cell.station",
-            "doorlab.cell.arm_cell",
             "doorlab.kuka",
-            "doorlab.cell.models",
-            "doorlab.cell.frames",
-            "doorlab.cell.geometry",
-            "doorlab.cell.door_model",
         ],
     ),
-    "control": (
-        "Control laws, plans and controllers",
-        [
-            "doorlab.control.laws",
-            "doorlab.control.plans",
-            "doorlab.control.ik",
-            "doorlab.control.ik_pointwise",
-            "doorlab.control.adaptive",
-            "doorlab.control.hinge_estimation",
-            "doorlab.episode.controllers",
-            "doorlab.cell.safety",
-        ],
-    ),
+    "runtime": ("Inputs, output folders, signals and processes", ["doorlab.runtime"]),
+    "cell": ("The cell: models, station, the lab arm, the door", ["doorlab.cell"]),
+    "control": ("Control laws and plans", ["doorlab.control"]),
     "episodes": (
-        "Episodes and their results",
-        [
-            "doorlab.episode.schedule",
-            "doorlab.episode.plan_runner",
-            "doorlab.episode",
-            "doorlab.episode.simulation",
-            "doorlab.episode.metrics",
-            "doorlab.outputs.runs",
-            "doorlab.outputs.plots",
-            "doorlab.outputs.replay",
-            "doorlab.studies.robustness",
-            "doorlab.studies.reference",
-            "doorlab.studies.legacy",
-        ],
+        "Episodes: timeline, wiring, simulation, controllers, metrics",
+        ["doorlab.episode"],
     ),
-    "command-line": (
-        "The command line, processes and pages",
-        [
-            "doorlab.cli",
-            "doorlab.cli.commands",
-            "doorlab.runtime.argtypes",
-            "doorlab.cli.entry",
-            "doorlab.runtime.interrupts",
-            "doorlab.runtime.executor",
-            "doorlab.outputs.pages",
-            "doorlab.runtime.pdf",
-        ],
+    "outputs": ("A run's outputs: folder, plots, replay, pages", ["doorlab.outputs"]),
+    "studies": (
+        "Studies: robustness, the original station, the former design",
+        ["doorlab.studies"],
     ),
+    "hardware": ("The real arm and the simulated driver", ["doorlab.hardware"]),
     "report": ("The report (doorlab report)", ["doorlab.report"]),
     "sweep": ("Sweeps (doorlab sweep)", ["doorlab.sweep"]),
     "pset": ("The problem set and its grader (doorlab pset)", ["doorlab.pset"]),
-    "hardware": ("The real arm and the simulated driver", ["doorlab.hardware"]),
+    "command-line": ("The command line", ["doorlab.cli"]),
 }
-"""The API reference's pages: page -> (title, modules); a package stands for its submodules.
-Every module of ``src/doorlab`` must be in exactly one group (else the build stops)."""
+"""The API reference's pages, from the bottom of the package up (a module imports only from
+its own group and the groups above it in this table: tests/test_imports.py): page -> (title,
+modules); a package stands for its submodules. Every module of ``src/doorlab`` must be in
+exactly one group (else the build stops)."""
 
 UNIT = re.compile(r"\[([^\]\[,]+)\]")
 """A unit in a comment: the first ``[...]`` without a comma (``[0, 1]`` is a range)."""
@@ -639,6 +600,44 @@ def api_markdown(group: str) -> str:
     return "\n".join(out)
 
 
+def packages_markdown() -> str:
+    """The package's architecture: one row per API page, from the foundations up, with the
+    first paragraph of its package's docstring (or the page's title) and its modules."""
+    api_coverage()
+    out = ["| part | what it holds |", "|---|---|"]
+    for group, (title, modules) in API_GROUPS.items():
+        first = importlib.import_module(modules[0])
+        if len(modules) == 1 and hasattr(first, "__path__"):  # a sub-package
+            names = sorted(
+                m.rsplit(".", 1)[1]
+                for m in package_modules()
+                if m.startswith(modules[0] + ".")
+                and m.count(".") == modules[0].count(".") + 1
+                and not m.rsplit(".", 1)[1].startswith("_")  # not cli's __main__
+            )
+            part = f"[`{modules[0]}`]({group}.md)"
+            text = f"{_summary(first)} *Modules:* {', '.join(names)}."
+        else:  # modules at the top of the package
+            part = f"[`doorlab`]({group}.md)"
+            names = ", ".join(m.rsplit(".", 1)[1] for m in modules)
+            text = f"{title}, at the package's top. *Modules:* {names}."
+        out.append(f"| {_cell(part)} | {_cell(text)} |")
+    return "\n".join(out) + "\n"
+
+
+def _attribute_docstring(module: str, name: str) -> str:
+    """The first line of the string literal that follows ``name = ...`` at the top of
+    ``module`` (the convention this package documents its constants by), or ""."""
+    source = Path(inspect.getsourcefile(importlib.import_module(module))).read_text()
+    body = ast.parse(source).body
+    for node, after in zip(body, body[1:], strict=False):
+        targets = node.targets if isinstance(node, ast.Assign) else [getattr(node, "target", None)]
+        if any(isinstance(t, ast.Name) and t.id == name for t in targets):
+            if isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant):
+                return str(after.value.value).strip().split("\n\n")[0].replace("\n", " ")
+    return ""
+
+
 def public_api_markdown() -> str:
     """A table of every name of ``doorlab.__all__``: where it is defined (linked to its
     documentation on the module pages) and its docstring's first line."""
@@ -649,8 +648,8 @@ def public_api_markdown() -> str:
         value = getattr(doorlab, name)
         module = getattr(value, "__module__", None)
         if not isinstance(module, str) or not hasattr(value, "__qualname__"):
-            module = doorlab._LAZY[name]  # a constant: documented in its module
-            summary = ""
+            module = doorlab._LAZY[name]  # a constant: its docstring follows it in its module
+            summary = _attribute_docstring(module, name)
         else:
             summary = _summary(value)
         out.append(f"| [`{name}`][{module}.{name}] | `{module}` | {_cell(summary)} |")
@@ -707,6 +706,7 @@ GENERATORS = {
     "log-channels": log_channels_markdown,
     "plan-log": plan_log_markdown,
     "public-api": public_api_markdown,
+    "packages": packages_markdown,
     "api": api_markdown,
     "figure": figure_markdown,
     "figure-text": figure_text_markdown,

@@ -25,8 +25,9 @@ Read from RobotLocomotion/drake-iiwa-driver (no code of it is copied here):
 KUKA's damping in N m s/rad: KUKA does not publish how its controller turns the dimensionless
 value into a joint damping. doorlab takes the standard second-order form D_i = 2 d_i
 sqrt(K_i M_ii), with M_ii the model's joint inertia (links, the lumped gripper and the motors'
-reflected inertia) at the problem set's grasp pose (:func:`kuka_damping`); the README's
-"KUKA's joint impedance" says how much the results move if M_ii follows the arm instead.
+reflected inertia) at the problem set's grasp pose (:func:`kuka_damping`); the real arm's guide
+(docs/guides/real-arm.md, the arm preset) says how much the results move if M_ii follows the
+arm instead.
 """
 
 from __future__ import annotations

@@ -55,7 +55,7 @@ def pset(args: argparse.Namespace) -> int:
         out = write_autograder(args.out, jobs=args.jobs, force=args.force, assignment=assignment)
         print(
             f"doorlab pset: wrote {out} ({out.stat().st_size / 1e3:.0f} kB); upload it as the "
-            "assignment's autograder on Gradescope (base image: see the README)"
+            "assignment's autograder on Gradescope (base image: see docs/guides/teaching.md)"
         )
         return 0
     if args.pset_command == "handout":

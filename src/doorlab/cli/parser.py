@@ -168,8 +168,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def add_hardware_options(run: argparse.ArgumentParser) -> None:
-    """``doorlab run --hardware [--lcm-url URL] [--wait S] [--yes]`` (README, "On the real arm")."""
-    group = run.add_argument_group("the real arm (README: On the real arm)")
+    """``doorlab run --hardware [--lcm-url URL] [--wait S] [--yes]`` (docs/guides/real-arm.md)."""
+    group = run.add_argument_group("the real arm (docs/guides/real-arm.md)")
     group.add_argument(
         "--hardware",
         action="store_true",

@@ -1,7 +1,6 @@
-"""One episode, whatever runs it: the timeline (:mod:`~doorlab.episode.schedule`), the outer
-loop (:mod:`~doorlab.episode.plan_runner`), the wiring and the logger shared with the real
-cell (:mod:`~doorlab.episode.wiring`), the logs (:mod:`~doorlab.episode.result`), the
-simulated episode's life, build, run, result (:mod:`~doorlab.episode.simulation`), the
-registered controllers (:mod:`~doorlab.episode.controllers`) and the metrics of an episode
-(:mod:`~doorlab.episode.metrics`).
+"""One episode, whatever runs it: the timeline, the outer loop, the wiring and the logger
+shared with the real cell, the logs, the simulated episode's life (build, run, result), the
+registered controllers and the metrics of an episode.
+
+Above the control laws and plans it runs; below the outputs of a run.
 """

@@ -2,7 +2,8 @@
 
 Each controller turns a scenario into the arc plan and the configuration it starts from;
 :func:`run_controller` wraps it in the problem set's episode: close the gripper on the handle at
-the start configuration, then follow the arc.
+the start configuration, then follow the arc (:func:`episode_plans`, for either cell; the
+simulated episode is :func:`doorlab.episode.simulation.run_episode`).
 """
 
 from __future__ import annotations
@@ -180,7 +181,8 @@ def get_controller(name: str) -> Controller:
 def run_controller(
     scenario: Scenario, *, meshcat: Meshcat | None = None, realtime_rate: float = 0.0
 ) -> tuple[EpisodeResult, ArcPlan]:
-    """Runs the scenario's controller through one episode (the problem set's task cell).
+    """Runs the scenario's controller through one episode (the problem set's task cell),
+    after checking the scenario (:func:`doorlab.config.validate`).
 
     Returns:
         The episode logs and the arc plan that ran.
@@ -188,7 +190,18 @@ def run_controller(
     Raises:
         ConfigError: Invalid scenario. IkError: No IK solution. SimulationError: Physics failed.
     """
-    validate(scenario)
+    return simulate_controller(validate(scenario), meshcat=meshcat, realtime_rate=realtime_rate)
+
+
+def simulate_controller(
+    scenario: Scenario, *, meshcat: Meshcat | None = None, realtime_rate: float = 0.0
+) -> tuple[EpisodeResult, ArcPlan]:
+    """:func:`run_controller` for a scenario already validated (a run folder's, whose
+    scenario was checked before the folder was touched): its plans, then the episode.
+
+    Raises:
+        IkError: No IK solution. SimulationError: Physics failed.
+    """
     plans, widths, arc = episode_plans(scenario)
     result = run_episode(
         scenario, plans, widths, q_start=arc.q_start, meshcat=meshcat, realtime_rate=realtime_rate

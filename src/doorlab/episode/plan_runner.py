@@ -2,7 +2,7 @@
 
 The same system runs on the simulated station and on the real cell: it reads the ports
 ``iiwa_state`` and ``iiwa_torque_external`` and writes ``iiwa_position`` and
-``iiwa_feedforward_torque`` (:mod:`doorlab.episode` wires it to either).
+``iiwa_feedforward_torque`` (:mod:`doorlab.episode.wiring` wires it to either).
 """
 
 from __future__ import annotations

@@ -1,9 +1,19 @@
-"""An episode on the simulated station: build the diagram, run it, pull the logs out of the
-plant state.
+"""One episode on the simulated station, its whole life here: :func:`run_episode` builds the
+diagram, runs it and reads the logs out of it.
 
-The timeline, the plan runner, the wiring and the logger are shared with the real cell
-(:mod:`doorlab.episode.schedule`, :mod:`doorlab.episode.plan_runner`, :mod:`doorlab.episode`); their
-names are re-exported here, where they were first defined.
+1. The timeline: :func:`doorlab.episode.schedule.make_schedule` (hold, the move to the first
+   plan's start, the plans).
+2. Build (:func:`build_simulated_episode`): the station, or with ``station.driver.timing:
+   kuka_driver`` the arm's cell around it (:mod:`doorlab.cell.arm_cell`); the command wiring
+   and the logger (:mod:`doorlab.episode.wiring`); ``station.safety``'s monitor.
+3. Run (``_simulate``): from the initial state, in chunks of simulated time so that
+   Ctrl-C and SIGTERM are handled (:func:`advance_interruptibly`).
+4. Result (``_result``): the logged channels, the measured arm, hinges and fingers
+   read from the logged plant state, as an :class:`~doorlab.episode.result.EpisodeResult`;
+   a safety stop keeps the logs up to it, a non-finite state is a divergence.
+
+The real cell runs the same schedule, wiring and logger over LCM
+(:mod:`doorlab.hardware.episode`).
 """
 
 from __future__ import annotations
@@ -33,36 +43,18 @@ from doorlab.cell.station import Station, build_station
 from doorlab.config import Scenario
 from doorlab.constants import Q_HOME
 from doorlab.control.plans import Plan
-from doorlab.episode.plan_runner import PlanRunner
 from doorlab.episode.result import EpisodeResult, schedule_fields
-from doorlab.episode.schedule import (
-    PLAN_SETTLE_TIME,
-    ScheduledPlan,
-    joint_space_prefix,
-    make_schedule,
-    prefix_trajectory,
-    tick_lag,
-)
+from doorlab.episode.schedule import ScheduledPlan, make_schedule, tick_lag
 from doorlab.episode.wiring import EpisodeLogger, wire_commands
 from doorlab.errors import ConfigError, SafetyStop, SimulationError
 from doorlab.kuka import CYCLE_PERIOD, WSG_COMMAND_PERIOD
-
-__all__ = [
-    "PLAN_SETTLE_TIME",
-    "EpisodeResult",
-    "PlanRunner",
-    "ScheduledPlan",
-    "joint_space_prefix",
-    "make_schedule",
-    "prefix_trajectory",
-    "run_episode",
-]
 
 HINGES = (LEFT_HINGE, RIGHT_HINGE)
 
 _SEPARATE_LOGGERS = False
 """Also log the station's channels one logger each, as the 353b732 design did (its cost,
 for :mod:`doorlab.studies.legacy`; the logs come from the one multiplexed logger either way)."""
+
 _SEPARATE_LOG_PORTS = (
     "iiwa_position_commanded",
     "iiwa_position_measured",
@@ -90,60 +82,59 @@ class SimulatedEpisode:
     cycle_logger: VectorLogSink | None = None
 
 
-def _initialize(station: Station, context, q_initial: np.ndarray, scenario: Scenario) -> None:
-    plant = station.plant
-    plant_context = plant.GetMyMutableContextFromRoot(context)
-    plant.SetPositions(plant_context, station.iiwa, q_initial)
-    width = scenario.station.gripper.initial_width
-    for joint_name, q in zip(FINGER_JOINTS, (-width / 2, width / 2), strict=True):
-        plant.GetJointByName(joint_name, station.wsg).set_translation(plant_context, q)
-    left, right = scenario.initial_door_angles()
-    plant.GetJointByName(LEFT_HINGE, station.cupboard).set_angle(plant_context, left)
-    plant.GetJointByName(RIGHT_HINGE, station.cupboard).set_angle(plant_context, right)
-    if station.interpolator is not None:
-        station.interpolator.set_initial_position(
-            station.interpolator.GetMyMutableContextFromRoot(context), q_initial
-        )
-
-
-ADVANCE_CHUNK_S = 0.25
-"""The episode advances this much simulated time per ``AdvanceTo`` call [s]; between calls
-Python runs, so Ctrl-C and SIGTERM are handled within one chunk (measured, on 2 loaded cores:
-at most 80-200 ms of waiting for C++, against 4-7 s for the whole episode in one call; the 96
-calls' fixed cost, ~15 us each, is 0.04 % of the advance: benchmarks/chunked_advance.py)."""
-MAX_PACED_CHUNK_WALL_S = 0.1
-"""With real-time pacing a chunk is at most this much wall time [s] (Drake sleeps in C++)."""
-
-
-def advance_interruptibly(
-    simulator: Simulator, t_final: float, *, realtime_rate: float = 0.0
-) -> None:
-    """``simulator.AdvanceTo(t_final)`` in chunks of simulated time, so that Python's signal
-    handlers run between them.
-
-    A diagram of C++ systems only (an IK episode: no Python plan runner) or real-time pacing
-    (which sleeps in C++) would not return to Python before ``t_final``: Ctrl-C and SIGTERM
-    would wait for the whole episode. The chunks are bit-identical to one call: every state is
-    discrete, its events are scheduled from t = 0, and stopping between two of them advances
-    time only (tests/test_simulation.py checks it).
+def run_episode(
+    scenario: Scenario,
+    plans: Sequence[Plan],
+    gripper_widths: Sequence[float],
+    *,
+    q_start: np.ndarray,
+    q_initial: np.ndarray = Q_HOME,
+    arc_plan_index: int | None = None,
+    meshcat: Meshcat | None = None,
+    realtime_rate: float = 0.0,
+) -> EpisodeResult:
+    """Simulates one episode: hold, move to ``q_start``, run ``plans``, then ``extra_time``.
 
     Args:
-        simulator: An initialized simulator.
-        t_final: Where to stop [s].
-        realtime_rate: The simulator's target real-time rate (0: as fast as possible); a paced
-            chunk lasts at most :data:`MAX_PACED_CHUNK_WALL_S` of wall time.
+        scenario: A validated scenario (physics, timeline, gripper).
+        plans: The user's plans, in order.
+        gripper_widths: Finger separation setpoint for each plan [m].
+        q_start: Where the first plan starts (7,) [rad]; the arm moves there first.
+        q_initial: Initial arm configuration (7,) [rad].
+        arc_plan_index: Index in ``plans`` of the door-opening plan, whose
+            [start, start + duration] becomes ``arc_window`` (default: the last plan).
+        meshcat: Draw the episode live in this Meshcat.
+        realtime_rate: 0 runs as fast as possible; 1 runs at wall-clock speed.
+
+    Returns:
+        The logs.
+
+    Raises:
+        SimulationError: The physics engine failed or the state became non-finite.
     """
-    chunk = ADVANCE_CHUNK_S
-    if realtime_rate > 0:
-        chunk = min(chunk, realtime_rate * MAX_PACED_CHUNK_WALL_S)
-    t_start = simulator.get_context().get_time()
-    k = 1
-    while True:
-        t = min(t_start + k * chunk, t_final)
-        simulator.AdvanceTo(t)
-        if t >= t_final:
-            return
-        k += 1
+    q_initial = np.asarray(q_initial, float)
+    schedule = make_schedule(
+        plans, gripper_widths, q_initial=q_initial, q_start=q_start, scenario=scenario
+    )
+    episode = build_simulated_episode(scenario, schedule, q_initial=q_initial, meshcat=meshcat)
+    arc_index = (len(plans) - 1 if arc_plan_index is None else arc_plan_index) + 2
+    simulator = Simulator(episode.diagram)
+    wall_start = time.perf_counter()
+    try:
+        wall_time = _simulate(
+            simulator, episode, scenario, q_initial, meshcat=meshcat, realtime_rate=realtime_rate
+        )
+    except SafetyStop as stop:
+        wall_time = time.perf_counter() - wall_start
+        partial, _ = _result(episode, simulator, scenario, wall_time, arc_index)
+        raise SafetyStop(stop.violation, result=partial) from None
+    result, finite = _result(episode, simulator, scenario, wall_time, arc_index)
+    if not finite:
+        raise SimulationError("the simulation diverged: the plant state became non-finite")
+    return result
+
+
+# Build ---------------------------------------------------------------------------------------
 
 
 def build_simulated_episode(
@@ -260,6 +251,65 @@ def _add_safety_monitor(
     )
 
 
+# Run -----------------------------------------------------------------------------------------
+
+
+def _initialize(station: Station, context, q_initial: np.ndarray, scenario: Scenario) -> None:
+    plant = station.plant
+    plant_context = plant.GetMyMutableContextFromRoot(context)
+    plant.SetPositions(plant_context, station.iiwa, q_initial)
+    width = scenario.station.gripper.initial_width
+    for joint_name, q in zip(FINGER_JOINTS, (-width / 2, width / 2), strict=True):
+        plant.GetJointByName(joint_name, station.wsg).set_translation(plant_context, q)
+    left, right = scenario.initial_door_angles()
+    plant.GetJointByName(LEFT_HINGE, station.cupboard).set_angle(plant_context, left)
+    plant.GetJointByName(RIGHT_HINGE, station.cupboard).set_angle(plant_context, right)
+    if station.interpolator is not None:
+        station.interpolator.set_initial_position(
+            station.interpolator.GetMyMutableContextFromRoot(context), q_initial
+        )
+
+
+ADVANCE_CHUNK_S = 0.25
+"""The episode advances this much simulated time per ``AdvanceTo`` call [s]; between calls
+Python runs, so Ctrl-C and SIGTERM are handled within one chunk (measured, on 2 loaded cores:
+at most 80-200 ms of waiting for C++, against 4-7 s for the whole episode in one call; the 96
+calls' fixed cost, ~15 us each, is 0.04 % of the advance: benchmarks/chunked_advance.py)."""
+MAX_PACED_CHUNK_WALL_S = 0.1
+"""With real-time pacing a chunk is at most this much wall time [s] (Drake sleeps in C++)."""
+
+
+def advance_interruptibly(
+    simulator: Simulator, t_final: float, *, realtime_rate: float = 0.0
+) -> None:
+    """``simulator.AdvanceTo(t_final)`` in chunks of simulated time, so that Python's signal
+    handlers run between them.
+
+    A diagram of C++ systems only (an IK episode: no Python plan runner) or real-time pacing
+    (which sleeps in C++) would not return to Python before ``t_final``: Ctrl-C and SIGTERM
+    would wait for the whole episode. The chunks are bit-identical to one call: every state is
+    discrete, its events are scheduled from t = 0, and stopping between two of them advances
+    time only (tests/test_simulation.py checks it).
+
+    Args:
+        simulator: An initialized simulator.
+        t_final: Where to stop [s].
+        realtime_rate: The simulator's target real-time rate (0: as fast as possible); a paced
+            chunk lasts at most :data:`MAX_PACED_CHUNK_WALL_S` of wall time.
+    """
+    chunk = ADVANCE_CHUNK_S
+    if realtime_rate > 0:
+        chunk = min(chunk, realtime_rate * MAX_PACED_CHUNK_WALL_S)
+    t_start = simulator.get_context().get_time()
+    k = 1
+    while True:
+        t = min(t_start + k * chunk, t_final)
+        simulator.AdvanceTo(t)
+        if t >= t_final:
+            return
+        k += 1
+
+
 def _simulate(
     simulator: Simulator,
     episode: SimulatedEpisode,
@@ -302,76 +352,7 @@ def _simulate(
     return time.perf_counter() - wall_start
 
 
-def plant_state_channels(station: Station, x: np.ndarray) -> dict[str, np.ndarray]:
-    """The measured arm state, hinges and fingers from logged plant states x (n, nq + nv):
-    ``q_measured``, ``v_measured``, ``door_angles``, ``wsg_width``, ``plant_positions``."""
-    plant = station.plant
-    nq = plant.num_positions()
-    q_all, v_all = x[:, :nq], x[:, nq:]
-    # Column indices of a model instance's positions/velocities in the plant's.
-    arm_q = plant.GetPositionsFromArray(station.iiwa, np.arange(nq)).astype(int)
-    arm_v = plant.GetVelocitiesFromArray(station.iiwa, np.arange(v_all.shape[1])).astype(int)
-    fingers = plant.GetPositionsFromArray(station.wsg, np.arange(nq)).astype(int)
-    hinges = [plant.GetJointByName(h, station.cupboard).position_start() for h in HINGES]
-    return {
-        "q_measured": q_all[:, arm_q],
-        "v_measured": v_all[:, arm_v],
-        "door_angles": q_all[:, hinges],
-        "wsg_width": q_all[:, fingers[1]] - q_all[:, fingers[0]],  # right - left finger
-        "plant_positions": q_all,
-    }
-
-
-def run_episode(
-    scenario: Scenario,
-    plans: Sequence[Plan],
-    gripper_widths: Sequence[float],
-    *,
-    q_start: np.ndarray,
-    q_initial: np.ndarray = Q_HOME,
-    arc_plan_index: int | None = None,
-    meshcat: Meshcat | None = None,
-    realtime_rate: float = 0.0,
-) -> EpisodeResult:
-    """Simulates one episode: hold, move to ``q_start``, run ``plans``, then ``extra_time``.
-
-    Args:
-        scenario: A validated scenario (physics, timeline, gripper).
-        plans: The user's plans, in order.
-        gripper_widths: Finger separation setpoint for each plan [m].
-        q_start: Where the first plan starts (7,) [rad]; the arm moves there first.
-        q_initial: Initial arm configuration (7,) [rad].
-        arc_plan_index: Index in ``plans`` of the door-opening plan, whose
-            [start, start + duration] becomes ``arc_window`` (default: the last plan).
-        meshcat: Draw the episode live in this Meshcat.
-        realtime_rate: 0 runs as fast as possible; 1 runs at wall-clock speed.
-
-    Returns:
-        The logs.
-
-    Raises:
-        SimulationError: The physics engine failed or the state became non-finite.
-    """
-    q_initial = np.asarray(q_initial, float)
-    schedule = make_schedule(
-        plans, gripper_widths, q_initial=q_initial, q_start=q_start, scenario=scenario
-    )
-    episode = build_simulated_episode(scenario, schedule, q_initial=q_initial, meshcat=meshcat)
-    arc_index = (len(plans) - 1 if arc_plan_index is None else arc_plan_index) + 2
-    simulator = Simulator(episode.diagram)
-    wall_start = time.perf_counter()
-    try:
-        wall_time = _simulate(
-            simulator, episode, scenario, q_initial, meshcat=meshcat, realtime_rate=realtime_rate
-        )
-    except SafetyStop as stop:
-        wall_time = time.perf_counter() - wall_start
-        partial, _ = _result(episode, simulator, scenario, wall_time, arc_index)
-        raise SafetyStop(stop.violation, result=partial) from None
-    result, finite = _result(episode, simulator, scenario, wall_time, arc_index)
-    if not finite:
-        raise SimulationError("the simulation diverged: the plant state became non-finite")
-    return result
+# Result --------------------------------------------------------------------------------------
 
 
 def _result(
@@ -405,3 +386,23 @@ def _result(
         **schedule_fields(episode.schedule, arc_index),
     )
     return result, bool(np.all(np.isfinite(data["plant_state"])))
+
+
+def plant_state_channels(station: Station, x: np.ndarray) -> dict[str, np.ndarray]:
+    """The measured arm state, hinges and fingers from logged plant states x (n, nq + nv):
+    ``q_measured``, ``v_measured``, ``door_angles``, ``wsg_width``, ``plant_positions``."""
+    plant = station.plant
+    nq = plant.num_positions()
+    q_all, v_all = x[:, :nq], x[:, nq:]
+    # Column indices of a model instance's positions/velocities in the plant's.
+    arm_q = plant.GetPositionsFromArray(station.iiwa, np.arange(nq)).astype(int)
+    arm_v = plant.GetVelocitiesFromArray(station.iiwa, np.arange(v_all.shape[1])).astype(int)
+    fingers = plant.GetPositionsFromArray(station.wsg, np.arange(nq)).astype(int)
+    hinges = [plant.GetJointByName(h, station.cupboard).position_start() for h in HINGES]
+    return {
+        "q_measured": q_all[:, arm_q],
+        "v_measured": v_all[:, arm_v],
+        "door_angles": q_all[:, hinges],
+        "wsg_width": q_all[:, fingers[1]] - q_all[:, fingers[0]],  # right - left finger
+        "plant_positions": q_all,
+    }

@@ -101,7 +101,7 @@ def _exit_promptly(code: int) -> int:
     main = sys.modules.get("__main__")
     spec = getattr(main, "__spec__", None)
     program = os.path.basename(sys.argv[0]) == "doorlab" or (
-        spec is not None and spec.name == "doorlab.cli"
+        spec is not None and spec.name == "doorlab.cli.__main__"
     )
     if program:
 

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from doorlab.cell.frames import ARM_JOINTS, p_L7Q
+from doorlab.cell.geometry import true_door_geometry
 from doorlab.config import Scenario, validate
 from doorlab.episode.metrics import Kinematics
 from doorlab.episode.schedule import PLAN_SETTLE_TIME
@@ -192,9 +193,9 @@ def _write(
     if outcome.status != "ok":
         return
     if plots:
-        from doorlab.outputs.runs import _write_plots
+        from doorlab.outputs.plots import save_run_plots
 
-        _write_plots(result, scenario, str(staging))
+        save_run_plots(result, true_door_geometry(scenario), staging)
     if replay:
         from doorlab.outputs.replay import save_replay
 

@@ -25,7 +25,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullLocator
 
 from doorlab.cell.geometry import DoorGeometry
-from doorlab.episode.metrics import Kinematics, Tracking, compute_tracking
+from doorlab.episode.metrics import Kinematics, Tracking, compute_tracking, hinge_estimate_error
 from doorlab.episode.result import EpisodeResult
 
 MM_PER_M = 1000.0
@@ -58,6 +58,10 @@ RUN_PLOT_NAMES = (
     "door_angle",
 )
 """PNG files written by :func:`save_run_plots` (``<name>.png``)."""
+
+HINGE_PLOT_NAME = "hinge_estimate_error"
+"""The PNG :func:`save_run_plots` adds for a plan that estimates the hinge (the adaptive plan:
+its plan log has ``hinge_x``): :func:`plot_hinge_convergence` of the run."""
 
 _SINGLE_MARGINS = {"left": 0.1, "right": 0.98, "top": 0.92, "bottom": 0.11}
 _ARC_SPAN_STYLE = {"color": "0.5", "alpha": 0.13, "lw": 0}
@@ -398,6 +402,34 @@ def plot_external_torque_norm(
     return fig
 
 
+def plot_hinge_convergence(
+    results: Mapping[str, tuple[EpisodeResult, DoorGeometry]],
+) -> Figure:
+    """The adaptive plan's hinge estimate error against time, one line per episode.
+
+    Args:
+        results: {label: (episode of the adaptive plan, its TRUE door geometry)}.
+
+    Returns:
+        A matplotlib Figure (log-scale error [mm] against time in the arc [s]).
+    """
+    fig = Figure(figsize=(7, 4), constrained_layout=True)
+    ax = fig.subplots()
+    for label, (result, geometry) in results.items():
+        error = hinge_estimate_error(result, geometry)
+        t = result.plan_log["t"] - result.arc_window[0]
+        ax.semilogy(t, 1e3 * error, label=label)
+    ax.axhline(10.0, color="k", lw=0.8, ls="--", label="acceptance: 10 mm")
+    ax.set(
+        xlabel="time since the arc started [s]",
+        ylabel="|hinge estimate - true hinge| [mm]",
+        title="Adaptive plan: hinge estimate convergence (nan until the fit is trusted)",
+    )
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(loc="upper right", fontsize="small")
+    return fig
+
+
 def run_label(result: EpisodeResult) -> str:
     """A short description of the run from its scenario ("ik, 10 knots, doors open")."""
     from pydrake.common.yaml import yaml_load_typed
@@ -444,7 +476,8 @@ def save_run_plots(
         kinematics: Reusable forward kinematics (built if not given).
 
     Returns:
-        The paths written, in the order of :data:`RUN_PLOT_NAMES`.
+        The paths written, in the order of :data:`RUN_PLOT_NAMES`, then
+        :data:`HINGE_PLOT_NAME` for a plan that estimates the hinge.
     """
     out_dir = Path(out_dir)
     kinematics = kinematics or Kinematics()
@@ -484,4 +517,9 @@ def save_run_plots(
             title=f"Left door hinge angle{suffix}",
         ),
     }
-    return [save_figure(figures[name](), out_dir / f"{name}.png") for name in RUN_PLOT_NAMES]
+    paths = [save_figure(figures[name](), out_dir / f"{name}.png") for name in RUN_PLOT_NAMES]
+    if "hinge_x" in result.plan_log:  # a plan that estimates the hinge (adaptive)
+        arc = int(np.argmin(np.abs(result.plan_starts - result.arc_window[0])))
+        figure = plot_hinge_convergence({result.plan_names[arc]: (result, geometry)})
+        paths.append(save_figure(figure, out_dir / f"{HINGE_PLOT_NAME}.png"))
+    return paths

@@ -1,8 +1,11 @@
-"""Run one scenario and write its output folder atomically.
+"""Run one scenario and write its output folder atomically (``doorlab run``).
 
-A run folder holds ``metrics.json``, ``log.npz``, the problem set's plots as PNG and ``replay.html``
-(a self-contained 3-D replay). It is assembled in a hidden temporary folder beside the target
-and renamed into place at the end, so a folder either appears complete or not at all.
+A run folder holds ``metrics.json``, ``log.npz``, the problem set's plots as PNG and
+``replay.html`` (a self-contained 3-D replay). It is assembled in a hidden temporary folder
+beside the target and renamed into place at the end
+(:func:`doorlab.runtime.folders.staged_output`), so a folder either appears complete or not at
+all. An IK or physics failure, a safety stop, is a status in the folder, not an exception; the
+exit code of each status is :data:`EXIT_CODES`.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from pathlib import Path
 from pydrake.geometry import Meshcat
 
 from doorlab.cell.geometry import true_door_geometry
-from doorlab.config import Scenario, validate
+from doorlab.config import Scenario
 from doorlab.episode.metrics import DoorMetrics, Kinematics, compute_metrics
 from doorlab.errors import IkError, RunStopped, SafetyStop, SimulationError
 from doorlab.runtime.folders import staged_output, write_json
@@ -73,15 +76,9 @@ def _warm_plotter() -> None:
 
 def _write_plots(result, scenario: Scenario, out_dir: str) -> None:
     """The run's PNG plots into ``out_dir`` (in the plot worker, or here as a fallback)."""
-    from doorlab.outputs import plots as plotting
+    from doorlab.outputs import plots
 
-    geometry = true_door_geometry(scenario)
-    plotting.save_run_plots(result, geometry, Path(out_dir))
-    if "hinge_x" in result.plan_log:  # a plan that estimates the hinge (adaptive)
-        from doorlab.studies.robustness import plot_hinge_convergence
-
-        figure = plot_hinge_convergence({scenario.controller: (result, geometry)})
-        plotting.save_figure(figure, Path(out_dir) / "hinge_estimate_error.png")
+    plots.save_run_plots(result, true_door_geometry(scenario), Path(out_dir))
 
 
 def _plot_worker() -> concurrent.futures.ProcessPoolExecutor:
@@ -115,7 +112,8 @@ def run_to_folder(
     """Runs ``scenario`` and writes its folder; IK and physics failures become a status.
 
     Args:
-        scenario: The run (validated here).
+        scenario: The run, validated (:func:`doorlab.config.validate`; ``doorlab run`` checks
+            the scenario it reads before anything is written, and is the only check).
         out_dir: The folder to create.
         force: Replace ``out_dir`` if it exists.
         replay: Write ``replay.html``. plots: Write the PNG plots.
@@ -127,11 +125,10 @@ def run_to_folder(
             experiments in parallel and leaves it off.
 
     Raises:
-        ConfigError: Invalid scenario. OutputError: ``out_dir`` cannot be written.
+        OutputError: ``out_dir`` cannot be written.
     """
     # Plotting and replay are imported when used: they pull in matplotlib and Meshcat, which
     # the pure simulation API does not need.
-    validate(scenario)
     out_dir = Path(out_dir)
     with staged_output(out_dir, force=force) as staging:
         worker = _plot_worker() if plots and parallel else None
@@ -165,11 +162,11 @@ def _run_into(
     realtime_rate: float,
 ) -> RunOutcome:
     """Runs the episode and writes its files into ``staging`` (see :func:`run_to_folder`)."""
-    from doorlab.episode.controllers import run_controller
+    from doorlab.episode.controllers import simulate_controller
 
     base = {"controller": scenario.controller, "doors": scenario.doors}
     try:
-        result, _ = run_controller(scenario, meshcat=meshcat, realtime_rate=realtime_rate)
+        result, _ = simulate_controller(scenario, meshcat=meshcat, realtime_rate=realtime_rate)
     except (IkError, SimulationError, RunStopped) as e:
         status = "ik_failed" if isinstance(e, IkError) else getattr(e, "status", "diverged")
         stop = {"violation": e.violation.to_dict()} if isinstance(e, SafetyStop) else {}

@@ -106,8 +106,9 @@ def write_autograder(
 
     Args:
         out: The zip to write (its name must end in ``.zip``).
-        jobs: Tests run at a time on Gradescope: 1 fits its default resources (see the
-            README for the measured peak memory); 2 halves the time with 2 CPUs.
+        jobs: Tests run at a time on Gradescope: 1 fits its default resources (see
+            docs/guides/teaching.md for the measured peak memory); 2 halves the time with 2
+            CPUs.
         force: Replace an existing zip written by this command.
         assignment: The course's settings (:class:`doorlab.pset.assignment.Assignment`);
             None: the defaults.

@@ -61,17 +61,18 @@ PROBE_TIMEOUT_S = 30.0
 
 STUDENT_MODULES = (
     "doorlab",
+    "doorlab.cell",
+    "doorlab.cell.door_model",
+    "doorlab.cell.frames",
+    "doorlab.cell.models",
+    "doorlab.cell.station",
     "doorlab.config",
     "doorlab.config_checks",
     "doorlab.constants",
-    "doorlab.cell.door_model",
-    "doorlab.errors",
-    "doorlab.cell.frames",
+    "doorlab.control",
     "doorlab.control.ik",
-    "doorlab.runtime.inputs",
+    "doorlab.errors",
     "doorlab.kuka",
-    "doorlab.cell.models",
-    "doorlab.cell.station",
     "doorlab.pset",
     "doorlab.pset.channel",
     "doorlab.pset.honesty",
@@ -79,9 +80,12 @@ STUDENT_MODULES = (
     "doorlab.pset.task_helpers",
     "doorlab.pset.worker",
     "doorlab.pset.zygote",
+    "doorlab.runtime",
+    "doorlab.runtime.inputs",
 )
-"""doorlab's modules in the student's view: what the folder's files and the worker import.
-Nothing else of doorlab is there (a test checks that none is a reference solution)."""
+"""doorlab's modules in the student's view: what the folder's files and the worker import, and
+the packages that hold them (their ``__init__``, docstrings only). Nothing else of doorlab is
+there (a test checks that none is a reference solution)."""
 STUDENT_DATA = ("doorlab/cell/models",)
 """Package folders copied whole (the SDF models)."""
 STUDENT_DISTRIBUTIONS = ("drake", "numpy", "matplotlib")
@@ -392,6 +396,20 @@ def bwrap_argv(
             argv += ["--size", str(TMPFS_BYTES), "--perms", "1777", "--tmpfs", dest]
         else:
             argv += ["--bind", str(folder), dest]
+    # Folders on the way to a distribution bound from under /tmp or /dev/shm would be made in
+    # those writable places: each such top folder is a tmpfs of its own, read-only at the end.
+    private = ("/tmp", "/dev/shm")
+    tops = sorted(
+        {
+            "/".join(op[1].split("/")[: p.count("/") + 2])
+            for op in view.mounts
+            if op[0] == "dir"
+            for p in private
+            if op[1].startswith(p + "/")
+        }
+    )
+    for top in tops:
+        argv += ["--tmpfs", top]
     for op in view.mounts:
         kind = op[0]
         if kind == "dir":
@@ -406,6 +424,8 @@ def bwrap_argv(
     # The root itself (a tmpfs holding the mount points, the user's own in a user
     # namespace) read-only too: not recursive, so the three writable places stay writable.
     argv += ["--remount-ro", "/"]
+    for top in tops:
+        argv += ["--remount-ro", top]
     return [*argv, "--"]
 
 

@@ -3,5 +3,6 @@ values), the output folders it writes (staged beside the target, a manifest of w
 ``--force``'s rule), signals and worker processes, local or Dask executors, headless Chromium
 for PDFs.
 
-It imports nothing of doorlab but :mod:`doorlab.errors`: everything else may use it.
+It imports nothing of doorlab but :mod:`doorlab.errors` (and ``doorlab.__version__``):
+everything else may use it.
 """

@@ -9,7 +9,8 @@ plans follow the believed arc; the adaptive plan estimates the hinge. This modul
 - finds the largest yaw error up to which a controller opens the door
   (:func:`largest_opening_yaw`: a scan outwards, then bisection);
 - turns rows and results into a Markdown table and figures (:func:`robustness_table`,
-  :func:`plot_robustness`, :func:`plot_hinge_convergence`) without re-running anything.
+  :func:`plot_robustness`; the adaptive plan's :func:`doorlab.outputs.plots.plot_hinge_convergence`,
+  which a run folder draws too) without re-running anything.
 
 "Opens" means: status ok, the door turned by at least :data:`OPEN_THRESHOLD_DEG` by the arc's
 end (t = 21 s of the problem set's timeline), and the handle is still between the fingers at the
@@ -330,36 +331,6 @@ def plot_robustness(rows: Sequence[RobustnessRow]):
     return fig
 
 
-def plot_hinge_convergence(results: Mapping[str, tuple[EpisodeResult, DoorGeometry]]):
-    """The adaptive plan's hinge estimate error against time, one line per episode.
-
-    Args:
-        results: {label: (episode of the adaptive plan, its TRUE door geometry)}.
-
-    Returns:
-        A matplotlib Figure (log-scale error [mm] against time in the arc [s]).
-    """
-    from matplotlib.figure import Figure
-
-    from doorlab.episode.metrics import hinge_estimate_error
-
-    fig = Figure(figsize=(7, 4), constrained_layout=True)
-    ax = fig.subplots()
-    for label, (result, geometry) in results.items():
-        error = hinge_estimate_error(result, geometry)
-        t = result.plan_log["t"] - result.arc_window[0]
-        ax.semilogy(t, 1e3 * error, label=label)
-    ax.axhline(10.0, color="k", lw=0.8, ls="--", label="acceptance: 10 mm")
-    ax.set(
-        xlabel="time since the arc started [s]",
-        ylabel="|hinge estimate - true hinge| [mm]",
-        title="Adaptive plan: hinge estimate convergence (nan until the fit is trusted)",
-    )
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(loc="upper right", fontsize="small")
-    return fig
-
-
 def opening_summary(rows: Iterable[RobustnessRow]) -> dict[str, list[float]]:
     """{controller: yaw errors [rad] at which it opened the door}, from rows."""
     out: dict[str, list[float]] = {}
@@ -437,6 +408,8 @@ def robustness_section(
         adaptive_results: {label: (adaptive episode, its TRUE geometry)} for the convergence
             plot (e.g. one per yaw error of the grid).
     """
+    from doorlab.outputs.plots import plot_hinge_convergence
+
     return RobustnessSection(
         table_markdown=robustness_table(rows),
         figures={
