@@ -8,7 +8,9 @@ in a stand-in for ``/autograder`` (``DOORLAB_AUTOGRADER_ROOT``; dependencies fro
 index; as root inside bubblewrap with a private ``/etc``, so the user it creates exists only
 there), then grades a correct submission (the key's three files, flat) with
 ``run_autograder`` N times per ``--jobs`` value (default: the zip's 1, Gradescope's default,
-and 2). Per grading: wall time, the CPU time of the process tree, and its peak memory:
+and 2). Per grading: wall time, the CPU time of the process tree (counted in a cgroup as
+root: the student's processes in bubblewrap's PID namespace included; else getrusage's, which
+misses them), and its peak memory:
 the largest sum of the proportional set sizes (PSS, ``/proc/PID/smaps_rollup``: shared pages
 split between the processes sharing them) of every process of the tree, sampled every
 50 ms (a shorter peak can be missed). The line ``other cpu`` is the average number of cores
@@ -29,6 +31,8 @@ import threading
 import time
 import zipfile
 from pathlib import Path
+
+from pset_grading import _cgroup_cpu, _new_cgroup
 
 from doorlab.pset import autograder
 from doorlab.pset.folder import STUDENT_FILES, render_folder
@@ -105,6 +109,12 @@ def _grade(root: Path, jobs: int) -> dict:
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON")}
     env[autograder.ROOT_ENV] = str(root)
     before = os.times()
+    cgroup = _new_cgroup(f"doorlab_image_{os.getpid()}_{time.time_ns()}")
+
+    def enter() -> None:
+        if cgroup is not None:
+            (cgroup[0] / "cgroup.procs").write_text(str(os.getpid()))
+
     start = time.perf_counter()
     process = subprocess.Popen(
         ["bash", str(root / "run_autograder"), "--jobs", str(jobs)],
@@ -112,6 +122,7 @@ def _grade(root: Path, jobs: int) -> dict:
         env=env,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
+        preexec_fn=enter,
     )
     peak = [0]
 
@@ -132,6 +143,9 @@ def _grade(root: Path, jobs: int) -> dict:
     cpu = (after.children_user + after.children_system) - (
         before.children_user + before.children_system
     )
+    if cgroup is not None:  # every process, the student's in bubblewrap's PID namespace too
+        cpu = _cgroup_cpu(*cgroup)
+        cgroup[0].rmdir()
     return {"wall_s": wall, "cpu_s": cpu, "peak_pss_mib": peak[0] / 1024, "score": results["score"]}
 
 

@@ -28,6 +28,10 @@ def _run(code: str) -> subprocess.CompletedProcess:
     [
         (["sweep", "--grid", "ik.knots=2,3", "--out", "x"], "doorlab sweep needs pandas"),
         (["report", "--scheduler", "tcp://127.0.0.1:1", "--out", "x"], "--scheduler needs"),
+        (
+            ["pset", "grade-all", ".", "--out", "x", "--scheduler", "tcp://127.0.0.1:1"],
+            "--scheduler needs",
+        ),
     ],
 )
 def test_without_the_sweep_extra_the_commands_that_need_it_say_so(tmp_path, argv, needs):
@@ -61,6 +65,11 @@ def test_what_runs_and_grades_imports_none_of_it():
         "doorlab.pset.intake",
         "doorlab.pset.autograder",
         "doorlab.pset.handout",
+        "doorlab.pset.batch",
+        "doorlab.pset.roster",
+        "doorlab.pset.views",
+        "doorlab.pset.zygote",
+        "doorlab.runtime.executor",
     ]
     code = "import importlib\n" + "".join(f"importlib.import_module({m!r})\n" for m in modules)
     proc = _run(code)

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import pset_fixtures
 import pytest
-from pset_attacks import attack_folder, evidence
+from pset_attacks import _insert, attack_folder, evidence
 
 import doorlab
 from doorlab.cli.parser import main
@@ -420,6 +420,93 @@ def test_one_submission_never_sees_another_graded_beside_it(public, reference_fi
     assert secret not in json.dumps(results["a"])
     found = evidence(results["a"])["batch"]
     assert found == {"hits": [], "notes": []}, found
+
+
+# One view per grading, a fresh process per test ----------------------------------------------
+
+LEAVE_BEHIND = r"""
+import ctypes, json, os, signal, subprocess, sys
+ev = {"pids": sorted(int(p) for p in os.listdir("/proc") if p.isdigit())}
+for what in ("/proc/1/fd", "/proc/1/mem", "/proc/1/environ"):
+    try:
+        if what.endswith("fd"):
+            ev[what] = os.listdir(what)
+        else:
+            with open(what, "rb") as f:
+                f.read(16)
+            ev[what] = "read"
+    except OSError as e:
+        ev[what] = type(e).__name__
+libc = ctypes.CDLL(None, use_errno=True)
+ev["ptrace"] = libc.ptrace(16, 1, 0, 0)  # PTRACE_ATTACH to the view's first process
+for sig in (signal.SIGKILL, signal.SIGTERM, signal.SIGINT, signal.SIGSTOP):
+    try:
+        os.kill(1, sig)
+    except OSError as e:
+        ev[sig.name] = type(e).__name__
+subprocess.Popen([sys.executable, "-c", "import time; time.sleep(600)"], start_new_session=True,
+                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL)
+for folder in ("/tmp", "/dev/shm", "/pset"):
+    try:
+        with open(os.path.join(folder, "note-" + MARK), "w") as f:
+            f.write("the answer is 42")
+        ev.setdefault("notes", []).append(folder)
+    except OSError:
+        pass
+libc.shmget(4242, 4096, 0o1666)  # IPC_CREAT | 0666: a System V segment left in the view
+if os.uname().machine == "x86_64":  # a note in the user's keyring (add_key: 248)
+    ev["key"] = libc.syscall(248, b"user", MARK.encode(), b"42", 2, -4)
+print("EVIDENCE leave " + json.dumps(ev))
+raise NotImplementedError("calc_R_WL7_ref: left notes for the next test")
+"""
+LOOK_BACK = r"""
+import json, os
+ev = {"pids": sorted(int(p) for p in os.listdir("/proc") if p.isdigit()), "me": os.getpid()}
+ev["files"] = sorted(os.listdir("/tmp") + os.listdir("/dev/shm"))
+ev["shm"] = open("/proc/sysvipc/shm").read().splitlines()[1:]
+try:
+    ev["pset"] = os.listdir("/pset")
+except OSError as e:
+    ev["pset"] = type(e).__name__
+if os.uname().machine == "x86_64":  # keyctl(KEYCTL_SEARCH, the user's keyring, ...): 250
+    ctypes = __import__("ctypes")
+    libc = ctypes.CDLL(None, use_errno=True)
+    ev["key"] = libc.syscall(250, 10, -4, b"user", MARK.encode(), 0)
+print("EVIDENCE look " + json.dumps(ev))
+raise NotImplementedError("calc_p_Q: nothing found")
+"""
+
+
+def test_each_test_gets_a_fresh_view_whose_first_process_is_out_of_reach(public, reference_file):
+    """Two unit tests of one grading share a view, one after the other. The first cannot
+    read, trace or signal the view's first process (it forks the next test all the same), and
+    leaves a detached process, notes in /tmp, /dev/shm and /pset, a System V segment and a
+    key in the sandbox user's keyring; the second sees none of it: only the first process and
+    itself."""
+    folder = init_folder(public / "leave_behind")
+    mark = f"doorlab-{os.getpid()}-{time.time_ns()}"
+    _insert(folder, "calc_R_WL7_ref", LEAVE_BEHIND, {"MARK": mark})
+    _insert(folder, "calc_p_Q", LOOK_BACK, {"MARK": mark})
+    reference = json.loads(reference_file.read_text())["extra_data"]["reference"]
+    only = [UNIT["calc_R_WL7_ref"], UNIT["calc_p_Q"]]
+    results = grade(folder, only=only, reference=reference, jobs=1)  # one view, in this order
+    assert results["score"] == 0, _pretty(results)
+    found = evidence(results)
+    leave, look = found["leave"], found["look"]
+    assert leave["pids"] == [1, max(leave["pids"])]  # the first process and this one
+    for what in ("/proc/1/fd", "/proc/1/mem", "/proc/1/environ"):
+        assert leave[what] == "PermissionError", (what, leave[what])
+    assert leave["ptrace"] == -1
+    # As root the scratch root is the grader's (the tests' folders in it are the student's).
+    notes = ["/tmp", "/dev/shm"] if AS_ROOT else ["/tmp", "/dev/shm", "/pset"]
+    assert leave["notes"] == notes
+    assert look["pids"] == [1, look["me"]], look  # no detached process of the earlier test
+    assert look["files"] == [] and look["shm"] == [], look
+    if "key" in leave:  # the keyring is the user's, kept by the kernel: cleared all the same
+        assert leave["key"] > 0 and look["key"] == -1, (leave, look)
+    assert look["pset"] == ("PermissionError" if AS_ROOT else ["unit_calc_p_Q"]), look
+    for t in results["tests"]:
+        assert "NotImplementedError" in t["output"], t
 
 
 # --insecure ---------------------------------------------------------------------------------

@@ -28,7 +28,8 @@ from doorlab.runtime.inputs import quote_text
 
 
 def pset(args: argparse.Namespace) -> int:
-    """``doorlab pset {init,grade,autograder,handout,assignment}``; returns the exit code."""
+    """``doorlab pset {init,grade,grade-all,autograder,handout,assignment}``; returns the exit
+    code."""
     from doorlab.pset.folder import init_folder
 
     if args.pset_command == "init":
@@ -46,6 +47,8 @@ def pset(args: argparse.Namespace) -> int:
         )
         return 0
     assignment = _assignment(args.assignment)
+    if args.pset_command == "grade-all":
+        return _pset_grade_all(args, assignment)
     if args.pset_command == "autograder":
         from doorlab.pset.autograder import write_autograder
 
@@ -109,6 +112,59 @@ def _pset_grade(args: argparse.Namespace, assignment) -> int:
     print(grader.pretty_format_json_results(out))
     print(f"doorlab pset: wrote {out} in {results['execution_time']:.0f} s")
     return 0
+
+
+def _pset_grade_all(args: argparse.Namespace, assignment) -> int:
+    """``doorlab pset grade-all SUBMISSIONS --out DIR``: the class graded, its sheet."""
+    from doorlab.pset import grader
+    from doorlab.pset.batch import GRADES_CSV, grade_class
+
+    if args.resume and args.force:
+        raise ConfigError("--resume and --force exclude each other")
+    reference = None if args.reference is None else grader.load_reference(args.reference)
+    if args.scheduler is not None:
+        _probe(args)
+    jobs = args.jobs or os.cpu_count() or 1
+    try:
+        outcome = grade_class(
+            args.submissions,
+            args.out,
+            assignment=assignment,
+            jobs=jobs,
+            scheduler=args.scheduler,
+            scheduler_timeout_s=args.scheduler_timeout,
+            resume=args.resume,
+            force=args.force,
+            reference=reference,
+            isolation="insecure" if args.insecure else "require",
+            progress=True,
+        )
+    except KeyboardInterrupt as e:
+        print(f"doorlab pset grade-all: interrupted; {_class_left(args.out)}", file=sys.stderr)
+        return interrupt_exit_code(e)
+    for line in outcome.summary:
+        print(f"  {line}")
+    kept = f" ({len(outcome.kept)} kept from {args.out})" if outcome.kept else ""
+    print(
+        f"doorlab pset grade-all: graded {len(outcome.graded)} submissions{kept} on "
+        f"{outcome.executor}; sheet: {args.out / GRADES_CSV}; results: "
+        f"{args.out}/<submission>/results.json"
+    )
+    return 1 if outcome.errors else 0
+
+
+def _class_left(out: Path) -> str:
+    """What an interrupted grade-all left in ``out``: only what is there."""
+    from doorlab.pset.batch import GRADES_CSV
+
+    try:
+        lines = (out / GRADES_CSV).read_text().splitlines()
+    except OSError:
+        return "no submission had finished; nothing was written"
+    return (
+        f"{max(0, len(lines) - 1)} finished submissions are in {out / GRADES_CSV} "
+        "(--resume grades the rest)"
+    )
 
 
 def _check_writable(out: Path) -> None:

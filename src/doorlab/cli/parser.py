@@ -215,13 +215,13 @@ def _scheduler(parser: argparse.ArgumentParser) -> None:
 
 
 def add_pset_parser(sub) -> None:
-    """``doorlab pset {init,grade,autograder,handout,assignment}``: the problem-set folder,
-    its grader, the grader as a Gradescope autograder zip, the students' handout and the
-    assignment file."""
+    """``doorlab pset {init,grade,grade-all,autograder,handout,assignment}``: the problem-set
+    folder, its grader (one submission, or a whole class), the grader as a Gradescope
+    autograder zip, the students' handout and the assignment file."""
     pset = sub.add_parser("pset", help="write the problem-set folder for students, or grade one")
     actions = pset.add_subparsers(
         dest="pset_command",
-        metavar="{init,grade,autograder,handout,assignment}",
+        metavar="{init,grade,grade-all,autograder,handout,assignment}",
         parser_class=OneLineParser,
         required=True,
     )
@@ -272,6 +272,7 @@ def add_pset_parser(sub) -> None:
         help="grade even where the student's code cannot be isolated (no bubblewrap, no user "
         "namespaces); the results and the summary say so",
     )
+    add_grade_all_parser(actions)
     auto = actions.add_parser(
         "autograder", help="write a Gradescope autograder zip that grades with this doorlab"
     )
@@ -298,6 +299,61 @@ def add_pset_parser(sub) -> None:
         "assignment", help="write the default assignment file (points, margins, random seed, ...)"
     )
     assignment.add_argument("out", type=Path, metavar="FILE", help="the YAML file to write")
+
+
+def add_grade_all_parser(actions) -> None:
+    """``doorlab pset grade-all SUBMISSIONS --out DIR``: a whole class into a grade sheet."""
+    grade_all = actions.add_parser(
+        "grade-all",
+        help="grade every submission of a class (Gradescope's export, or a folder of folders "
+        "and zips) into DIR/grades.csv and DIR/<submission>/results.json",
+    )
+    grade_all.add_argument(
+        "submissions",
+        type=Path,
+        metavar="SUBMISSIONS",
+        help="Gradescope's 'Export Submissions' folder (submission_metadata.yml names the "
+        "students), or any folder of submission folders and .zip files",
+    )
+    grade_all.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        metavar="DIR",
+        help="the class's folder: grades.csv, one results.json per submission, class.json, "
+        "summary.txt",
+    )
+    _assignment_option(grade_all)
+    grade_all.add_argument(
+        "--jobs",
+        type=bounded_int(1),
+        default=None,
+        help="submissions graded at a time, one local worker process each (default: the "
+        "number of cores)",
+    )
+    _scheduler(grade_all)
+    grade_all.add_argument(
+        "--reference",
+        type=Path,
+        default=None,
+        metavar="RESULTS_JSON",
+        help="grade against the reference episodes of an earlier grading's results (default: "
+        "simulate them once for the class)",
+    )
+    grade_all.add_argument(
+        "--resume",
+        action="store_true",
+        help="keep the submissions whose results are in DIR; grade the others (and those "
+        "whose grading failed)",
+    )
+    grade_all.add_argument(
+        "--force", action="store_true", help="start over in a DIR that doorlab wrote"
+    )
+    grade_all.add_argument(
+        "--insecure",
+        action="store_true",
+        help="grade even where the student's code cannot be isolated (every result says so)",
+    )
 
 
 def _assignment_option(

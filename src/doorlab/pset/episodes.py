@@ -10,6 +10,8 @@ come from this process only. Reference episodes run doorlab's own controllers.
 
 from __future__ import annotations
 
+import functools
+import json
 import math
 
 import numpy as np
@@ -90,6 +92,12 @@ def trajectory_from_answer(
 
 
 def reference_helper_table(knots: int = HELPER_KNOTS) -> dict:
+    """A fresh copy of :func:`_reference_helper_table` (computed once per process)."""
+    return json.loads(_reference_helper_table(knots))
+
+
+@functools.cache
+def _reference_helper_table(knots: int) -> str:
     """doorlab's calc_p_Q and calc_R_WL7_ref at ``knots`` values of tau in [0, 1], for an
     episode that runs the reference helpers (:data:`doorlab.pset.verdicts.TESTS`' helpers):
     the student's process interpolates them (positions linearly: the arc's chord error at
@@ -103,7 +111,7 @@ def reference_helper_table(knots: int = HELPER_KNOTS) -> dict:
     taus = np.linspace(0.0, 1.0, knots)
     p_Q = [(g.p_WQ_ref(tau) - g.p_W_handle).tolist() for tau in taus]
     quaternions = [g.R_WL7_ref(tau).ToQuaternion().wxyz().tolist() for tau in taus]
-    return {"taus": taus.tolist(), "p_Q": p_Q, "quaternions": quaternions}
+    return json.dumps({"taus": taus.tolist(), "p_Q": p_Q, "quaternions": quaternions})
 
 
 class RemotePlan:
@@ -179,7 +187,12 @@ def reference_episode(controller: str) -> dict:
 def grasp_configuration() -> np.ndarray:
     """Where the task cell's plans 2 and 3 start: the 2019 notebook's ``SolveOneShotIk`` at the
     handle, L7 pitched by 3 pi / 4, from q_home (7,) [rad] (computed here, not by the
-    student's copy)."""
+    student's copy; once per process, a fresh copy each call)."""
+    return _grasp_configuration().copy()
+
+
+@functools.cache
+def _grasp_configuration() -> np.ndarray:
     from doorlab.cell.station import make_controller_plant
     from doorlab.control.ik import solve_ik
 

@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from doorlab.errors import DoorlabError, OutputError
-from doorlab.pset.jobs import EPISODE_TIME_LIMIT_S, UNIT_TIME_LIMIT_S
+from doorlab.pset.jobs import EPISODE_TIME_LIMIT_S, UNIT_TIME_LIMIT_S, trusted_environment
 from doorlab.pset.safe_text import clean_json, clean_text
 from doorlab.pset.verdicts import (
     ARC_END_MARGIN,
@@ -45,8 +45,12 @@ __all__ = [
     "TESTS",
     "UNIT_TIME_LIMIT_S",
     "GradingError",
+    "Supervisor",
     "grade",
+    "grade_reference",
     "grade_submission",
+    "grade_taken",
+    "take_files",
     "load_reference",
     "pretty_format_json_results",
     "write_results",
@@ -69,6 +73,7 @@ def grade(
     seed: int | None = None,
     isolation: str = "require",
     harden: Sequence[str | Path] = (),
+    supervisor: Supervisor | None = None,
 ) -> dict:
     """Grades a problem-set folder; returns the Gradescope results (write them with
     :func:`write_results`).
@@ -94,6 +99,8 @@ def grade(
             grader's files and ``harden`` unreadable to it (root only; Gradescope). See
             :mod:`doorlab.pset.isolation`; the results say what held.
         harden: Paths the autograder's fallback makes unreadable to the student's user.
+        supervisor: A :class:`Supervisor` that serves several gradings, one at a time (a
+            batch's worker); None starts one for this grading.
 
     Returns:
         Gradescope's results: ``{"score", "visibility", "output", "output_format",
@@ -121,30 +128,139 @@ def grade(
         "isolation": isolation,
         "harden": [str(p) for p in harden],
     }
+    if supervisor is not None:
+        return supervisor.run(request)
     proc = subprocess.Popen(
         [sys.executable, "-I", "-m", "doorlab.pset.jobs", "supervise"],
         cwd="/",
+        env=trusted_environment(),
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
     )
     try:
         out, _ = proc.communicate(json.dumps(request).encode())
     except BaseException:
-        proc.terminate()  # the supervisor kills everything below it, then exits
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        _end(proc)
         raise
+    return _answer(out, proc.returncode)
+
+
+def _end(proc: subprocess.Popen) -> None:
+    """Ends a supervisor now: it kills everything below it, then exits."""
+    proc.terminate()
+    try:
+        proc.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+def _answer(out: bytes, code: int | None) -> dict:
+    """The results a supervisor answered, or GradingError."""
     try:
         results = json.loads(out.decode())
     except (UnicodeDecodeError, ValueError):
         results = None
-    if not isinstance(results, dict) or proc.returncode != 0:
-        raise GradingError(f"the grading process failed (exit code {proc.returncode})")
+    if not isinstance(results, dict) or code not in (0, None):
+        raise GradingError(f"the grading process failed (exit code {code})")
     if "grader_error" in results:
         raise GradingError(clean_text(f"cannot grade: {results['grader_error']}", 2000))
     return results
+
+
+class Supervisor:
+    """A grading supervisor that serves many gradings, one after the other
+    (``python -I -m doorlab.pset.jobs serve``): its imports, the grader's caches and the
+    preparation of the student's view once, not per submission. Each grading is otherwise
+    what :func:`grade` starts: its own folder, its own student's view, and every process it
+    started dead before its results are returned. Thread-safe (one grading at a time); use
+    as a context manager, or :meth:`close`.
+    """
+
+    def __init__(self) -> None:
+        import threading
+
+        self._proc: subprocess.Popen | None = None
+        self._lock = threading.Lock()
+
+    def run(self, request: dict) -> dict:
+        """The results of one grading request (see :func:`grade`).
+
+        Raises:
+            GradingError: As :func:`grade`.
+        """
+        with self._lock:
+            if self._proc is None or self._proc.poll() is not None:
+                self._proc = subprocess.Popen(
+                    [sys.executable, "-I", "-m", "doorlab.pset.jobs", "serve"],
+                    cwd="/",
+                    env=trusted_environment(),
+                    stdin=subprocess.PIPE,
+                    stdout=subprocess.PIPE,
+                )
+            proc = self._proc
+            try:
+                proc.stdin.write(json.dumps(request).encode() + b"\n")
+                proc.stdin.flush()
+                line = proc.stdout.readline()
+            except BaseException:
+                self._proc = None
+                _end(proc)
+                raise
+            if not line:
+                self._proc = None
+                _end(proc)
+                return _answer(b"", proc.returncode)
+            return _answer(line, None)
+
+    def close(self) -> None:
+        """Ends the supervisor (it exits when its input closes)."""
+        with self._lock:
+            proc, self._proc = self._proc, None
+        if proc is None:
+            return
+        try:
+            proc.stdin.close()
+            proc.wait(timeout=30)
+        except (OSError, subprocess.TimeoutExpired):
+            _end(proc)
+        proc.stdout.close()
+
+    def __enter__(self) -> Supervisor:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def grade_reference(*, jobs: int = 2) -> dict[str, dict]:
+    """doorlab's reference episodes alone (what every grading compares with), to pass as
+    :func:`grade`'s ``reference`` to many gradings.
+
+    Raises:
+        GradingError: The grader could not run, or a reference episode failed.
+    """
+    request = {"reference_only": True, "jobs": int(jobs)}
+    proc = subprocess.Popen(
+        [sys.executable, "-I", "-m", "doorlab.pset.jobs", "supervise"],
+        cwd="/",
+        env=trusted_environment(),
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+    )
+    try:
+        out, _ = proc.communicate(json.dumps(request).encode())
+    except BaseException:
+        _end(proc)
+        raise
+    reference = _answer(out, proc.returncode).get("reference")
+    for job, result in (reference or {}).items():
+        if not isinstance(result.get("figures"), dict):
+            why = clean_text(str(result.get("error") or "no figures"), 500)
+            raise GradingError(f"doorlab's reference episode {job} failed: {why}")
+    if not reference:
+        raise GradingError("the grading process answered no reference episodes")
+    return reference
 
 
 def grade_submission(
@@ -157,18 +273,20 @@ def grade_submission(
     require_files: bool = False,
     isolation: str = "require",
     harden: Sequence[str | Path] = (),
+    supervisor: Supervisor | None = None,
 ) -> dict:
     """Grades a submission as every grading path does (``doorlab pset grade``, the folder's
-    ``test_pset_5a.py``, Gradescope's ``run_autograder``): its student files taken by the one
-    intake (:mod:`doorlab.pset.intake`: flat files, a folder, a folder under another, a zip;
-    a missing file's stub) into a fresh folder, graded there (:func:`grade`).
+    ``test_pset_5a.py``, Gradescope's ``run_autograder``, ``doorlab pset grade-all``): its
+    student files taken by the one intake (:func:`take_files`: flat files, a folder, a
+    folder under another, a zip; a missing file's stub), graded in a fresh folder
+    (:func:`grade_taken`).
 
     A submission over an intake bound is not graded: every test 0, the reason in its output.
-    The temporary folder is gone when this returns (or raises).
+    The temporary folders are gone when this returns (or raises).
 
     Args:
         source: The submission: a folder, or a zip file.
-        jobs, reference, assignment, isolation, harden: As for :func:`grade`.
+        jobs, reference, assignment, isolation, harden, supervisor: As for :func:`grade`.
         seed: The grading's random seed, as for :func:`grade`.
         require_files: Refuse (OutputError) a submission that holds none of the student
             files, rather than grade the stubs (``doorlab pset grade``: a mistyped folder;
@@ -183,22 +301,75 @@ def grade_submission(
             it holds none of the student files.
         GradingError: As for :func:`grade`.
     """
+    from doorlab.pset.verdicts import STUDENT_FILES
+
+    files, intake = take_files(source)
+    if require_files and intake.refused is None and not intake.taken:
+        raise OutputError(
+            f"{source} holds none of {', '.join(STUDENT_FILES)} (nothing to grade; "
+            f"{len(intake.rejected)} refused): give the problem-set folder, its files "
+            "or a zip of them"
+        )
+    return grade_taken(
+        files,
+        intake,
+        jobs=jobs,
+        reference=reference,
+        assignment=assignment,
+        seed=seed,
+        isolation=isolation,
+        harden=harden,
+        supervisor=supervisor,
+    )
+
+
+def take_files(source: str | Path):
+    """The one intake (:mod:`doorlab.pset.intake`) of ``source``: its student files' bytes
+    by their place in the folder (those taken; a missing one is graded as its stub), and
+    the :class:`~doorlab.pset.intake.Intake` (what was taken, missing, refused).
+
+    Raises:
+        OutputError: ``source`` is neither a folder nor a zip file.
+    """
+    from doorlab.pset.intake import graded_copy
+
+    with graded_copy(source) as (folder, intake):
+        files = {rel: (folder / rel).read_bytes() for rel in intake.taken}
+    return files, intake
+
+
+def grade_taken(
+    files: dict[str, bytes],
+    intake,
+    *,
+    jobs: int = 2,
+    reference: dict[str, dict] | None = None,
+    assignment: object = None,
+    seed: int | None = None,
+    isolation: str = "require",
+    harden: Sequence[str | Path] = (),
+    supervisor: Supervisor | None = None,
+) -> dict:
+    """Grades what :func:`take_files` took: a fresh stub folder with ``files`` over its stubs
+    (:func:`grade`), or, for a submission the intake refused, every test 0 with the reason.
+    Arguments as for :func:`grade`; returns :func:`grade_submission`'s results."""
     from importlib.metadata import version
 
     from doorlab import __version__
-    from doorlab.pset.intake import graded_copy
-    from doorlab.pset.verdicts import STUDENT_FILES, TESTS, results_not_graded
+    from doorlab.pset.folder import init_folder
+    from doorlab.pset.verdicts import TESTS, results_not_graded
 
-    with graded_copy(source) as (folder, intake):
-        if require_files and intake.refused is None and not intake.taken:
-            raise OutputError(
-                f"{source} holds none of {', '.join(STUDENT_FILES)} (nothing to grade; "
-                f"{len(intake.rejected)} refused): give the problem-set folder, its files "
-                "or a zip of them"
-            )
-        if intake.refused is not None:
-            results = results_not_graded(TESTS, intake.refused, assignment)
-        else:
+    if intake.refused is not None:
+        results = results_not_graded(TESTS, intake.refused, assignment)
+    else:
+        try:
+            tmp = tempfile.TemporaryDirectory(prefix="doorlab_submission_")
+        except OSError as e:
+            raise OutputError(f"cannot make a temporary folder: {e.strerror or e}") from None
+        with tmp:
+            folder = init_folder(Path(tmp.name) / "pset")
+            for rel, data in files.items():
+                (folder / rel).write_bytes(data)
             results = grade(
                 folder,
                 jobs=jobs,
@@ -207,6 +378,7 @@ def grade_submission(
                 seed=seed,
                 isolation=isolation,
                 harden=harden,
+                supervisor=supervisor,
             )
     header = f"Graded by doorlab {__version__} (Drake {version('drake')})."
     results["output"] = "\n".join(

@@ -1,30 +1,36 @@
-"""The grader's processes: the supervisor and one trusted process per job.
+"""The grader's processes: the supervisor and one trusted process per job, forked from it.
 
 ``python -I -m doorlab.pset.jobs supervise`` (started by :func:`doorlab.pset.grader.grade`)
 reads the grading request as JSON on stdin, decides how the student's code is isolated
 (:func:`doorlab.pset.isolation.prepare`: the student's view, or the request's policy where
-it cannot be built; before any student code runs), runs the jobs ``parallel`` at a time,
-judges them and writes the results as JSON on stdout. Each job runs in
-``python -I -m doorlab.pset.jobs job ...``: a reference episode, or a test that starts the
-student's process (:class:`~doorlab.pset.student.StudentProcess`), talks to it and judges
-what it answers. Both are *trusted*: Python's isolated mode (no working directory, no
+it cannot be built; before any student code runs), imports what the jobs need (pydrake, the
+checks, the episodes) and computes what does not depend on the submission (the controller's
+plant, the grasp configuration, the reference helpers' table) once, then runs the jobs
+``parallel`` at a time, each in a trusted process *forked* from it (:func:`run_job`): a
+reference episode, or a test that asks the student's process for numbers and judges them.
+In the student's view the student processes are forked too, each from the first process of
+a view (:mod:`doorlab.pset.views`); without the view each job starts its own
+(:class:`~doorlab.pset.student.StudentProcess`). Then it judges the jobs and writes the
+results as JSON on stdout.
+
+The supervisor and its jobs are *trusted*: Python's isolated mode (no working directory, no
 ``PYTHON*`` variables, no user site on ``sys.path``), a working directory in the grading's
 private folder, doorlab's code from the installed package only, nothing of the submission
-imported. Both are child subreapers and kill every descendant before they answer; the
-supervisor answers only after the last job and every process below it are dead.
+imported. The supervisor forks only while it runs no thread of its own; the jobs are child
+subreapers and kill every descendant before they answer; the supervisor answers only after
+the last job and every process below it are dead.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import selectors
 import signal
-import subprocess
 import sys
 import tempfile
-import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
+import traceback
 from pathlib import Path
 
 from doorlab.pset import sandbox
@@ -48,7 +54,7 @@ def time_limit(job: str, scale: float) -> float:
 
 def trusted_environment() -> dict[str, str]:
     """The trusted processes' environment: the grader's, one BLAS thread (the processes
-    are single-threaded work, and no thread may exist when the student's process forks)."""
+    are single-threaded work, and no thread may exist when the supervisor forks)."""
     env = dict(os.environ)
     env.update(MPLBACKEND="Agg", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
     return env
@@ -63,23 +69,43 @@ def _first_line(e: BaseException) -> str:
     return f"{type(e).__name__}: {line}".rstrip(": ")
 
 
+def _student(job, folder, workdir, limit, isolation, student_view, on_start):
+    from doorlab.pset.student import StudentProcess
+
+    if student_view is None:
+        return StudentProcess(folder, workdir, job, limit, isolation)
+    from doorlab.pset.views import ForkedStudent
+
+    return ForkedStudent(student_view, folder, job, limit, on_start=on_start)
+
+
 def run_job(
     job: str,
     folder: Path,
     workdir: Path,
     limit: float,
-    isolation_file: Path,
+    isolation: object,
     options: dict | None = None,
+    *,
+    student_view: object = None,
+    on_start=None,
 ) -> dict:
     """Runs one job in this process and returns its JSON-ready result.
 
-    ``isolation_file``: the grading's :class:`~doorlab.pset.isolation.Isolation` (JSON).
-    ``options``: ``seed`` (a unit test's random draws: the grading seed) and ``helpers`` (a task 2
-    or 3 episode: ``reference`` or ``student``, whose calc_p_Q and calc_R_WL7_ref it runs).
+    Args:
+        job: ``reference:NAME``, ``unit:NAME`` or ``student:NAME``.
+        folder: The submission. workdir: The job's private folder. limit: Its time [s].
+        isolation: The grading's :class:`~doorlab.pset.isolation.Isolation` (None for a
+            reference episode).
+        options: ``seed`` (a unit test's random draws: the grading seed) and ``helpers`` (a
+            task 2 or 3 episode: ``reference`` or ``student``, whose calc_p_Q and
+            calc_R_WL7_ref it runs).
+        student_view: The :class:`~doorlab.pset.views.StudentView` whose first process
+            forks the student's process (None: start one, as without the view).
+        on_start: Called with the student's process (pid, start time) once it said hello.
     """
     from doorlab.pset.channel import ProtocolError
-    from doorlab.pset.isolation import Isolation
-    from doorlab.pset.student import SandboxError, StudentFailure, StudentProcess
+    from doorlab.pset.student import SandboxError, StudentFailure
 
     options = options or {}
 
@@ -89,10 +115,9 @@ def run_job(
             from doorlab.pset.episodes import reference_episode
 
             return {"figures": reference_episode(name)}
-        isolation = Isolation.from_json(isolation_file.read_text())
         # The student's process starts first (no thread may exist at its fork), then the
         # grader's side imports Drake while it starts.
-        with StudentProcess(folder, workdir, job, limit, isolation) as student:
+        with _student(job, folder, workdir, limit, isolation, student_view, on_start) as student:
             try:
                 if kind == "unit":
                     from doorlab.pset.checks import UNIT_CHECKS
@@ -121,94 +146,250 @@ def run_job(
         sandbox.kill_descendants()
 
 
-def job_main(argv: list[str]) -> int:
-    """``job JOB FOLDER WORKDIR LIMIT PARENT_PID ISOLATION_JSON_FILE OPTIONS_JSON``: the result
-    as JSON on stdout."""
-    job, folder, workdir, limit, parent, isolation, options = argv
-    result_fd = os.dup(1)
-    os.dup2(2, 1)  # anything printed (Drake's warnings) goes to stderr, not into the result
-    sandbox.die_with_parent(int(parent))
-    sandbox.become_subreaper()
-    sandbox.make_undumpable()
-    result = run_job(
-        job, Path(folder), Path(workdir), float(limit), Path(isolation), json.loads(options)
-    )
-    with os.fdopen(result_fd, "w") as out:
-        out.write(json.dumps(result, default=str))
-    return 0
-
-
 # The supervisor ------------------------------------------------------------------------------
 
 
-class _Jobs:
-    """Runs trusted job processes and kills whatever outlives them."""
+def _write_all(fd: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view) :]
 
-    def __init__(
-        self, folder: Path, workdir: Path, scale: float, isolation: Path, options: dict[str, dict]
-    ):
+
+class _Running:
+    """A forked job: its pid, its result pipe and what it has sent, its stderr file."""
+
+    def __init__(self, job: str, pid: int, fd: int, err, limit: float):
+        self.job, self.pid, self.fd, self.err = job, pid, fd, err
+        self.start = time.perf_counter()
+        self.deadline = time.monotonic() + limit + JOB_MARGIN_S
+        self.limit = limit
+        self.data = bytearray()
+        self.students: list[tuple[int, int | None]] = []
+        self.view: str | None = None  # the key of the view its student's process runs in
+
+
+class _Jobs:
+    """Forks a trusted process per job, ``parallel`` at a time, and kills whatever outlives
+    them. Holds the grading's student views (:mod:`doorlab.pset.views`): each runs one test
+    at a time; the first is started for the first student job, a second (up to ``parallel``)
+    only when a slot would otherwise stay idle (the reference episodes all started)."""
+
+    def __init__(self, folder: Path, workdir: Path, scale: float, isolation, options: dict):
         self.folder, self.workdir, self.scale = folder, workdir, scale
         self.isolation = isolation
         self.options = options  # job -> its options (run_job)
-        self.active: set[int] = set()
-        self.lock = threading.Lock()
+        self.views: dict = {}
+        self.running: dict[int, _Running] = {}
+        self.selector = selectors.DefaultSelector()
 
-    def run(self, job: str) -> dict:
+    def _in_view(self, job: str) -> bool:
+        """Whether ``job``'s student process runs in one of the grading's views."""
+        mode = None if self.isolation is None else self.isolation.mode
+        return mode == "bwrap" and not job.startswith("reference:")
+
+    def _view(self, key: str):
+        from doorlab.pset.views import StudentView
+
+        if key not in self.views:
+            limit = max(UNIT_TIME_LIMIT_S, EPISODE_TIME_LIMIT_S) * self.scale
+            self.views[key] = StudentView(self.isolation, self.workdir, key, limit)
+        return self.views[key]
+
+    def _next(self, pending: list[str], parallel: int) -> tuple[str, str | None] | None:
+        """The job to start now and its view's key (None: no view): the student's tests
+        first (they are the longest chain), in a view no running test uses, then the
+        others, each in ``pending``'s order."""
+        tests = [j for j in pending if self._in_view(j)]
+        others = [j for j in pending if not self._in_view(j)]
+        busy = {r.view for r in self.running.values()}
+        free = [k for k in self.views if k not in busy]
+        if tests and (free or not self.views):
+            return tests[0], free[0] if free else "view0"
+        if others:
+            return others[0], None
+        if tests and len(self.views) < parallel:
+            return tests[0], f"view{len(self.views)}"
+        return None
+
+    def run(self, todo: list[str], parallel: int) -> dict[str, dict]:
+        results: dict[str, dict] = {}
+        pending = list(todo)
+        while pending or self.running:
+            while len(self.running) < parallel and (chosen := self._next(pending, parallel)):
+                job, key = chosen
+                pending.remove(job)
+                try:
+                    student_view = None if key is None else self._view(key)
+                except Exception as e:  # noqa: BLE001 - SandboxError: the grader's failure
+                    results[job] = {"grader_error": str(e)}
+                    continue
+                self._fork(job, student_view, key)
+            if not self.running:
+                continue
+            timeout = max(0.0, min(r.deadline for r in self.running.values()) - time.monotonic())
+            for key, _ in self.selector.select(timeout):
+                running = key.data
+                chunk = os.read(running.fd, 1 << 16)
+                if chunk:
+                    running.data += chunk
+                    self._note_students(running)
+                else:
+                    results[running.job] = self._finish(running, timed_out=False)
+            now = time.monotonic()
+            for running in [r for r in self.running.values() if r.deadline <= now]:
+                results[running.job] = self._finish(running, timed_out=True)
+        return results
+
+    def _fork(self, job: str, student_view, key: str | None = None) -> None:
         limit = time_limit(job, self.scale)
         jobdir = self.workdir / job.replace(":", "_")
         jobdir.mkdir()
         os.chmod(jobdir, 0o711)  # the student's user reaches its scratch folder, lists nothing
-        argv = [sys.executable, "-I", "-m", "doorlab.pset.jobs", "job", job]
-        argv += [str(self.folder), str(jobdir), repr(limit), str(os.getpid())]
-        argv.append(str(self.isolation))
-        argv.append(json.dumps(self.options.get(job, {})))
-        start = time.perf_counter()
-        with self.lock:  # no orphan hunt (below) between the spawn and its registration
-            proc = subprocess.Popen(
-                argv,
-                cwd=jobdir,
-                env=trusted_environment(),
-                stdin=subprocess.DEVNULL,
-                stdout=subprocess.PIPE,
-                stderr=subprocess.PIPE,
-            )
-            self.active.add(proc.pid)
-        try:
-            out, err = proc.communicate(timeout=limit + JOB_MARGIN_S)
-            result = self._parse(out, err, proc.returncode)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            result = {"passed": False, "error": f"time limit: still running after {limit:.0f} s"}
-        finally:
-            proc.wait()
-            with self.lock:
-                self.active.discard(proc.pid)
-                # Orphans of a job that died come here (we are their subreaper): kill them.
-                sandbox.kill_descendants(keep=self.active, unreaped=self.active)
-            proc.communicate()  # closes the pipes (nothing holds them any more)
-        result["seconds"] = time.perf_counter() - start
+        result_r, result_w = os.pipe()
+        err = tempfile.TemporaryFile(dir=self.workdir)
+        others = [r.fd for r in self.running.values()]
+        parent = os.getpid()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        pid = os.fork()
+        if pid == 0:  # the job's trusted process
+            code = 1
+            try:
+                os.close(result_r)
+                for fd in others:
+                    os.close(fd)
+                code = _job_process(
+                    job, self, jobdir, limit, student_view, result_w, err.fileno(), parent
+                )
+            finally:
+                os._exit(code)
+        os.close(result_w)
+        running = _Running(job, pid, result_r, err, limit)
+        running.view = key
+        self.running[pid] = running
+        self.selector.register(result_r, selectors.EVENT_READ, running)
+
+    @staticmethod
+    def _note_students(running: _Running) -> None:
+        """The student processes a job reported (lines before its result)."""
+        for line in bytes(running.data).split(b"\n")[:-1]:
+            try:
+                message = json.loads(line)
+            except ValueError:
+                continue
+            student = message.get("student") if isinstance(message, dict) else None
+            if isinstance(student, list) and student not in running.students:
+                running.students.append(tuple(student))
+
+    def _finish(self, running: _Running, *, timed_out: bool) -> dict:
+        from doorlab.pset.views import kill_process
+
+        self.selector.unregister(running.fd)
+        del self.running[running.pid]
+        if timed_out:
+            try:
+                os.kill(running.pid, signal.SIGKILL)
+            except OSError:
+                pass
+        _, status = os.waitpid(running.pid, 0)
+        os.close(running.fd)
+        result = None if timed_out else self._parse(running)
+        if result is None:
+            for pid, start in running.students:  # a job that died: its student's process
+                kill_process(pid, start)
+            if timed_out:
+                message = f"time limit: still running after {running.limit:.0f} s"
+                result = {"passed": False, "error": message}
+            else:
+                result = self._failure(running, status)
+        running.err.close()
+        # Orphans of a job that died come here (we are their subreaper): kill them.
+        keep = {*self.running, *(v.proc.pid for v in self.views.values())}
+        sandbox.kill_descendants(keep=keep, unreaped=keep)
+        result["seconds"] = time.perf_counter() - running.start
         return result
 
     @staticmethod
-    def _parse(out: bytes, err: bytes, code: int) -> dict:
-        try:
-            result = json.loads(out.decode())
-            if isinstance(result, dict):
-                return result
-        except (UnicodeDecodeError, ValueError):
-            pass
-        tail = err.decode("utf-8", "replace")[-STDERR_KEPT_CHARS:]
-        how = f"killed by signal {-code}" if code < 0 else f"exit code {code}"
+    def _parse(running: _Running) -> dict | None:
+        lines = bytes(running.data).split(b"\n")
+        for line in reversed(lines):
+            try:
+                message = json.loads(line.decode())
+            except (UnicodeDecodeError, ValueError):
+                continue
+            if isinstance(message, dict) and isinstance(message.get("result"), dict):
+                return message["result"]
+        return None
+
+    @staticmethod
+    def _failure(running: _Running, status: int) -> dict:
+        running.err.seek(0, os.SEEK_END)
+        size = running.err.tell()
+        running.err.seek(max(0, size - STDERR_KEPT_CHARS))
+        tail = running.err.read().decode("utf-8", "replace")
+        if os.WIFSIGNALED(status):
+            how = f"killed by signal {os.WTERMSIG(status)}"
+        else:
+            how = f"exit code {os.WEXITSTATUS(status)}"
         return {
             "passed": False,
             "error": f"the grader's process for this test ended without a result ({how})",
             "output": tail,
         }
 
+    def close(self) -> None:
+        """Ends the views (every process in them dies with them)."""
+        for student_view in self.views.values():
+            student_view.close()
+        self.views.clear()
+        self.selector.close()
+
+
+def _job_process(job, jobs: _Jobs, jobdir, limit, student_view, result_w, err_fd, parent) -> int:
+    """The forked job: its trusted process's settings, the job, its result on ``result_w``.
+    (Its signals are the supervisor's: a signal kills what it started, then ends it.)"""
+    os.dup2(err_fd, 1)  # anything printed (Drake's warnings) goes to the job's stderr file
+    os.dup2(err_fd, 2)
+    sandbox.die_with_parent(parent)
+    sandbox.become_subreaper()
+    sandbox.make_undumpable()
+    os.chdir(jobdir)
+
+    def started(pid: int, start: int | None) -> None:
+        _write_all(result_w, json.dumps({"student": [pid, start]}).encode() + b"\n")
+
+    try:
+        result = run_job(
+            job,
+            jobs.folder,
+            jobdir,
+            limit,
+            jobs.isolation,
+            jobs.options.get(job, {}),
+            student_view=student_view,
+            on_start=started,
+        )
+    except BaseException:  # noqa: BLE001 - the grader's own failure: its stderr says why
+        traceback.print_exc()
+        return 1
+    _write_all(result_w, json.dumps({"result": result}, default=str).encode() + b"\n")
+    return 0
+
+
+_EPISODE_ORDER = ("impedance", "velocity", "ik")
+"""The episodes, longest first (closed doors: contact; open doors; the IK's joint-space plan)."""
+
 
 def _order(jobs: set[str]) -> list[str]:
-    # Longest first (episodes), so the workers finish together.
-    return sorted(jobs, key=lambda j: (j.startswith("unit:"), j))
+    """Longest first (episodes), so the processes finish together: the student's episodes
+    (one at a time in the view) alternate with the reference's, then the unit tests."""
+
+    def key(job: str) -> tuple:
+        kind, _, name = job.partition(":")
+        rank = _EPISODE_ORDER.index(name) if name in _EPISODE_ORDER else len(_EPISODE_ORDER)
+        return (kind == "unit", rank, kind != "student", job)
+
+    return sorted(jobs, key=key)
 
 
 def _seed(request: dict, folder: Path, assignment) -> dict:
@@ -245,12 +426,20 @@ def _job_options(specs, assignment, seed: int) -> dict[str, dict]:
     return options
 
 
-def supervise(request: dict) -> dict:
-    """Runs the request's jobs and returns the Gradescope results (or ``{"grader_error"}``)."""
+def supervise(request: dict, prepared: dict | None = None) -> dict:
+    """Runs the request's jobs and returns the Gradescope results (or ``{"grader_error"}``;
+    ``{"reference"}`` for a ``reference_only`` request: the reference episodes' results).
+
+    ``prepared``: a long-lived supervisor's cache of the student's view (prepared once).
+    """
     from doorlab.errors import ConfigError
     from doorlab.pset.assignment import Assignment, assignment_from_dict
     from doorlab.pset.verdicts import TESTS, results_from_jobs, test_settings
 
+    if request.get("reference_only"):
+        todo = _order({j for t in TESTS for j in t.jobs if j.startswith("reference:")})
+        parallel = max(1, int(request.get("jobs", 2)))
+        return {"reference": _run(None, todo, {}, request, parallel, prepared)[0]}
     folder = Path(request["folder"])
     try:
         data = request.get("assignment")
@@ -267,26 +456,11 @@ def supervise(request: dict) -> dict:
     results.update({k: v for k, v in reference.items() if k in needed})
     todo = _order(needed - set(results))
     start = time.perf_counter()
-    with tempfile.TemporaryDirectory(prefix="doorlab_grade_") as tmp:
-        workdir = Path(tmp)
-        os.chmod(workdir, 0o711)
-        os.chdir(workdir)
-        try:
-            student_jobs = [j for j in todo if not j.startswith("reference:")]
-            isolation = _isolation(request, workdir) if student_jobs else None
-            if isinstance(isolation, str):
-                return {"grader_error": isolation}
-            isolation_file = workdir / "isolation.json"
-            isolation_file.write_text(isolation.to_json() if isolation else "{}")
-            os.chmod(isolation_file, 0o600)
-            scale = float(request.get("time_limit_scale", 1.0))
-            runner = _Jobs(folder, workdir, scale, isolation_file, options)
-            with ThreadPoolExecutor(max_workers=max(1, int(request.get("jobs", 2)))) as pool:
-                for job, result in zip(todo, pool.map(runner.run, todo), strict=True):
-                    results[job] = result
-        finally:
-            sandbox.kill_descendants()
-            os.chdir("/")
+    parallel = max(1, int(request.get("jobs", 2)))
+    ran, isolation = _run(folder, todo, options, request, parallel, prepared)
+    if isinstance(isolation, str):
+        return {"grader_error": isolation}
+    results.update(ran)
     errors = [r["grader_error"] for r in results.values() if "grader_error" in r]
     if errors:
         return {"grader_error": errors[0]}
@@ -294,14 +468,65 @@ def supervise(request: dict) -> dict:
     return results_from_jobs(specs, results, elapsed, assignment, drawn, isolation)
 
 
-def _isolation(request: dict, workdir: Path):
-    """The grading's :class:`~doorlab.pset.isolation.Isolation`, or why there is none (str)."""
+def _run(folder, todo: list[str], options: dict, request: dict, parallel: int, prepared):
+    """Runs ``todo`` in a private folder: (results by job, the isolation or why there is
+    none)."""
+    _warm(todo, options)
+    with tempfile.TemporaryDirectory(prefix="doorlab_grade_") as tmp:
+        workdir = Path(tmp)
+        os.chmod(workdir, 0o711)
+        os.chdir(workdir)
+        runner = None
+        try:
+            student_jobs = [j for j in todo if not j.startswith("reference:")]
+            isolation = _isolation(request, workdir, prepared) if student_jobs else None
+            if isinstance(isolation, str):
+                return {}, isolation
+            scale = float(request.get("time_limit_scale", 1.0))
+            runner = _Jobs(folder, workdir, scale, isolation, options)
+            return runner.run(todo, parallel), isolation
+        finally:
+            if runner is not None:
+                runner.close()
+            sandbox.kill_descendants()
+            os.chdir("/")
+
+
+def _warm(todo: list[str], options: dict[str, dict]) -> None:
+    """Imports what the jobs need and computes what does not depend on the submission, once,
+    before the jobs are forked (each would otherwise do it again)."""
+    from doorlab.cell.station import make_controller_plant
+    from doorlab.pset import checks, episodes  # noqa: F401 - pydrake, the checks
+
+    make_controller_plant()
+    plans = [j for j in todo if j in ("student:velocity", "student:impedance")]
+    if plans:
+        episodes.grasp_configuration()
+    if any(options.get(j, {}).get("helpers", "reference") == "reference" for j in plans):
+        episodes.reference_helper_table()
+
+
+def _isolation(request: dict, workdir: Path, prepared: dict | None = None):
+    """The grading's :class:`~doorlab.pset.isolation.Isolation`, or why there is none (str).
+
+    ``prepared``: a long-lived supervisor's cache (its ``"folder"``: where the student side
+    is built once; the isolation by policy and hardened paths)."""
     from doorlab.pset.isolation import IsolationError, prepare
 
+    policy, harden = request.get("isolation", "require"), tuple(request.get("harden") or ())
+    if prepared is not None and (policy, harden) in prepared:
+        return prepared[(policy, harden)]
+    where = workdir
+    if prepared is not None:
+        where = Path(tempfile.mkdtemp(prefix="view_", dir=prepared["folder"]))
+        os.chmod(where, 0o711)
     try:
-        return prepare(workdir, request.get("isolation", "require"), request.get("harden") or ())
+        isolation = prepare(where, policy, harden)
     except (IsolationError, OSError) as e:
         return str(e)
+    if prepared is not None:
+        prepared[(policy, harden)] = isolation
+    return isolation
 
 
 def _on_signal(signum, frame):
@@ -309,27 +534,57 @@ def _on_signal(signum, frame):
     os._exit(128 + signum)
 
 
-def supervise_main() -> int:
-    """``supervise``: the request on stdin, the results on stdout."""
+def _supervisor_setup(*, interrupt: bool = True):
+    """The supervisor's own settings; returns its answer stream (what it prints otherwise,
+    and what Drake prints, goes to stderr). ``interrupt``: Ctrl-C ends it (else its parent,
+    a batch's worker, ends it when the batch is interrupted)."""
     parent = os.getppid()
     for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(signum, _on_signal)
+    if not interrupt:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
     sandbox.die_with_parent(parent, signal.SIGTERM)
     sandbox.become_subreaper()
     sandbox.make_undumpable()
+    answers = os.fdopen(os.dup(1), "w")
+    os.dup2(2, 1)
+    return answers
+
+
+def supervise_main() -> int:
+    """``supervise``: the request on stdin, the results on stdout."""
+    answers = _supervisor_setup()
     request = json.loads(sys.stdin.read())
     results = supervise(request)
-    sys.stdout.write(json.dumps(results, default=str))
-    sys.stdout.flush()
+    answers.write(json.dumps(results, default=str))
+    answers.flush()
+    return 0
+
+
+def serve_main() -> int:
+    """``serve``: one request per line on stdin, one results line each on stdout, until
+    stdin closes (:class:`doorlab.pset.grader.Supervisor`)."""
+    import shutil
+
+    answers = _supervisor_setup(interrupt=False)
+    prepared = {"folder": tempfile.mkdtemp(prefix="doorlab_supervisor_")}
+    os.chmod(prepared["folder"], 0o711)
+    try:
+        for line in sys.stdin:
+            results = supervise(json.loads(line), prepared)
+            answers.write(json.dumps(results, default=str) + "\n")
+            answers.flush()
+    finally:
+        shutil.rmtree(prepared["folder"], ignore_errors=True)
     return 0
 
 
 def main(argv: list[str]) -> int:
     if argv[:1] == ["supervise"]:
         return supervise_main()
-    if argv[:1] == ["job"]:
-        return job_main(argv[1:])
-    print("usage: python -I -m doorlab.pset.jobs {supervise | job ...}", file=sys.stderr)
+    if argv[:1] == ["serve"]:
+        return serve_main()
+    print("usage: python -I -m doorlab.pset.jobs {supervise | serve}", file=sys.stderr)
     return 2
 
 

@@ -206,6 +206,7 @@ def spawn(
     identity: Identity | None,
     switch_user: bool = True,
     pass_fds: Sequence[int] = (),
+    output: int | None = None,
 ) -> subprocess.Popen:
     """Starts the untrusted process: stdin from /dev/null, stdout and stderr into one pipe
     (``proc.stdout``, binary), its own session, the limits above.
@@ -221,6 +222,7 @@ def spawn(
         switch_user: Switch to ``identity`` before exec (False: the command does it, as
             the worker in the view does).
         pass_fds: Descriptors it inherits (the channel's).
+        output: A descriptor for its stdout and stderr (None: a pipe, ``proc.stdout``).
     """
     uid = os.getuid() if identity is None else identity.uid
     nproc = count_tasks(uid) + limits.processes
@@ -229,7 +231,7 @@ def spawn(
         cwd=cwd,
         env=env,
         stdin=subprocess.DEVNULL,
-        stdout=subprocess.PIPE,
+        stdout=subprocess.PIPE if output is None else output,
         stderr=subprocess.STDOUT,
         pass_fds=tuple(pass_fds),
         start_new_session=True,

@@ -189,11 +189,31 @@ class StudentProcess:
         self.started = time.time()
         self.facts: dict = {}
         self.isolation = isolation
-        identity = isolation.user()
-        plan = isolation.plan()
-        stem = name.replace(":", "_")
+        self._private: list[Path] = []
+        self._closed = False
+        self._start(folder, workdir, name.replace(":", "_"))
+        self.output = sandbox.OutputCollector(
+            self._output_stream, limit=self.limits.output_bytes, on_overflow=self._stop
+        )
+        try:
+            hello = self.channel.receive_json(self.deadline)
+        except ProtocolError as e:
+            self.close()
+            raise SandboxError(
+                f"the student's process did not start ({self._death(e)}): "
+                + clean_text(self.output.text()[-500:])
+            ) from None
+        facts = hello.get("hello")
+        self.facts = facts if isinstance(facts, dict) else {}
+        self._started()
+
+    def _start(self, folder: Path, workdir: Path, stem: str) -> None:
+        """Copies the submission and starts the process: sets ``channel``, ``_output_stream``
+        (its stdout and stderr, binary) and ``proc``."""
+        identity = self.isolation.user()
+        plan = self.isolation.plan()
         self.scratch = workdir / ("scratch_" + stem)
-        self._private = [self.scratch]
+        self._private.append(self.scratch)
         try:
             copy_submission(folder, self.scratch, identity)
             tmp_dirs = None
@@ -207,7 +227,7 @@ class StudentProcess:
         request_r, self._request_w = os.pipe()
         self._answer_r, answer_w = os.pipe()
         os.set_blocking(self._request_w, False)
-        channel_args = [str(request_r), str(answer_w), json.dumps(isolation.guard)]
+        channel_args = [str(request_r), str(answer_w), json.dumps(self.isolation.guard)]
         if plan is None:
             argv = [sys.executable, "-I", "-B", "-m", "doorlab.pset.worker", *channel_args]
             env = student_environment(str(self.scratch), str(self.scratch))
@@ -233,19 +253,10 @@ class StudentProcess:
             os.close(request_r)
             os.close(answer_w)
         self.channel = Channel(self._answer_r, self._request_w)
-        self.output = sandbox.OutputCollector(
-            self.proc.stdout, limit=self.limits.output_bytes, on_overflow=self._stop
-        )
-        try:
-            hello = self.channel.receive_json(self.deadline)
-        except ProtocolError as e:
-            self.close()
-            raise SandboxError(
-                f"the student's process did not start ({self._death(e)}): "
-                + clean_text(self.output.text()[-500:])
-            ) from None
-        facts = hello.get("hello")
-        self.facts = facts if isinstance(facts, dict) else {}
+        self._output_stream = self.proc.stdout
+
+    def _started(self) -> None:
+        """After the hello, before any request (the student's code has not run yet)."""
 
     def _stop(self) -> None:
         try:
@@ -261,16 +272,10 @@ class StudentProcess:
 
     def close(self) -> None:
         """Kills the process and every descendant, then collects the output."""
-        if getattr(self, "_closed", False):
+        if self._closed:
             return
         self._closed = True
-        self._stop()
-        sandbox.kill_descendants(unreaped=[self.proc.pid])
-        try:
-            self.proc.wait(timeout=10)
-        except Exception:  # noqa: BLE001 - nothing more can be done
-            pass
-        sandbox.kill_descendants()
+        self._end()
         self.output.join(timeout=5)
         for fd in (self._answer_r, self._request_w):
             try:
@@ -282,6 +287,31 @@ class StudentProcess:
         user = self.isolation.user()
         if self.isolation.mode == "uid" and user is not None:
             remove_leftovers(user.uid, self.started)
+
+    def _end(self) -> None:
+        """Kills the process and every process it started; waits for them."""
+        self._stop()
+        sandbox.kill_descendants(unreaped=[self.proc.pid])
+        try:
+            self.proc.wait(timeout=10)
+        except Exception:  # noqa: BLE001 - nothing more can be done
+            pass
+        sandbox.kill_descendants()
+
+    def _exit_code(self, timeout: float) -> int | None:
+        """The process's exit code (negative: killed by that signal), or None while it runs
+        after ``timeout`` [s]."""
+        try:
+            code = self.proc.wait(timeout=timeout)
+        except Exception:  # noqa: BLE001 - still running
+            return None
+        if self.isolation.mode == "bwrap" and 128 < code < 128 + 65:
+            # bwrap reports a death by signal N as exit code 128 + N (as a shell does).
+            return 128 - code
+        return code
+
+    def _running(self) -> bool:
+        return self.proc.poll() is None
 
     # What went wrong --------------------------------------------------------------------
 
@@ -297,19 +327,13 @@ class StudentProcess:
                 f"time limit: your code did not answer within {self.limits.cpu_seconds:.0f} s "
                 "(an endless loop? a long sleep?)"
             )
-        try:
-            code = self.proc.wait(timeout=2.0)
-        except Exception:  # noqa: BLE001 - still running
-            code = None
+        code = self._exit_code(timeout=2.0)
         if code is None:
             if isinstance(error, ChannelClosed):
                 return "your code closed the grader's channel"
             return f"your code's process sent something that is not an answer ({error})"
         if code < 0:
             return _signal_message(-code, self.limits)
-        if self.isolation.mode == "bwrap" and 128 < code < 128 + 65:
-            # bwrap reports a death by signal N as exit code 128 + N (as a shell does).
-            return _signal_message(code - 128, self.limits)
         return (
             f"your code ended its process (exit code {code}) before answering "
             "(sys.exit, os._exit or os.kill in your code?)"
@@ -319,7 +343,7 @@ class StudentProcess:
         parts = []
         if traceback:
             parts.append(traceback)
-        self.output.join(timeout=0.05 if self.proc.poll() is None else 1.0)
+        self.output.join(timeout=0.05 if self._running() else 1.0)
         printed = self.output.text().strip()
         if printed:
             parts.append(f"your code printed ({self.output.total} bytes):\n{printed}")

@@ -355,6 +355,7 @@ GRADER_MODULES = {
             "student",
             "sandbox",
             "view",
+            "views",
             "isolation",
             "safe_text",
         )

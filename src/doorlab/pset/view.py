@@ -79,6 +79,7 @@ STUDENT_MODULES = (
     "doorlab.pset.station_api",
     "doorlab.pset.task_helpers",
     "doorlab.pset.worker",
+    "doorlab.pset.zygote",
     "doorlab.runtime",
     "doorlab.runtime.inputs",
 )
@@ -353,8 +354,19 @@ def worker_code(view: View, drop: tuple[int, int] | None) -> str:
     return boot_code(view, drop) + "\n" + run
 
 
+def zygote_code(view: View, drop: tuple[int, int] | None) -> str:
+    """:func:`boot_code`, then :func:`doorlab.pset.zygote.main` on the arguments."""
+    run = "from doorlab.pset.zygote import main\nsys.exit(main(sys.argv[1:]))"
+    return boot_code(view, drop) + "\n" + run
+
+
 def bwrap_argv(
-    view: View, scratch: Path, tmp_dirs: tuple[Path, Path] | None, *, as_root: bool
+    view: View,
+    scratch: Path,
+    tmp_dirs: tuple[Path, Path] | None,
+    *,
+    as_root: bool,
+    as_pid_1: bool = False,
 ) -> list[str]:
     """bwrap and its options up to (not including) the command.
 
@@ -363,8 +375,12 @@ def bwrap_argv(
         tmp_dirs: Folders for /tmp and /dev/shm when bwrap cannot size a tmpfs (else None).
         as_root: bwrap runs as root (no user namespace; the command drops to the sandbox
             user itself).
+        as_pid_1: The command is the PID namespace's init (no reaper of bwrap's; the
+            command reaps, and signals from inside reach it only where it handles them).
     """
     argv = [view.bwrap, "--die-with-parent", "--new-session"]
+    if as_pid_1:
+        argv.append("--as-pid-1")
     if as_root:
         argv += ["--unshare-ipc", "--unshare-pid", "--unshare-net", "--unshare-uts"]
         argv += ["--unshare-cgroup-try", "--cap-drop", "ALL"]

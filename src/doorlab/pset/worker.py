@@ -329,7 +329,8 @@ def observe(config: dict) -> dict:
         "reference_hidden": not readable,
         "reference_readable": readable[:5],
         "python_path_writable": writable[:5],
-        "pid_namespace": init == "bwrap",
+        # PID 1 of the view: bwrap's init, or the view's first process (doorlab.pset.zygote).
+        "pid_namespace": init in ("bwrap", "doorlab-view"),
         "tmpfs_bytes": sizes,
     }
 

@@ -1,0 +1,488 @@
+"""Every submission of a class graded in one command: ``doorlab pset grade-all``.
+
+:func:`grade_class` finds the submissions (:mod:`doorlab.pset.roster`: Gradescope's export,
+or a folder of folders and zips), simulates doorlab's reference episodes once for the whole
+class (:func:`doorlab.pset.grader.grade_reference`; or takes an earlier grading's), and grades
+every submission through :mod:`doorlab.runtime.executor` (local worker processes, or a Dask cluster
+with ``scheduler``):
+
+- the one intake (:func:`doorlab.pset.grader.take_files`) runs here and sends the worker only
+  the submission's student files (a few kB; no shared file system needed); the worker grades
+  them as ``doorlab pset grade`` does (:func:`doorlab.pset.grader.grade_taken`: a fresh
+  folder, the student's view, the sandbox), one test at a time, through a supervisor that
+  lives as long as the worker (:class:`doorlab.pset.grader.Supervisor`: pydrake imported and
+  the student's view prepared once per worker, not per submission);
+- a submission the grader fails to grade (a grader error, a worker lost) is a row with its
+  error, never a lost class; ``--resume`` grades it again;
+- each finished submission's ``DIR/<submission>/results.json`` (what Gradescope would show)
+  is written atomically (a staging folder renamed into place), then ``DIR/grades.csv`` is
+  rewritten atomically: Ctrl-C leaves a consistent sheet of the finished submissions, and
+  ``--resume`` grades only the others (those whose results are in ``DIR`` are kept).
+
+``DIR`` is doorlab's folder (:mod:`doorlab.outputs.runs`: a manifest of what doorlab wrote;
+``--force`` replaces only such a folder). ``DIR/class.json`` holds the reference figures and the
+assignment's digest, so a resumed class is graded against the same reference and assignment.
+"""
+
+from __future__ import annotations
+
+import atexit
+import concurrent.futures
+import hashlib
+import json
+import statistics
+import sys
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from doorlab.errors import ConfigError, DoorlabError, OutputError
+from doorlab.pset.roster import Submission, find_submissions, sheet_row, sheet_text
+
+GRADES_CSV = "grades.csv"
+"""The sheet: one row per submission."""
+CLASS_JSON = "class.json"
+"""The class's grading: the reference figures, the assignment's digest, doorlab's version."""
+SUMMARY_TXT = "summary.txt"
+"""The summary printed at the end."""
+RESULTS_JSON = "results.json"
+"""Each submission's Gradescope results, in ``DIR/<submission>/``."""
+CLASS_FILES = (GRADES_CSV, CLASS_JSON, SUMMARY_TXT)
+"""What a run rewrites in ``DIR`` besides the submissions' folders."""
+QUEUED_PER_WORKER = 2
+"""Submissions taken and queued per worker at a time (their files held in memory)."""
+SHOWN_SCORES = 12
+"""Distinct total scores listed in the summary's distribution (the rest summed up)."""
+
+
+# The worker's side ---------------------------------------------------------------------------
+
+_supervisor = None
+
+
+def _worker_supervisor():
+    """This worker process's supervisor (started at its first submission)."""
+    global _supervisor
+    if _supervisor is None:
+        from doorlab.pset.grader import Supervisor
+
+        _supervisor = Supervisor()
+        atexit.register(_supervisor.close)
+    return _supervisor
+
+
+def grade_task(payload: dict) -> dict:
+    """Worker: grades one submission's taken files; returns ``{"results"}`` or, when the
+    grader (not the student) failed, ``{"error"}``; never raises for that."""
+    from doorlab.pset.assignment import assignment_from_dict
+    from doorlab.pset.grader import grade_taken
+    from doorlab.pset.intake import Intake
+    from doorlab.pset.safe_text import clean_text
+
+    start = time.perf_counter()
+    try:
+        data = payload.get("assignment")
+        results = grade_taken(
+            payload["files"],
+            Intake(**payload["intake"]),
+            jobs=1,
+            reference=payload["reference"],
+            assignment=None if data is None else assignment_from_dict(data),
+            isolation=payload["isolation"],
+            supervisor=_worker_supervisor(),
+        )
+    except Exception as e:  # noqa: BLE001 - a grader's failure is a row, never a lost class
+        text = str(e) if isinstance(e, DoorlabError) else f"{type(e).__name__}: {e}"
+        return {"error": clean_text(text, 500)}
+    results["extra_data"]["batch"] = {"wall_time_s": round(time.perf_counter() - start, 2)}
+    return {"results": results}
+
+
+# The class's folder ------------------------------------------------------------------------
+
+
+def assignment_digest(assignment) -> str:
+    """SHA-256 of the assignment's settings (the defaults when None)."""
+    from doorlab.pset.assignment import Assignment
+
+    data = (assignment or Assignment()).to_dict()
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
+
+
+def _read_results(folder: Path) -> dict | None:
+    try:
+        data = json.loads((folder / RESULTS_JSON).read_text())
+    except (OSError, ValueError):
+        return None
+    ok = isinstance(data, dict) and isinstance(data.get("tests"), list)
+    return data if ok and isinstance(data.get("extra_data"), dict) else None
+
+
+@dataclass
+class _Previous:
+    """What a resumed class keeps: its reference, its assignment's digest, the results of
+    the submissions it graded."""
+
+    reference: dict
+    digest: str
+    results: dict[str, dict] = field(default_factory=dict)
+
+
+def _check_out(out: Path, submissions: list[Submission], *, resume: bool, force: bool):
+    """Checks that ``out`` may be written (writing nothing); returns what ``--resume`` keeps
+    (None for a new class)."""
+    from doorlab.runtime.folders import check_replaceable, foreign_file
+
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"--out {str(out)!r} is a file, not a folder")
+    existing = out.is_dir() and any(out.iterdir())
+    if not (existing and resume):
+        if existing and not force:
+            raise OutputError(
+                f"--out {str(out)!r} already exists; pass --resume to grade the rest of its "
+                "class or --force to start over"
+            )
+        check_replaceable(out, force=force)
+        return None
+    try:
+        info = json.loads((out / CLASS_JSON).read_text())
+        previous = _Previous(dict(info["reference"]), str(info["assignment_sha256"]))
+    except (OSError, ValueError, KeyError, TypeError):
+        raise OutputError(
+            f"--out {str(out)!r} holds no class graded by doorlab ({CLASS_JSON} missing or "
+            "unreadable): nothing to resume"
+        ) from None
+    names = [*CLASS_FILES, *(s.id for s in submissions)]
+    found = foreign_file(out, only=names)
+    if found is not None:
+        raise OutputError(
+            f"--out {str(out)!r} holds {found[0]!r}, {found[1]}, and --resume would "
+            "overwrite or trust it; move it away or choose another --out"
+        )
+    for submission in submissions:
+        results = _read_results(out / submission.id)
+        if results is not None:
+            previous.results[submission.id] = results
+    return previous
+
+
+def _commit(out: Path, submission_id: str, results: dict) -> None:
+    """``out/<id>/results.json``, atomically (a staging folder renamed into place)."""
+    from doorlab.pset.grader import write_results
+    from doorlab.runtime.folders import MANIFEST_NAME, commit_output, prepare_output, record_written
+
+    target = out / submission_id
+    label = f"{str(target)!r}"
+    staging = prepare_output(target, force=True, label=label)
+    try:
+        write_results(results, staging / RESULTS_JSON)
+        commit_output(staging, target)
+    finally:
+        from doorlab.runtime.folders import discard_output
+
+        discard_output(staging)
+    record_written(out, [target / RESULTS_JSON, target / MANIFEST_NAME])
+
+
+def _write_text(out: Path, name: str, text: str) -> None:
+    """``out/name`` atomically, recorded as doorlab's."""
+    import os
+    import tempfile
+
+    from doorlab.runtime.folders import follow_umask, record_written
+
+    path = out / name
+    fd, tmp = tempfile.mkstemp(prefix=f".{name}.", suffix=".tmp", dir=out)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        follow_umask(Path(tmp), folder=False)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    record_written(out, [path])
+
+
+# The class -----------------------------------------------------------------------------------
+
+
+@dataclass
+class ClassOutcome:
+    """What :func:`grade_class` did.
+
+    Attributes:
+        rows: The sheet's rows (every submission), in order.
+        graded: The submissions this run graded (ids).
+        kept: The submissions kept from ``out`` (``resume``).
+        summary: The summary's lines.
+        executor: Where the submissions were graded.
+    """
+
+    rows: list[dict]
+    graded: list[str]
+    kept: list[str]
+    summary: list[str]
+    executor: str = ""
+
+    @property
+    def errors(self) -> int:
+        """Rows whose grading failed (the grader's, not the student's)."""
+        return sum(r.get("status") == "error" for r in self.rows)
+
+
+def grade_class(
+    source: str | Path,
+    out: str | Path,
+    *,
+    assignment: object = None,
+    jobs: int = 1,
+    scheduler: str | None = None,
+    scheduler_timeout_s: float | None = None,
+    resume: bool = False,
+    force: bool = False,
+    reference: dict | None = None,
+    isolation: str = "require",
+    progress: bool = False,
+) -> ClassOutcome:
+    """Grades every submission in ``source`` into ``out`` (see the module docstring).
+
+    Args:
+        source: The submissions' folder (Gradescope's export, or folders and zips).
+        out: The class's folder: ``grades.csv``, ``<submission>/results.json``,
+            ``class.json``, ``summary.txt``.
+        assignment: The course's settings (:class:`doorlab.pset.assignment.Assignment`).
+        jobs: Local worker processes (submissions graded at a time; ignored with
+            ``scheduler``).
+        scheduler: A Dask scheduler address ``tcp://HOST:PORT`` (None: local processes).
+        scheduler_timeout_s: Each step of connecting to it [s].
+        resume: Keep the submissions whose results are in ``out``; grade the others.
+        force: Start over in an ``out`` that doorlab wrote.
+        reference: The reference episodes' figures to grade against (an earlier grading's
+            ``extra_data["reference"]``); None simulates them here, once.
+        isolation: ``"require"`` or ``"insecure"`` (as ``doorlab pset grade --insecure``).
+        progress: A progress bar on stderr.
+
+    Raises:
+        ConfigError: No submissions; bad metadata; ``resume`` with another assignment; bad
+            ``jobs`` or ``scheduler``. OutputError: ``out`` may not be written.
+        GradingError: The reference episodes could not be simulated (nothing written).
+        KeyboardInterrupt: After writing the sheet of the submissions finished so far.
+    """
+    from doorlab.runtime.executor import CONNECT_TIMEOUT_S, check_scheduler
+
+    source, out = Path(source), Path(out)
+    submissions = find_submissions(source)
+    if not submissions:
+        raise ConfigError(f"{source} holds no submission (folders or .zip files)")
+    if scheduler is not None:
+        check_scheduler(scheduler)
+    elif not isinstance(jobs, int) or isinstance(jobs, bool) or jobs < 1:
+        raise ConfigError(f"jobs must be an integer >= 1, got {jobs!r}")
+    digest = assignment_digest(assignment)
+    previous = _check_out(out, submissions, resume=resume, force=force)
+    if previous is not None and previous.digest != digest:
+        raise ConfigError(
+            f"--out {str(out)!r} was graded with another assignment; --resume needs the same "
+            "--assignment (or --force regrades the class with this one)"
+        )
+    if previous is not None:
+        reference = previous.reference
+    elif reference is None:
+        from doorlab.pset.grader import grade_reference
+
+        reference = grade_reference(jobs=min(3, max(1, jobs)) if scheduler is None else 3)
+    run = _ClassRun(out, submissions, reference, assignment, isolation, progress)
+    for submission in submissions:
+        if previous is not None and submission.id in previous.results:
+            run.rows[submission.id] = sheet_row(submission, previous.results[submission.id])
+            run.kept.append(submission.id)
+        elif submission.path is None:
+            run.rows[submission.id] = sheet_row(submission, None)
+    todo = [s for s in submissions if s.id not in run.rows]
+    info = {"reference": reference, "assignment_sha256": digest, "source": str(source)}
+    run.start(info, resume=resume, force=force, todo=todo)
+    try:
+        if todo:
+            from doorlab.runtime.executor import open_executor
+
+            with open_executor(
+                jobs=min(jobs, len(todo)),
+                scheduler=scheduler,
+                timeout_s=scheduler_timeout_s or CONNECT_TIMEOUT_S,
+            ) as executor:
+                run.executor = executor.description
+                run.grade(executor, todo)
+    finally:
+        run.finish()
+    return ClassOutcome(
+        [run.rows[s.id] for s in submissions if s.id in run.rows],
+        run.graded,
+        run.kept,
+        run.summary,
+        run.executor,
+    )
+
+
+class _ClassRun:
+    """One run over a class: its rows, its folder's files, its progress bar."""
+
+    def __init__(self, out, submissions, reference, assignment, isolation, progress):
+        from doorlab.pset.verdicts import TESTS
+
+        self.out = out
+        self.order = [s.id for s in submissions]
+        self.reference, self.assignment, self.isolation = reference, assignment, isolation
+        self.progress = progress
+        self.keys = [t.key for t in TESTS]
+        self.rows: dict[str, dict] = {}
+        self.graded: list[str] = []
+        self.kept: list[str] = []
+        self.summary: list[str] = []
+        self.executor = "none (every submission was in the folder)"
+        self.started = False
+        self.bar = None
+
+    def start(self, info: dict, *, resume: bool, force: bool, todo: list) -> None:
+        """Creates the folder (a new class) and writes the class's file and sheet."""
+        from doorlab.runtime.folders import staged_output
+
+        if not (resume and self.out.is_dir()):
+            with staged_output(self.out, force=force):
+                pass
+        self.started = True
+        _write_text(self.out, CLASS_JSON, json.dumps(info, indent=1) + "\n")
+        self.write_sheet()
+        if self.progress and todo:
+            from tqdm import tqdm
+
+            self.bar = tqdm(
+                total=len(self.order),
+                initial=len(self.rows),
+                unit="submission",
+                file=sys.stderr,
+                dynamic_ncols=True,
+                desc="grade-all",
+            )
+
+    def payload(self, submission: Submission) -> dict | None:
+        """What a worker needs to grade ``submission`` (None: taken here already)."""
+        from doorlab.pset.grader import grade_taken, take_files
+        from doorlab.pset.intake import Intake
+        from doorlab.pset.verdicts import STUDENT_FILES
+
+        try:
+            files, intake = take_files(submission.path)
+        except OutputError as e:  # not a folder or a zip: nothing to grade, every test 0
+            intake = Intake(missing=list(STUDENT_FILES), refused=str(e))
+            self.done(submission, {"results": grade_taken({}, intake, assignment=self.assignment)})
+            return None
+        if intake.refused is not None:  # over a bound: not graded, no worker needed
+            self.done(submission, {"results": grade_taken({}, intake, assignment=self.assignment)})
+            return None
+        return {
+            "files": files,
+            "intake": intake.to_dict(),
+            "reference": self.reference,
+            "assignment": None if self.assignment is None else self.assignment.to_dict(),
+            "isolation": self.isolation,
+        }
+
+    def grade(self, executor, todo: list[Submission]) -> None:
+        """Submits the submissions a few at a time per worker; records each as it lands."""
+        waiting = list(todo)
+        futures: dict = {}
+        queued = QUEUED_PER_WORKER * max(1, getattr(executor, "jobs", 1))
+        while waiting or futures:
+            while waiting and len(futures) < queued:
+                submission = waiting.pop(0)
+                payload = self.payload(submission)
+                if payload is not None:
+                    futures[executor.submit(grade_task, payload)] = submission
+            if not futures:
+                continue
+            done, _ = concurrent.futures.wait(
+                futures, return_when=concurrent.futures.FIRST_COMPLETED
+            )
+            for future in done:
+                submission = futures.pop(future)
+                try:
+                    error = future.exception()
+                except concurrent.futures.CancelledError:  # a cluster that lost the task
+                    error = RuntimeError("the grading was cancelled (its worker was lost)")
+                if isinstance(error, KeyboardInterrupt):
+                    raise KeyboardInterrupt
+                if error is not None:  # the worker died or could not run the task
+                    outcome = {"error": f"{type(error).__name__}: {error}"}
+                else:
+                    outcome = future.result()
+                self.done(submission, outcome)
+
+    def done(self, submission: Submission, outcome: dict) -> None:
+        """Writes a finished submission's results and row, then the sheet."""
+        results = outcome.get("results")
+        if results is not None:
+            _commit(self.out, submission.id, results)
+            self.rows[submission.id] = sheet_row(submission, results)
+        else:
+            error = str(outcome.get("error") or "no results")
+            self.rows[submission.id] = sheet_row(submission, None, error=error)
+        self.graded.append(submission.id)
+        self.write_sheet()
+        if self.bar is not None:
+            bad = sum(r.get("status") == "error" for r in self.rows.values())
+            self.bar.set_postfix_str(f"{bad} grading errors", refresh=False)
+            self.bar.update(1)
+
+    def write_sheet(self) -> None:
+        rows = [self.rows[i] for i in self.order if i in self.rows]
+        _write_text(self.out, GRADES_CSV, sheet_text(rows, self.keys))
+
+    def finish(self) -> None:
+        """The sheet of what finished, whatever ended the run; the summary."""
+        if self.bar is not None:
+            self.bar.close()
+        if not self.started:
+            return
+        self.write_sheet()
+        rows = [self.rows[i] for i in self.order if i in self.rows]
+        self.summary = summarize(rows, self.keys, len(self.order))
+        _write_text(self.out, SUMMARY_TXT, "\n".join(self.summary) + "\n")
+
+
+def summarize(rows: list[dict], keys: list[str], total: int) -> list[str]:
+    """The summary: counts by status, the score distribution, the most often failed tests."""
+    from doorlab.pset.verdicts import TESTS
+
+    counts = Counter(r.get("status") for r in rows)
+    parts = [f"{n} {status.replace('_', ' ')}" for status, n in sorted(counts.items())]
+    lines = [f"{len(rows)} of {total} submissions in the sheet: " + ", ".join(parts)]
+    scored = [r for r in rows if r.get("status") in ("graded", "not_graded")]
+    if scored:
+        totals = [float(r["total"]) for r in scored]
+        best = max(float(r.get("max_total") or 0) for r in scored)
+        lines.append(
+            f"scores (of {best:g}): mean {statistics.fmean(totals):.2f}, median "
+            f"{statistics.median(totals):g}, min {min(totals):g}, max {max(totals):g}"
+        )
+        by_score = sorted(Counter(totals).items(), reverse=True)
+        shown = [f"{score:g}: {n}" for score, n in by_score[:SHOWN_SCORES]]
+        if len(by_score) > SHOWN_SCORES:
+            shown.append(f"others: {sum(n for _, n in by_score[SHOWN_SCORES:])}")
+        lines.append("distribution (total: submissions): " + ", ".join(shown))
+        names = {t.key: t.name for t in TESTS}
+        failed = Counter(k for r in scored for k in keys if r.get(k) is not None and r[k] <= 0)
+        if failed:
+            top = failed.most_common(3)
+            lines.append(
+                "most often failed: "
+                + "; ".join(f"{names.get(k, k)} ({n} of {len(scored)})" for k, n in top)
+            )
+    errors = [r for r in rows if r.get("status") == "error"]
+    if errors:
+        lines.append(
+            f"{len(errors)} grading errors (the grader's, not the students'; --resume grades "
+            f"them again), first: {errors[0]['submission']}: {errors[0].get('error', '')}"
+        )
+    return lines

@@ -1,0 +1,503 @@
+"""``doorlab pset grade-all``: a class of 30 submissions in Gradescope's export layout.
+
+The class (:func:`build_class`): the answer key, the stubs, each mistake of ``test_pset.py``
+planted alone (its file's other functions left as stubs, so that only that mistake's episode
+runs), and the upload shapes of the one intake: three files flat, the folder under another
+top folder, a zip, a zip with a member pointing outside, a missing file, no file at all, a
+folder nested past the intake's bound (not graded), extra files, a group of two students.
+Most of them fail fast (a stub's episode ends at its first call), so a grading of the class
+costs about a minute of CPU; the reference episodes are the session's
+(``pset_fixtures.reference``).
+
+Three gradings of the class serve the acceptance: ``grade-all`` interrupted with Ctrl-C in
+the middle then ``--resume``d (local processes); ``grade-all`` on a Dask LocalCluster of 2
+workers (the class graded again: the identical sheet); and each submission graded alone
+(``grade_submission``, as ``doorlab pset grade``): the same rows.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import zipfile
+from pathlib import Path
+
+import pset_fixtures
+import pytest
+
+from doorlab.cli.parser import main
+from doorlab.errors import ConfigError
+from doorlab.pset.batch import GRADES_CSV, RESULTS_JSON, summarize
+from doorlab.pset.folder import init_folder
+from doorlab.pset.grader import grade_submission
+from doorlab.pset.roster import (
+    Submission,
+    columns,
+    find_submissions,
+    read_metadata,
+    sheet_row,
+    sheet_text,
+)
+from doorlab.pset.verdicts import TESTS
+
+FILES = ("ik_utils.py", "open_left_door.py", "manip_station_sim/robot_plans.py")
+FULL = sum(t.max_score for t in TESTS)
+TIMES = ("wall_time_s",)
+"""The sheet's columns that are times (they differ between gradings)."""
+
+VELOCITY_SOLVED = (
+    "        q_dot_des = np.linalg.pinv(self.Jv_WL7q) @ V_des\n"
+    "        return q_iiwa + q_dot_des * control_period"
+)
+IMPEDANCE_SOLVED = "        return self.Jv_WL7q.T @ F"
+VELOCITY_STUB = '        raise NotImplementedError("velocity: not done")'
+IMPEDANCE_STUB = '        raise NotImplementedError("impedance: not done")'
+
+MISTAKES = {
+    # name: (file, [(old, new), ...]) on the key's file; the file's other function a stub
+    "ik_ignores_duration": (
+        "ik_utils.py",
+        [("np.linspace(0.0, duration,", "np.linspace(0.0, 10.0,")],
+    ),
+    "calc_p_Q_absolute": ("open_left_door.py", [("return p_WQ - p_WC_handle", "return p_WQ")]),
+    "yaw_turns_the_wrong_way": ("open_left_door.py", [("yaw = -(angle_end", "yaw = (angle_end")]),
+    "velocity_error_sign": (
+        "manip_station_sim/robot_plans.py",
+        [
+            ("100.0 * err_xyz])\n        q_dot", "-100.0 * err_xyz])\n        q_dot"),
+            (IMPEDANCE_SOLVED, IMPEDANCE_STUB),
+        ],
+    ),
+    "velocity_axis_in_L7": (
+        "manip_station_sim/robot_plans.py",
+        [
+            (
+                "theta_n_W = self.R_WL7 @ (angle_axis.angle() * angle_axis.axis())\n        V_des",
+                "theta_n_W = angle_axis.angle() * angle_axis.axis()\n        V_des",
+            ),
+            (IMPEDANCE_SOLVED, IMPEDANCE_STUB),
+        ],
+    ),
+    "velocity_nan": (
+        "manip_station_sim/robot_plans.py",
+        [
+            (
+                "return q_iiwa + q_dot_des * control_period",
+                "return q_iiwa + q_dot_des * control_period * np.nan",
+            ),
+            (IMPEDANCE_SOLVED, IMPEDANCE_STUB),
+        ],
+    ),
+    "impedance_gain_10": (
+        "manip_station_sim/robot_plans.py",
+        [
+            (
+                "F = np.concatenate([50.0 * theta_n_W, 100.0",
+                "F = np.concatenate([50.0 * theta_n_W, 10.0",
+            ),
+            (VELOCITY_SOLVED, VELOCITY_STUB),
+        ],
+    ),
+    "impedance_divides_by_zero": (
+        "manip_station_sim/robot_plans.py",
+        [
+            (IMPEDANCE_SOLVED, "        return self.Jv_WL7q.T @ F * (1 // 0)"),
+            (VELOCITY_SOLVED, VELOCITY_STUB),
+        ],
+    ),
+}
+"""test_pset.py's mistakes, one per submission."""
+
+
+def _edited(key: Path, rel: str, edits: list[tuple[str, str]]) -> str:
+    text = (key / rel).read_text()
+    for old, new in edits:
+        assert text.count(old) == 1, (rel, old)
+        text = text.replace(old, new)
+    return text
+
+
+def _put(folder: Path, files: dict[str, str]) -> None:
+    for rel, text in files.items():
+        path = folder / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+
+
+def build_class(root: Path) -> dict[str, int]:
+    """The 30 submissions in ``root/export`` (Gradescope's layout); returns each one's
+    expected total where it is known without grading."""
+    key = init_folder(root / "key", solutions=True)
+    stubs = init_folder(root / "stubs")
+    export = root / "export"
+    export.mkdir()
+    solved = {rel: (key / rel).read_text() for rel in FILES}
+    stub = {rel: (stubs / rel).read_text() for rel in FILES}
+    helpers_only = {**stub, "open_left_door.py": solved["open_left_door.py"]}  # 2 points
+    expected: dict[str, int] = {}
+    people = {}
+
+    def add(number: int, files: dict[str, str] | None, total: int | None, where=""):
+        sid = f"submission_{number}"
+        folder = export / sid
+        folder.mkdir()
+        if files is not None:
+            _put(folder / where, files)
+        if total is not None:
+            expected[sid] = total
+        people[sid] = [(f"Student {number}", f"{number:05d}", f"s{number}@example.edu")]
+        return folder
+
+    shutil.copytree(key, export / "submission_101")  # the answer key, the whole folder
+    people["submission_101"] = [("Ada Key", "00101", "ada@example.edu")]
+    expected["submission_101"] = FULL
+    add(102, stub, 0)  # the untouched stubs
+    for number, (name, (rel, edits)) in enumerate(MISTAKES.items(), start=103):
+        files = {**stub, rel: _edited(key, rel, edits)}
+        add(number, files, None, where=name)  # each under a folder named after it
+    add(111, helpers_only, 2)  # three files, flat (as Gradescope stores most uploads)
+    add(112, helpers_only, 2, where="pset5_open_cabinet_door/")  # the folder under another
+    zipped = add(113, None, 2)
+    with zipfile.ZipFile(zipped / "handin.zip", "w") as archive:
+        for rel, text in helpers_only.items():
+            archive.writestr(f"pset5/{rel}", text)
+    outside = add(114, None, 0)  # a zip whose open_left_door.py points outside: not taken
+    with zipfile.ZipFile(outside / "handin.zip", "w") as archive:
+        archive.writestr("../open_left_door.py", solved["open_left_door.py"])
+        archive.writestr("ik_utils.py", stub["ik_utils.py"])
+    add(115, {"open_left_door.py": solved["open_left_door.py"]}, 2)  # two files missing
+    add(116, {"README.txt": "I ran out of time."}, 0)  # none of the files
+    deep = add(117, None, 0)  # nested past the intake's bound: not graded
+    _put(deep / "/".join(f"d{i}" for i in range(40)), {"open_left_door.py": "x = 1\n"})
+    extras = {**helpers_only, "notes.pdf": "%PDF-1.4\n", "pset.ipynb": "{}"}
+    add(118, extras, 2)  # extra files beside the three
+    group = add(119, stub, 0)
+    # A group; a name a spreadsheet would run as a formula at the start of its cell.
+    people["submission_119"] = [("=cmd|' /C calc'!A0", "2", ""), ("Grace One", "00119", "g1@x.edu")]
+    del group
+    for number in range(120, 131):  # more stubs, as a class has many unfinished ones
+        add(number, stub if number % 2 else helpers_only, 0 if number % 2 else 2)
+    lines = []
+    for sid, students in sorted(people.items()):
+        lines.append(f"{sid}:\n  :submitters:")
+        for name, student_id, email in students:
+            lines.append(f"  - :name: {json.dumps(name)}\n    :sid: '{student_id}'")
+            lines.append(f"    :email: {email}")
+        lines.append("  :created_at: 2024-03-01 12:00:00.000000000 -05:00\n  :score: 0.0")
+    (export / "submission_metadata.yml").write_text("\n".join(lines) + "\n")
+    assert len(people) == 30
+    return expected
+
+
+@pytest.fixture(scope="module")
+def klass(tmp_path_factory) -> tuple[Path, dict[str, int], Path]:
+    root = tmp_path_factory.mktemp("class")
+    expected = build_class(root)
+    reference = root / "reference.json"
+    reference.write_text(json.dumps({"extra_data": {"reference": pset_fixtures.reference()}}))
+    return root / "export", expected, reference
+
+
+def read_sheet(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def without_times(rows: list[dict]) -> list[dict]:
+    return [{k: v for k, v in row.items() if k not in TIMES} for row in rows]
+
+
+def _results_files(out: Path) -> dict[str, tuple]:
+    """Each submission's results.json: (inode, modification time) (changed: rewritten)."""
+    return {
+        p.parent.name: (p.stat().st_ino, p.stat().st_mtime_ns)
+        for p in out.glob(f"*/{RESULTS_JSON}")
+    }
+
+
+@pytest.fixture(scope="module")
+def resumed(klass, tmp_path_factory) -> dict:
+    """grade-all with 2 local workers, Ctrl-C (SIGINT to its process group, as a terminal
+    sends it) once 12 submissions are in the sheet, then --resume."""
+    export, _, reference = klass
+    out = tmp_path_factory.mktemp("resumed") / "class"
+    argv = ["pset", "grade-all", str(export), "--out", str(out), "--reference", str(reference)]
+    process = subprocess.Popen(
+        [sys.executable, "-m", "doorlab.cli", *argv, "--jobs", "2"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline:
+        sheet = out / GRADES_CSV
+        if sheet.is_file() and len(read_sheet(sheet)) >= 12:
+            break
+        assert process.poll() is None, process.communicate()
+        time.sleep(0.05)
+    else:
+        process.kill()
+        pytest.fail("12 submissions were not graded in time")
+    os.killpg(process.pid, signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    first = {
+        "code": process.returncode,
+        "err": err,
+        "rows": read_sheet(out / GRADES_CSV),
+        "files": _results_files(out),
+        "left": sorted(
+            p.name for p in out.iterdir() if p.name.startswith(".") and "partial" in p.name
+        ),
+    }
+    code = main([*argv, "--resume", "--jobs", "2"])
+    return {"out": out, "first": first, "code": code, "rows": read_sheet(out / GRADES_CSV)}
+
+
+def test_ctrl_c_leaves_a_consistent_sheet_and_resume_grades_each_submission_once(resumed):
+    first = resumed["first"]
+    assert first["code"] == 130, first["err"][-2000:]
+    assert "interrupted;" in first["err"] and "Traceback" not in first["err"], first["err"][-2000:]
+    assert first["left"] == []  # no staging folder left behind
+    done = {row["submission"] for row in first["rows"]}
+    # The sheet after Ctrl-C: the finished submissions, each with its whole results file.
+    assert 12 <= len(done) < 30
+    assert set(first["files"]) == done
+    assert resumed["code"] == 0
+    final = {row["submission"]: row for row in resumed["rows"]}
+    assert len(resumed["rows"]) == 30 == len(final)
+    assert [r["submission"] for r in resumed["rows"]] == sorted(final)
+    # Graded exactly once: the resumed run left the first run's results as they were (same
+    # file, same time) and wrote each of the others once.
+    after = _results_files(resumed["out"])
+    assert {k: after[k] for k in done} == first["files"]
+    assert set(after) == set(final)
+    assert without_times(r for r in resumed["rows"] if r["submission"] in done) == without_times(
+        first["rows"]
+    )
+    assert not [p for p in resumed["out"].iterdir() if "partial" in p.name]
+
+
+def test_the_sheet_holds_the_expected_scores_names_and_statuses(klass, resumed):
+    _, expected, _ = klass
+    rows = {row["submission"]: row for row in resumed["rows"]}
+    for sid, total in expected.items():
+        assert float(rows[sid]["total"]) == total, rows[sid]
+    assert (
+        rows["submission_101"]["names"] == "Ada Key" and rows["submission_101"]["sids"] == "00101"
+    )
+    assert rows["submission_119"]["names"] == "'=cmd|' /C calc'!A0; Grace One"  # no formula
+    assert rows["submission_119"]["sids"] == "2; 00119"
+    assert rows["submission_117"]["status"] == "not_graded"
+    assert (
+        rows["submission_115"]["missing_files"] == "ik_utils.py, manip_station_sim/robot_plans.py"
+    )
+    for sid, row in rows.items():
+        if sid != "submission_117":
+            assert row["status"] == "graded" and row["sandbox"] == "bwrap", row
+            assert row["seed"].isdigit() and float(row["wall_time_s"]) > 0
+    # Each planted mistake costs its tests, never every test.
+    for number, name in enumerate(MISTAKES, start=103):
+        row = rows[f"submission_{number}"]
+        assert 0 <= float(row["total"]) < FULL, (name, row)
+    assert float(rows["submission_104"]["calc_p_Q_unit"]) == 0  # the handle not subtracted
+    assert float(rows["submission_104"]["calc_R_WL7_ref_unit"]) == 1
+    assert float(rows["submission_103"]["ik_unit"]) == 0  # duration ignored: the unit test
+    assert float(rows["submission_103"]["ik_episode"]) == 2  # but the episode's duration is 10 s
+    assert float(rows["submission_109"]["impedance_unit"]) == 0
+    assert float(rows["submission_109"]["impedance_episode"]) == 0  # K_v = 10: the door stays
+
+
+def test_each_submission_graded_alone_gives_its_row(klass, resumed):
+    """grade_submission on each submission folder of the export (the one intake, as
+    ``doorlab pset grade`` runs it; two gradings at a time): the row of the class's sheet,
+    times aside; and the same results file, times aside."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    export, _, reference_file = klass
+    reference = json.loads(reference_file.read_text())["extra_data"]["reference"]
+    submissions = find_submissions(export)
+    rows = {row["submission"]: row for row in resumed["rows"]}
+
+    def alone(submission: Submission) -> dict:
+        return grade_submission(submission.path, reference=reference, jobs=1)
+
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        graded = list(pool.map(alone, submissions))
+    for submission, results in zip(submissions, graded, strict=True):
+        sid = submission.id
+        text = sheet_text([sheet_row(submission, results)], [t.key for t in TESTS])
+        row = next(csv.DictReader(text.splitlines()))
+        assert without_times([row]) == without_times([rows[sid]]), sid
+        batch = json.loads((resumed["out"] / sid / RESULTS_JSON).read_text())
+        for data in (batch, results):
+            data.pop("execution_time")
+            data["extra_data"].pop("batch", None)
+        assert batch == results, sid
+
+
+def test_the_class_graded_again_on_a_dask_cluster_gives_the_identical_sheet(
+    klass, resumed, tmp_path
+):
+    """A LocalCluster of 2 worker processes through --scheduler: the identical sheet (times
+    aside), and the identical results files."""
+    distributed = pytest.importorskip("distributed")
+    export, _, reference = klass
+    out = tmp_path / "dask"
+    with distributed.LocalCluster(
+        n_workers=2,
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        dashboard_address=None,
+        silence_logs=40,
+    ) as cluster:
+        argv = ["pset", "grade-all", str(export), "--out", str(out), "--reference", str(reference)]
+        assert main([*argv, "--scheduler", cluster.scheduler_address]) == 0
+    assert without_times(read_sheet(out / GRADES_CSV)) == without_times(resumed["rows"])
+    for row in resumed["rows"]:
+        sid = row["submission"]
+        if row["status"] != "absent":
+            pair = [json.loads((o / sid / RESULTS_JSON).read_text()) for o in (out, resumed["out"])]
+            for data in pair:
+                data.pop("execution_time")
+                data["extra_data"].pop("batch", None)
+            assert pair[0] == pair[1], sid
+
+
+# What needs no grading -----------------------------------------------------------------------
+
+
+def test_the_metadata_is_read_within_bounds_and_refused_in_one_line(tmp_path):
+    meta = tmp_path / "submission_metadata.yml"
+    meta.write_text(
+        'submission_1:\n  :submitters:\n  - :name: "Al\\x1b[31m\\u202eB"\n    :sid: 7\n'
+        "    :email: a@b.c\n  :results: {tests: [1, 2]}\n  :history: []\n"
+        "submission_2: 5\n"
+    )
+    people = read_metadata(meta)
+    assert people["submission_1"] == ({"name": "Al?[31m?B", "sid": "7", "email": "a@b.c"},)
+    assert people["submission_2"] == ()
+    for text, expected in [
+        ("- a\n- b\n", "must map each submission"),
+        ("a: [\n", "not valid YAML"),
+        ("[" * 5000 + "]" * 5000, "not valid YAML"),  # libyaml: too deep
+    ]:
+        meta.write_text(text)
+        with pytest.raises(ConfigError, match=expected) as error:
+            read_metadata(meta)
+        assert "\n" not in str(error.value)
+
+
+def test_submissions_are_folders_and_zips_by_name(tmp_path):
+    (tmp_path / "b").mkdir()
+    (tmp_path / "a.zip").write_bytes(b"PK")
+    (tmp_path / "b.zip").write_bytes(b"PK")  # a folder has that name: the zip keeps .zip
+    (tmp_path / ".hidden").mkdir()
+    (tmp_path / "__MACOSX").mkdir()
+    (tmp_path / "notes.txt").write_text("not a submission")
+    found = find_submissions(tmp_path)
+    assert [(s.id, s.path.name) for s in found] == [("a", "a.zip"), ("b", "b"), ("b.zip", "b.zip")]
+    (tmp_path / "submission_metadata.yml").write_text("c:\n  :submitters: [{':name': Cy}]\n")
+    found = find_submissions(tmp_path)
+    assert found[-1] == Submission("c", None, ({"name": "Cy", "sid": "", "email": ""},))
+    row = sheet_row(found[-1], None)
+    assert row["status"] == "absent" and row["names"] == "Cy"
+    assert sheet_text([row], ["k"]).splitlines()[0].split(",") == columns(["k"])
+
+
+def test_the_summary_gives_the_distribution_and_the_most_failed_test():
+    keys = [t.key for t in TESTS]
+    full = {k: t.max_score for k, t in zip(keys, TESTS, strict=True)}
+    rows = [
+        {"submission": "a", "status": "graded", "total": FULL, "max_total": FULL, **full},
+        {
+            "submission": "b",
+            "status": "graded",
+            "total": 12,
+            "max_total": FULL,
+            **full,
+            "ik_unit": 0,
+        },
+        {
+            "submission": "c",
+            "status": "graded",
+            "total": 0,
+            "max_total": FULL,
+            **dict.fromkeys(keys, 0),
+        },
+        {"submission": "d", "status": "error", "error": "the grading process failed"},
+    ]
+    lines = summarize(rows, keys, 5)
+    assert lines[0] == "4 of 5 submissions in the sheet: 1 error, 3 graded"
+    assert lines[1] == f"scores (of {FULL:g}): mean 8.67, median 12, min 0, max 14"
+    assert lines[2] == "distribution (total: submissions): 14: 1, 12: 1, 0: 1"
+    assert lines[3].startswith("most often failed: Task 1 unit test: InverseKinPointwise (2 of 3)")
+    assert "1 grading errors" in lines[4] and "d: the grading process failed" in lines[4]
+
+
+@pytest.mark.parametrize(
+    "extra, expected",
+    [
+        (["--resume", "--force"], "exclude each other"),
+        (["--jobs", "0"], "--jobs"),
+        (["--scheduler", "localhost"], "tcp://HOST:PORT"),
+    ],
+)
+def test_bad_command_lines_are_one_line_and_write_nothing(tmp_path, capsys, extra, expected):
+    out = tmp_path / "out"
+    (tmp_path / "class" / "s1").mkdir(parents=True)
+    assert main(["pset", "grade-all", str(tmp_path / "class"), "--out", str(out), *extra]) == 2
+    err = capsys.readouterr().err
+    assert expected in err and err.count("\n") == 1, err
+    assert not out.exists()
+
+
+def test_an_existing_folder_needs_resume_or_force_and_keeps_what_doorlab_did_not_write(
+    tmp_path, capsys
+):
+    (tmp_path / "class").mkdir()
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "mine.txt").write_text("my notes")
+    argv = ["pset", "grade-all", str(tmp_path / "class"), "--out", str(out)]
+    (tmp_path / "class" / "s1").mkdir()
+    assert main(argv) == 2
+    assert "pass --resume" in capsys.readouterr().err
+    assert main([*argv, "--force"]) == 2
+    assert "'mine.txt', which doorlab did not write" in capsys.readouterr().err
+    assert main([*argv, "--resume"]) == 2
+    assert "nothing to resume" in capsys.readouterr().err
+    assert (out / "mine.txt").read_text() == "my notes"
+    shutil.rmtree(tmp_path / "class" / "s1")
+    assert main([*argv, "--force"]) == 2
+    assert "holds no submission" in capsys.readouterr().err
+
+
+def test_a_grading_the_grader_fails_is_a_row_and_resume_grades_it_again(klass, tmp_path):
+    """A grading whose supervisor fails (here: an isolation policy it does not know) is the
+    row of its submission with status error and the message, no results file, exit code 1;
+    --resume grades it again, and it lands."""
+    from doorlab.pset.batch import grade_class
+
+    export, _, reference_file = klass
+    reference = json.loads(reference_file.read_text())["extra_data"]["reference"]
+    small = tmp_path / "small"
+    small.mkdir()
+    shutil.copytree(export / "submission_116", small / "only")  # a README: graded as stubs
+    out = tmp_path / "out"
+    failed = grade_class(small, out, reference=reference, isolation="no-such-policy")
+    [row] = failed.rows
+    assert row["status"] == "error" and "the grading process failed" in row["error"], row
+    assert failed.errors == 1 and not (out / "only").exists()
+    assert read_sheet(out / GRADES_CSV)[0]["status"] == "error"
+    again = grade_class(small, out, reference=reference, resume=True)
+    assert again.graded == ["only"] and again.errors == 0
+    assert again.rows[0]["status"] == "graded" and again.rows[0]["total"] == 0
+    assert (out / "only" / RESULTS_JSON).is_file()
