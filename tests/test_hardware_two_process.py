@@ -250,9 +250,10 @@ def test_any_client_within_the_period_gets_the_same_episode(
 
 
 def test_a_client_slower_than_the_period_acts_a_cycle_later(alone, lcm_url, tmp_path):  # noqa: F811
-    """Answers held 6 ms, past the 5 ms period: every command is applied one cycle later than
-    kuka_driver's timing (all counted late in driver.json), a different episode; the test
-    prints what the 5 ms more of delay does to the impedance plan's door."""
+    """Answers held 6 ms, past the 5 ms period: every command is applied a cycle later than
+    kuka_driver's timing (all counted late in driver.json; two cycles only where a status or
+    an answer came that late), a different episode; the test prints what the 5 ms more of
+    delay does to the impedance plan's door."""
     one_process("impedance")
     code, stderr, metrics, facts, gt, log = run_arm_pair(lcm_url, tmp_path, "impedance", 6.0, alone)
     if code == 7:
@@ -266,16 +267,19 @@ def test_a_client_slower_than_the_period_acts_a_cycle_later(alone, lcm_url, tmp_
         f"{radial * 1e3:+.3f} mm; {measured}"
     )
     applied, late = facts["iiwa_commands_applied"], facts["iiwa_commands_late"]
-    every_one_late = (
-        late == applied > 0.95 * metrics["link"]["commands"]
-        and facts["iiwa_command_cycles_late_max"] == 1
-    )
-    if not every_one_late:
-        # An answer 6 ms after its status is never on time, unless the driver itself fell a
-        # cycle behind (a status sent late, the next cycle later still): the host's.
+    assert applied > 0.95 * metrics["link"]["commands"], measured
+    if late < applied:
+        # An answer 6 ms after its status is never on time, unless the driver itself fell
+        # behind (its cycle read the bus late): the host's.
         if explained:
             pytest.skip(f"the host could not keep real time ({measured})")
-        pytest.fail(f"not every command a cycle late, and the host does not explain it: {measured}")
+        pytest.fail(f"{applied - late} commands on time though held 6 ms: {measured}")
+    if facts["iiwa_command_cycles_late_max"] > 1:
+        # Two cycles late only when the status came late or the answer took longer still:
+        # then it reached the driver after the second cycle too.
+        link = metrics["link"]
+        slowest = link["answer_max_ms"] + link["status_lateness_max_ms"]
+        assert slowest >= 2 * PERIOD_MS - HOST_MARGIN_MS, f"more than a cycle late: {measured}"
     assert abs(door) > 1e-6  # a different episode
 
 
