@@ -12,6 +12,9 @@ each way a pool ends (the plot worker after its plots or at once, the local exec
 from __future__ import annotations
 
 import concurrent.futures.process
+import signal
+import subprocess
+import sys
 import threading
 import time
 
@@ -45,3 +48,60 @@ def test_a_stopped_local_executor_leaves_no_pool_thread_behind():
     executor.submit(time.sleep, 60)
     executor.stop()
     assert not _manager_threads()
+
+
+_IN_A_FINALIZER = r"""
+import concurrent.futures, os, signal, sys, time, weakref
+from doorlab.runtime.interrupts import completed, install_signal_handlers
+
+install_signal_handlers()
+
+
+class Thing:
+    def __del__(self):  # where the garbage collector drops an exception: foreseen
+        os.kill(os.getpid(), {signum})
+
+
+def callback(_):  # a weakref callback: dropped as well, but not on the list
+    os.kill(os.getpid(), {signum})
+
+
+thing = Thing()
+if {weakref_callback}:
+    ref = weakref.ref(thing, callback)
+    thing.__class__ = type("Plain", (), {{}})  # no __del__ any more
+start = time.monotonic()
+try:
+    del thing
+    print("went on", flush=True)
+    if {weakref_callback}:
+        for _ in completed([concurrent.futures.Future()], poll_s=0.05):  # never done
+            pass
+    else:
+        time.sleep(60)
+except KeyboardInterrupt as e:
+    print(type(e).__name__, getattr(e, "signum", 2), f"{{time.monotonic() - start:.3f}}")
+    sys.exit(0)
+print("not raised")
+sys.exit(1)
+"""
+
+
+@pytest.mark.parametrize("weakref_callback", [False, True], ids=["__del__", "weakref callback"])
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_signal_in_a_finalizer_is_not_lost(signum, weakref_callback):
+    """A Ctrl-C (or SIGTERM) that arrives while the garbage collector runs a finalizer, where
+    Python drops the exception a handler raises ("Exception ignored ... KeyboardInterrupt", and
+    ``doorlab report`` once went on to write its page): in a ``__del__`` or the import system's
+    module-lock callback it is delivered again once the finalizer returned, silently; in any
+    other weakref callback it is dropped, and the wait for the workers raises it again."""
+    code = _IN_A_FINALIZER.format(signum=int(signum), weakref_callback=weakref_callback)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, (proc.stdout, proc.stderr)
+    assert ("Exception ignored" in proc.stderr) == weakref_callback, proc.stderr
+    went_on, raised = proc.stdout.splitlines()
+    assert went_on == "went on"
+    name, number, waited = raised.split()
+    assert name == ("KeyboardInterrupt" if signum == signal.SIGINT else "Interrupted")
+    assert int(number) == int(signum)
+    assert float(waited) < 30.0  # ~0.01 s in fact; the defect is "never" (60 s, or forever)

@@ -39,6 +39,7 @@ from pathlib import Path
 
 from doorlab.errors import ConfigError, DoorlabError, OutputError
 from doorlab.pset.roster import Submission, find_submissions, sheet_row, sheet_text
+from doorlab.runtime.interrupts import POLL_S, raise_if_interrupted
 
 GRADES_CSV = "grades.csv"
 """The sheet: one row per submission."""
@@ -402,8 +403,9 @@ class _ClassRun:
                     futures[executor.submit(grade_task, payload)] = submission
             if not futures:
                 continue
+            raise_if_interrupted()  # a Ctrl-C whose exception Python dropped
             done, _ = concurrent.futures.wait(
-                futures, return_when=concurrent.futures.FIRST_COMPLETED
+                futures, timeout=POLL_S, return_when=concurrent.futures.FIRST_COMPLETED
             )
             for future in done:
                 submission = futures.pop(future)

@@ -7,7 +7,6 @@ written atomically (staging folder, renamed at the end).
 
 from __future__ import annotations
 
-import concurrent.futures
 import dataclasses
 import shutil
 import sys
@@ -25,6 +24,7 @@ from doorlab.report.experiments import (
     make_experiments,
     make_robustness_cases,
 )
+from doorlab.runtime.interrupts import completed
 
 
 def _write_json(path: Path, data: dict) -> None:
@@ -223,7 +223,7 @@ def run_report(
                     ): (name, scenario)
                     for name, scenario in everything
                 }
-                for future in concurrent.futures.as_completed(futures):
+                for future in completed(futures):  # raises a Ctrl-C Python dropped
                     name, scenario = futures[future]
                     try:
                         record = _write_run(*future.result(), runs_dir / name)

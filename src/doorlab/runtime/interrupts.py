@@ -13,14 +13,23 @@ whole process group, and it is the parent's to handle (it stops its workers), so
 never prints a KeyboardInterrupt traceback. :func:`worker_signals` (their initializer) keeps SIGINT
 ignored and leaves SIGTERM/SIGHUP to end them at once, silently: a worker writes only into
 its parent's staging folder, which the parent removes after :func:`stop_processes`.
+
+Python runs a signal's handler at the next bytecode boundary, wherever that is: in a weakref
+callback or a ``__del__`` (the import system's module-lock callbacks run during garbage
+collection), the exception it raises is printed as "Exception ignored" and dropped, and the
+Ctrl-C is lost. So the handlers raise nothing there and deliver the signal again a moment
+later (:func:`_drops_exceptions`); they also remember it, and the loops that wait for workers
+(:func:`completed`) raise it again, for a place no list of such frames foresaw.
 """
 
 from __future__ import annotations
 
+import concurrent.futures
 import os
 import signal
 import threading
-from collections.abc import Iterator
+import time
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 
 from doorlab.errors import Interrupted
@@ -168,14 +177,90 @@ def end_pool(pool, *, at_once: bool = False, join_s: float = POOL_JOIN_S) -> Non
         manager.join(join_s)
 
 
+_received: list[int] = []
+"""The signals :func:`install_signal_handlers`' handlers raised for, first first."""
+
+
+def _exception(signum: int) -> KeyboardInterrupt:
+    return KeyboardInterrupt() if signum == signal.SIGINT else Interrupted(signum)
+
+
+REDELIVER_S = 0.01
+"""How long after a signal that arrived in a finalizer it is delivered again [s]."""
+
+
+def _drops_exceptions(frame) -> bool:
+    """Whether an exception raised in ``frame`` would be dropped on its way up: the frame or
+    a caller is an object's ``__del__`` or a module-lock callback of the import system (both
+    run from the garbage collector, which prints "Exception ignored" and goes on)."""
+    while frame is not None:
+        code = frame.f_code
+        if code.co_name == "__del__" or (
+            code.co_name == "cb" and code.co_filename.startswith("<frozen importlib")
+        ):
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _deliver_again(signum: int) -> None:
+    """Sends ``signum`` to the main thread again in :data:`REDELIVER_S`, from a helper thread
+    (by then the finalizer it arrived in has returned: it runs for microseconds)."""
+    main = threading.main_thread().ident
+
+    def send() -> None:
+        time.sleep(REDELIVER_S)
+        signal.pthread_kill(main, signum)
+
+    threading.Thread(target=send, name="doorlab-signal", daemon=True).start()
+
+
 def _raise_interrupted(signum: int, frame) -> None:
-    raise Interrupted(signum)
+    _received.append(signum)
+    if _drops_exceptions(frame):
+        _deliver_again(signum)
+        return
+    raise _exception(signum)
 
 
 def install_signal_handlers() -> None:
-    """SIGTERM and SIGHUP raise :class:`doorlab.errors.Interrupted` (a KeyboardInterrupt), so
-    they leave through the same clean-up as Ctrl-C (main thread only)."""
+    """Ctrl-C raises KeyboardInterrupt; SIGTERM and SIGHUP raise
+    :class:`doorlab.errors.Interrupted` (a KeyboardInterrupt), so they leave through the same
+    clean-up (main thread only). Each handler remembers its signal for :func:`completed`."""
     if threading.current_thread() is not threading.main_thread():
         return
-    for signum in (signal.SIGTERM, signal.SIGHUP):
+    for signum in INTERRUPTS:
         signal.signal(signum, _raise_interrupted)
+
+
+def raise_if_interrupted() -> None:
+    """Raises the first signal the handlers received, again: for a loop that must not go on
+    after a Ctrl-C or SIGTERM whose exception Python may have dropped (see the module's
+    docstring). A no-op unless :func:`install_signal_handlers` ran and a signal came."""
+    if _received:
+        raise _exception(_received[0])
+
+
+POLL_S = 0.2
+"""How often :func:`completed` looks for a signal whose exception was dropped [s]."""
+
+
+def completed(
+    futures: Iterable[concurrent.futures.Future], *, poll_s: float = POLL_S
+) -> Iterator[concurrent.futures.Future]:
+    """``concurrent.futures.as_completed`` that raises a received signal within ``poll_s``
+    (:func:`raise_if_interrupted`) even if its exception was dropped where it was delivered.
+
+    Args:
+        futures: The futures to wait for.
+        poll_s: The longest wait between two looks at the received signals [s].
+    """
+    pending = set(futures)
+    while pending:
+        raise_if_interrupted()
+        done, pending = concurrent.futures.wait(
+            pending, timeout=poll_s, return_when=concurrent.futures.FIRST_COMPLETED
+        )
+        for future in done:
+            yield future
+            raise_if_interrupted()

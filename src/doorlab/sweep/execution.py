@@ -19,6 +19,7 @@ import pandas as pd
 
 from doorlab.config import Scenario
 from doorlab.errors import ConfigError, IkError, OutputError, RunStopped, SimulationError
+from doorlab.runtime.interrupts import completed
 from doorlab.sweep.results import (
     RESULTS_CSV,
     RESULTS_PARQUET,
@@ -234,7 +235,7 @@ def run_sweep(
                 if bar is not None:
                     bar.write(f"doorlab sweep: {len(todo)} runs on {description}")
                 futures = {executor.submit(run_one, run.scenario): run for run in todo}
-                for future in concurrent.futures.as_completed(futures):
+                for future in completed(futures):  # raises a Ctrl-C Python dropped
                     run = futures[future]
                     try:
                         error = future.exception()
