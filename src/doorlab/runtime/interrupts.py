@@ -178,7 +178,7 @@ def end_pool(pool, *, at_once: bool = False, join_s: float = POOL_JOIN_S) -> Non
 
 
 _received: list[int] = []
-"""The signals :func:`install_signal_handlers`' handlers raised for, first first."""
+"""The signals :func:`install_signal_handlers`' handlers received, in the order they came."""
 
 
 def _exception(signum: int) -> KeyboardInterrupt:
