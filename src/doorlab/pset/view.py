@@ -217,6 +217,22 @@ class View:
     site: str
     sized_tmpfs: bool
 
+    @property
+    def private_tops(self) -> list[str]:
+        """The folders right under the private ``/tmp`` and ``/dev/shm`` on the way to a
+        distribution bound from there (a venv made under /tmp): each a read-only tmpfs of its
+        own, so nothing on the way is made in those writable places. Usually none."""
+        private = ("/tmp", "/dev/shm")
+        return sorted(
+            {
+                "/".join(op[1].split("/")[: p.count("/") + 2])
+                for op in self.mounts
+                if op[0] == "dir"
+                for p in private
+                if op[1].startswith(p + "/")
+            }
+        )
+
     def to_json(self) -> str:
         return json.dumps(asdict(self))
 
@@ -398,16 +414,7 @@ def bwrap_argv(
             argv += ["--bind", str(folder), dest]
     # Folders on the way to a distribution bound from under /tmp or /dev/shm would be made in
     # those writable places: each such top folder is a tmpfs of its own, read-only at the end.
-    private = ("/tmp", "/dev/shm")
-    tops = sorted(
-        {
-            "/".join(op[1].split("/")[: p.count("/") + 2])
-            for op in view.mounts
-            if op[0] == "dir"
-            for p in private
-            if op[1].startswith(p + "/")
-        }
-    )
+    tops = view.private_tops
     for top in tops:
         argv += ["--tmpfs", top]
     for op in view.mounts:
