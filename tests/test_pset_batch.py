@@ -267,8 +267,9 @@ def test_ctrl_c_leaves_a_consistent_sheet_and_resume_grades_each_submission_once
     assert first["left"] == []  # no staging folder left behind
     done = {row["submission"] for row in first["rows"]}
     # The sheet after Ctrl-C: the finished submissions, each with its whole results file; a
-    # grading the grader failed (an "error" row, the grader's, not the student's: e.g. a view
-    # that did not start on a starved host) has none, by design, and --resume grades it again.
+    # grading the grader failed (an "error" row, the grader's, not the student's; seen once, on
+    # a host so starved that statuses came seconds late; its error is printed) has none, by
+    # design, and --resume grades it again.
     failed = {row["submission"] for row in first["rows"] if row["status"] == "error"}
     shown = [(r["submission"], r["status"], r.get("error", "")) for r in first["rows"]]
     print("the sheet at Ctrl-C:", shown)
