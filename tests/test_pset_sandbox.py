@@ -723,3 +723,23 @@ def test_output_collector_keeps_both_ends_and_stops_at_the_limit():
     text = collector.text()
     assert collector.total == (20 << 20) + 8 and collector.overflowed and stopped == [True]
     assert text.startswith("start") and text.endswith("end") and len(text) < 400
+
+
+def test_a_grader_environment_the_student_user_cannot_read_is_named_as_such():
+    """A student process that died before its greeting because the user it runs as could not
+    import the grader's packages (a venv under /root, mode 700: seen in a clone there) is
+    reported as that, not as the student's code ending its process; any other module, or no
+    traceback, leaves the usual cause."""
+    from doorlab.pset.student import _import_failure
+
+    died = (
+        'File ".../doorlab/pset/worker.py", line 39, in _preload\n    import numpy\n'
+        "ModuleNotFoundError: No module named 'numpy'\n"
+    )
+    why = _import_failure(died)
+    assert why is not None and "could not import numpy" in why and "/root" in why
+    no_doorlab = "Error while finding module specification for 'doorlab.pset.worker' "
+    no_doorlab += "(ModuleNotFoundError: No module named 'doorlab')"
+    assert "could not import doorlab" in _import_failure(no_doorlab)
+    assert _import_failure("ModuleNotFoundError: No module named 'my_helpers'") is None
+    assert _import_failure("Killed\n") is None

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import signal
 import stat
@@ -133,6 +134,23 @@ def remove_leftovers(uid: int, since: float) -> list[str]:
     return removed
 
 
+_NO_MODULE = re.compile(r"ModuleNotFoundError: No module named '([A-Za-z_][\w.]*)'")
+
+
+def _import_failure(output: str) -> str | None:
+    """Why a student process that died before its greeting did, when it could not import the
+    grader's own packages (the student's code is not loaded yet): the user it runs as cannot
+    read the grader's Python environment. None for anything else."""
+    found = _NO_MODULE.search(output)
+    if found is None or found.group(1).split(".")[0] not in ("doorlab", "numpy", "pydrake"):
+        return None
+    return (
+        f"it could not import {found.group(1)}: the user it runs as cannot read the grader's "
+        "Python environment; install doorlab where that user can read it (not in a private "
+        "folder such as /root)"
+    )
+
+
 def _signal_message(signum: int, limits: sandbox.Limits) -> str:
     if signum == signal.SIGXCPU:
         return f"your code used more than {limits.cpu_seconds:.0f} s of CPU time (the CPU limit)"
@@ -199,9 +217,10 @@ class StudentProcess:
             hello = self.channel.receive_json(self.deadline)
         except ProtocolError as e:
             self.close()
+            output = self.output.text()
+            why = _import_failure(output) or self._death(e)
             raise SandboxError(
-                f"the student's process did not start ({self._death(e)}): "
-                + clean_text(self.output.text()[-500:])
+                f"the student's process did not start ({why}): " + clean_text(output[-500:])
             ) from None
         facts = hello.get("hello")
         self.facts = facts if isinstance(facts, dict) else {}
