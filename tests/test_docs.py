@@ -239,8 +239,12 @@ def test_the_reference_follows_the_code(tmp_path: Path, monkeypatch: pytest.Monk
     with pytest.raises(ValueError, match="inner.forgotten"):
         reference.scenario_markdown(new_config.Outer)
 
+    import doorlab_reference.api  # the hook put its package on sys.path
+
     modules = reference.package_modules()
-    monkeypatch.setattr(reference, "package_modules", lambda: [*modules, "doorlab.brand_new"])
+    monkeypatch.setattr(
+        doorlab_reference.api, "package_modules", lambda: [*modules, "doorlab.brand_new"]
+    )
     with pytest.raises(ValueError, match="doorlab.brand_new"):
         reference.api_coverage()
     with pytest.raises(ValueError, match="unknown marker"):
