@@ -196,6 +196,21 @@ def subprocess_env() -> dict[str, str]:
     return env
 
 
+def source_label(src: Path | str) -> str:
+    """Which code a folder holds, for a result file: its git commit (``-dirty`` with local
+    changes), or "not a git checkout"; never the folder's path, which names one machine."""
+    import subprocess
+
+    def git(*args: str) -> str:
+        out = subprocess.run(["git", "-C", str(src), *args], capture_output=True, text=True)
+        return out.stdout.strip() if out.returncode == 0 else ""
+
+    commit = git("rev-parse", "--short=12", "HEAD")
+    if not commit:
+        return "not a git checkout"
+    return commit + ("-dirty" if git("status", "--porcelain", "--untracked-files=no") else "")
+
+
 def children_cpu_s() -> float:
     import resource
 

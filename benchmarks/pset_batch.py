@@ -42,6 +42,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from common import source_label
 from pset_grading import _baseline_python
 from pset_profile import CpuMeter
 
@@ -205,7 +206,8 @@ def main(argv: list[str] | None = None) -> int:
             "figures": figures,
             "scaling_efficiency_2": efficiency,
             "class_of_200_wall_s": derived,
-            "baseline_src": None if args.baseline_src is None else str(args.baseline_src),
+            "this": source_label(Path(__file__).resolve().parent),
+            "baseline": None if args.baseline_src is None else source_label(args.baseline_src),
         }
         args.out.write_text(json.dumps(data, indent=2) + "\n")
     return 0

@@ -29,6 +29,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from common import source_label
+
 from doorlab.pset.folder import init_folder
 from doorlab.pset.grader import grade
 
@@ -160,7 +162,8 @@ def _side_by_side(args) -> int:
                 out = _grade_in_subprocess(folder, args.jobs, python)
                 walls[name].append(out["wall"])
                 cpus[name].append(out["cpu"])
-                scores[name], origins[name] = out["score"], out["doorlab"]
+                scores[name] = out["score"]
+                origins[name] = source_label(Path(out["doorlab"]).resolve().parents[1])
                 cpu_source = out["cpu_source"]
         busy1, total1 = _cpu_times()
     ticks = os.sysconf("SC_CLK_TCK")
@@ -195,7 +198,6 @@ def _side_by_side(args) -> int:
             "jobs": args.jobs,
             "cores": cores,
             "busy_cores": busy,
-            "baseline_src": str(args.baseline_src),
         }
         args.out.write_text(json.dumps(figures, indent=2) + "\n")
     return 0

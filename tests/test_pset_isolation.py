@@ -321,7 +321,7 @@ def test_issue_24_attacks_from_the_stubs_score_zero_through_pset_grade(
         public / "attacks",
         roots=[str(key)],
         wheels=[str(public / "*.whl")],
-        clones=[str(clone), "/work/main"],
+        clones=[str(clone)],
         socket_path=listener.path,
         port=listener.port,
         mark=mark,
