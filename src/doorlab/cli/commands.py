@@ -126,7 +126,10 @@ def _pset_grade_all(args: argparse.Namespace, assignment) -> int:
     from doorlab.pset.class_outputs import Outputs
 
     outputs = Outputs(
-        exports=tuple(dict.fromkeys(args.export)), pdf=args.pdf, published=args.published
+        exports=tuple(dict.fromkeys(args.export)),
+        pdf=args.pdf,
+        published=args.published,
+        only=tuple(args.only),
     )
     if args.pdf:
         from doorlab.runtime.pdf import find_chromium

@@ -30,6 +30,8 @@ class Outputs:
             ``after_published`` tests.
         now: The pages' time (default: now): ``after_due_date`` tests show after the due date.
         feedback: Write the feedback pages.
+        only: Print only these submissions' pages (``--only``); empty: every page that is
+            new, changed or without its PDF.
     """
 
     exports: tuple[str, ...] = ()
@@ -37,6 +39,7 @@ class Outputs:
     published: bool = False
     now: datetime.datetime | None = None
     feedback: bool = True
+    only: tuple[str, ...] = ()
 
 
 Write = Callable[[Path, str, "str | bytes"], None]
@@ -105,10 +108,12 @@ def write_class_outputs(
             for s in submissions
             if s.id in results
         ]
-        pdfs = feedback.print_pages(out, pages) if outputs.pdf and pages else []
+        chosen = [(p, w) for p, w in pages if not outputs.only or p.stem in outputs.only]
+        pdfs = feedback.print_pages(out, chosen) if outputs.pdf and chosen else []
+        changed = sum(written for _, written in pages)
         lines.append(
-            f"feedback: {len(pages)} pages in {feedback.FEEDBACK}/"
-            + (f" and their {len(pdfs)} PDFs" if pdfs else "")
+            f"feedback: {len(pages)} pages in {feedback.FEEDBACK}/ ({changed} new or changed)"
+            + (f", {len(pdfs)} printed to PDF" if pdfs else "")
         )
     by_id = {r["submission"]: r for r in rows}
     for fmt in outputs.exports:

@@ -35,9 +35,10 @@ def _message(output: str) -> str:
     """A failed test's message as a class-wide key: its first failing line (an episode's
     ``FAILED`` check, else the first line), numbers as ``#``."""
     lines = [line.strip() for line in str(output).splitlines() if line.strip()]
+    lines = [line for line in lines if not line.startswith("grading seed ")]  # a unit's header
     failing = [line for line in lines if line.startswith("FAILED")]
     line = (failing or lines or ["(no message)"])[0].removeprefix("FAILED").strip()
-    return _NUMBER.sub("#", line)[:MESSAGE_CHARS]
+    return " ".join(_NUMBER.sub("#", line).split())[:MESSAGE_CHARS]
 
 
 def _quantiles(values: list[float]) -> dict:
@@ -136,6 +137,7 @@ def _figures(stats: dict) -> list[dict]:
         ax.set_xlabel(f"total score (of {stats['max_total']:g})")
         ax.set_ylabel("submissions")
         ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_xlim(-1, stats["max_total"] + 1)
         ax.grid(True, axis="y", alpha=0.4)
         out.append({"id": "histogram", "data": png(fig), "caption": "The score histogram"})

@@ -180,7 +180,6 @@ def page_context(submission, results: dict, assignment, visibility: Visibility) 
             ("submitted", submission.created_at or "(no time in the export)"),
             ("graded by", f"doorlab {__version__}"),
             ("grading seed", str(seed.get("grading", "")) if seed else "not graded"),
-            ("page written", visibility.now.isoformat(timespec="seconds")),
         ],
         "tests": tests,
         "later": later,
@@ -193,19 +192,31 @@ def page_context(submission, results: dict, assignment, visibility: Visibility) 
     }
 
 
-def write_page(out: Path, submission, results: dict, assignment, visibility, write) -> Path:
-    """Writes ``out/feedback/<submission>.html``; returns it."""
+def write_page(
+    out: Path, submission, results: dict, assignment, visibility, write
+) -> tuple[Path, bool]:
+    """Writes ``out/feedback/<submission>.html`` unless it holds this page already (a page
+    depends only on the results and what is shown, not on when it is written); returns it
+    and whether it was written."""
     from doorlab.outputs.pages import render
 
     context = page_context(submission, results, assignment, visibility)
     context["figures"] = episode_figures(results, out, context.pop("shown_jobs"), write)
     rel = f"{FEEDBACK}/{submission.id}.html"
-    write(out, rel, render("pset_feedback.html.j2", **context))
-    return Path(out) / rel
+    path = Path(out) / rel
+    text = render("pset_feedback.html.j2", **context)
+    try:
+        same = path.is_file() and not path.is_symlink() and path.read_text() == text
+    except (OSError, UnicodeDecodeError):
+        same = False
+    if not same:
+        write(out, rel, text)
+    return path, not same
 
 
-def print_pages(out: Path, pages: list[Path]) -> list[Path]:
-    """Prints each page to a PDF beside it (headless Chromium, :mod:`doorlab.runtime.pdf`).
+def print_pages(out: Path, pages: list[tuple[Path, bool]]) -> list[Path]:
+    """Prints to a PDF beside it (headless Chromium, :mod:`doorlab.runtime.pdf`) each page
+    written this run or without its PDF; returns the PDFs printed.
 
     Raises:
         OutputError: No Chromium, or it failed.
@@ -213,7 +224,10 @@ def print_pages(out: Path, pages: list[Path]) -> list[Path]:
     from doorlab.runtime.folders import record_written
     from doorlab.runtime.pdf import find_chromium, print_pdf
 
+    todo = [page for page, written in pages if written or not page.with_suffix(".pdf").is_file()]
+    if not todo:
+        return []
     chromium = find_chromium()
-    written = [print_pdf(page, page.with_suffix(".pdf"), chromium=chromium) for page in pages]
-    record_written(out, written)
-    return written
+    printed = [print_pdf(page, page.with_suffix(".pdf"), chromium=chromium) for page in todo]
+    record_written(out, printed)
+    return printed
