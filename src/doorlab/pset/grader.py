@@ -365,8 +365,10 @@ def grade_taken(
     from doorlab.pset.verdicts import TESTS, results_not_graded
 
     if intake.refused is not None:
+        from doorlab.pset.assignment import Assignment
+
         specs = [t for t in TESTS if only is None or t.name in only]
-        results = results_not_graded(specs, intake.refused, assignment)
+        results = results_not_graded(specs, intake.refused, assignment or Assignment())
     else:
         try:
             tmp = tempfile.TemporaryDirectory(prefix="doorlab_submission_")
