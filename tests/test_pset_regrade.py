@@ -426,3 +426,34 @@ def test_every_new_assignment_field_round_trips():
     assert parse_assignment(assignment_yaml(course)) == course
     unquoted = parse_assignment("late: {due: 2024-03-01T23:59:00-05:00}\n")  # YAML's timestamp
     assert unquoted.late.due == DUE
+
+
+def test_the_feedback_page_shows_each_test_as_its_visibility_allows():
+    from doorlab.pset.feedback import Visibility, page_context
+
+    course = Assignment(late=LatePolicy(due=DUE))
+    course.tests.calc_p_Q_unit.visibility = "hidden"
+    course.tests.velocity_episode.visibility = "after_due_date"
+    course.tests.impedance_episode.visibility = "after_published"
+    results = _graded(course)
+    submission = Submission("s1", Path("s1"), ({"name": "Ada", "sid": "1", "email": ""},))
+    due = datetime.datetime.fromisoformat(DUE)
+
+    def shown(now, published=False):
+        context = page_context(submission, results, course, Visibility(now, published))
+        return [t["number"] for t in context["tests"]], context
+
+    before, context = shown(due - datetime.timedelta(hours=1))
+    assert before == ["1.1", "1.2", "2.2", "2.3", "3.1"]  # no hidden 2.1, nor 2.4 or 3.2 yet
+    assert [t["when"] for t in context["later"]] == [
+        f"shown after the due date ({DUE})",
+        "shown once the course publishes its grades",
+    ]
+    assert context["final"] is None  # the score shown is the shown tests'
+    assert context["score"] == sum(t["score"] for t in context["tests"])
+    after, _ = shown(due + datetime.timedelta(hours=1))
+    assert after == ["1.1", "1.2", "2.2", "2.3", "2.4", "3.1"]
+    published, context = shown(due + datetime.timedelta(hours=1), published=True)
+    assert published == ["1.1", "1.2", "2.2", "2.3", "2.4", "3.1", "3.2"]
+    assert "2.1" not in published and context["later"] == []  # hidden: never
+    assert {"student:ik", "student:velocity", "student:impedance"} <= context["shown_jobs"]

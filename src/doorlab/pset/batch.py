@@ -218,8 +218,9 @@ def _commit(out: Path, submission_id: str, results: dict) -> None:
     record_written(out, [target / RESULTS_JSON, target / MANIFEST_NAME])
 
 
-def _write_text(out: Path, name: str, text: str | bytes) -> None:
-    """``out/name`` (``name`` may be in a subfolder) atomically, recorded as doorlab's."""
+def _write_text(out: Path, name: str, text: str | bytes, *, record: bool = True) -> None:
+    """``out/name`` (``name`` may be in a subfolder) atomically, recorded as doorlab's (with
+    ``record``; else the caller records it with others, :func:`record_written`)."""
     import os
     import tempfile
 
@@ -236,7 +237,8 @@ def _write_text(out: Path, name: str, text: str | bytes) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
-    record_written(out, [path])
+    if record:
+        record_written(out, [path])
 
 
 # The class -----------------------------------------------------------------------------------
@@ -568,7 +570,6 @@ class _ClassRun:
                 order,
                 rows,
                 self.results,
-                self.reference,
                 self.ledger.assignment,
                 self.outputs,
                 _write_text,

@@ -87,14 +87,29 @@ def write_class_outputs(
     submissions: list,
     rows: list[dict],
     results: dict[str, dict],
-    reference: dict,
     assignment,
     outputs: Outputs | None,
     write: Write,
 ) -> list[str]:
     """The feedback pages, ``summary.json``, ``class.html`` and the exports; returns the
-    summary's lines about them."""
+    summary's lines about them. (``write`` takes ``record=False``: the files are recorded in
+    the folder's manifest together, once, not one rewrite of it per file.)"""
+    from doorlab.runtime.folders import record_written
+
     outputs = outputs or Outputs()
+    written: list[Path] = []
+
+    def deferred(folder: Path, rel: str, data) -> None:
+        write(folder, rel, data, record=False)
+        written.append(Path(folder) / rel)
+
+    try:
+        return _write_all(out, submissions, rows, results, assignment, outputs, deferred)
+    finally:
+        record_written(out, written)
+
+
+def _write_all(out, submissions, rows, results, assignment, outputs: Outputs, write) -> list[str]:
     lines = []
     stats = classstats.class_statistics(rows, results)
     write(out, classstats.SUMMARY_JSON, json.dumps(stats, indent=1) + "\n")
