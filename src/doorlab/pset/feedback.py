@@ -30,7 +30,7 @@ FEEDBACK = "feedback"
 """The folder of the pages in a class's folder."""
 FIGURES = "figures"
 """The figures' cache under :data:`FEEDBACK`."""
-FIGURE_STYLE = 1
+FIGURE_STYLE = 2
 """Bumped when the figures' drawing changes (it is part of each figure's cache key)."""
 EPISODES = {
     "student:ik": "Task 1: your IK (10 knots), doors open",
@@ -89,8 +89,11 @@ def _figure_png(title: str, yours: dict, reference: dict | None) -> bytes:
 
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(10.5, 2.9), layout="constrained")
+    fig = Figure(figsize=(10.5, 2.9))
     axes = fig.subplots(1, len(PANELS))
+    # Margins set by hand: matplotlib's constrained layout measures every label and took a
+    # third of the figure's time (0.16 against 0.11 CPU-s), for the same look here.
+    fig.subplots_adjust(left=0.075, right=0.99, bottom=0.17, top=0.88, wspace=0.36)
     for ax, (key, label) in zip(axes, PANELS, strict=True):
         if reference is not None:
             ax.plot(reference["t_s"], reference[key], color="0.45", lw=2.2, label="reference")
@@ -99,7 +102,7 @@ def _figure_png(title: str, yours: dict, reference: dict | None) -> bytes:
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.4)
     axes[0].legend(loc="best", fontsize="small")
-    fig.suptitle(title, fontsize="medium")
+    fig.suptitle(title, fontsize="medium", y=0.98)
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=90, pil_kwargs={"compress_level": 4})
     return buffer.getvalue()
