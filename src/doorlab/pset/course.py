@@ -6,11 +6,11 @@ is there with its points, visibility and margins, and the course's random seed, 
 late policy; a hidden test's settings stay with the instructor (its entry is left out, and
 the self-check neither runs nor names it). The folder's ``test_pset_5a.py`` (the notebook's
 last cell) grades with this file (:func:`load_course`): the course's points and total, the
-course's margins and seed (so it draws the unit tests' inputs Gradescope draws for the same
+course's margins and random seed (so it draws the unit tests' inputs Gradescope draws for the same
 files), the tests the course lets students run (``self_check``), and it says which tests
 Gradescope shows only after the due date or once grades are published.
 
-The seed is no secret worth keeping: it draws the unit tests' inputs from the SHA-256 of the
+The random seed is no secret worth keeping: it draws the unit tests' inputs from the SHA-256 of the
 student's own files, and those inputs are handed to the student's code anyway; a change to a
 file changes them all.
 """

@@ -535,7 +535,7 @@ def main(argv: Sequence[str]) -> int:
         "--course",
         type=Path,
         default=None,
-        help="the course's settings (the handout's course.yaml): its points, margins, seed "
+        help="the course's settings (the handout's course.yaml): its points, margins, random seed "
         "and the tests it lets students run",
     )
     args = parser.parse_args(argv)

@@ -10,7 +10,7 @@ submission (:func:`plan_step`), cheapest first:
   (or the late policy): new results from its stored figures, without simulating
   (:mod:`doorlab.pset.rescore`);
 - **grade**: its files changed (a fixed submission in a new export), it was not graded or its
-  grading failed, the seed or an episode's helpers changed, its results hold no stored
+  grading failed, the random seed or an episode's helpers changed, its results hold no stored
   figures, or ``--only`` names it: graded again, simulated.
 
 Every run over an existing sheet writes ``DIR/changes.csv`` (:data:`CHANGE_COLUMNS`: each
@@ -68,8 +68,10 @@ def stored_digest(results: dict) -> str | None:
     batch = extra.get("batch") or {}
     if isinstance(batch, dict) and batch.get("files_sha256"):
         return str(batch["files_sha256"])
-    seed = extra.get("seed") or {}
-    return str(seed["files_sha256"]) if isinstance(seed, dict) and "files_sha256" in seed else None
+    drawn = extra.get("seed") or {}
+    return (
+        str(drawn["files_sha256"]) if isinstance(drawn, dict) and "files_sha256" in drawn else None
+    )
 
 
 @dataclass(frozen=True)
