@@ -4,7 +4,8 @@
                                     [--out FILE.json]
 
 A class of K correct submissions (the answer key: every test runs to the end, the costliest
-submission there is) is graded, per repeat, side by side:
+submission there is; each with a comment of its own appended to ik_utils.py, so that no two
+have identical files, which grade-all grades once) is graded, per repeat, side by side:
 
 - ``batch_1`` and ``batch_2``: ``doorlab pset grade-all`` (:func:`doorlab.pset.batch.grade_class`)
   on 1 and on 2 local workers, the reference episodes given (as ``--reference``; the class
@@ -16,8 +17,11 @@ submission there is) is graded, per repeat, side by side:
 - ``reference``: the reference episodes once (:func:`doorlab.pset.grader.grade_reference`);
 - with ``--baseline-src DIR`` (another version's ``src``, e.g. ``git archive main src | tar -x
   -C /tmp/main``): ``baseline_alone``, each submission graded by that version's
-  ``grade_submission`` with the reference given, in a fresh interpreter (a venv whose path
-  file puts DIR first; see pset_grading.py).
+  ``grade_submission`` with the reference given, and ``baseline_batch_1``, the class graded
+  by that version's ``grade_class`` on 1 worker, each in a fresh interpreter (a venv whose
+  path file puts DIR first; see pset_grading.py). ``batch_1`` against ``baseline_batch_1``
+  is a submission's cost in a batch against that version's, everything a run writes
+  included (this version's feedback pages, class page and statistics too).
 
 CPU time is counted in a cgroup holding this process and everything it starts (root; the
 student's processes included, which getrusage misses). Printed: the medians of the CPU
@@ -59,6 +63,14 @@ for folder in sys.argv[2:]:
     r = grade_submission(folder, reference=reference)
     print(r["score"])
 """
+_BASELINE_BATCH = """
+import json, shutil, sys
+from doorlab.pset.batch import grade_class
+reference = json.loads(open(sys.argv[1]).read())
+shutil.rmtree(sys.argv[3], ignore_errors=True)
+outcome = grade_class(sys.argv[2], sys.argv[3], jobs=1, reference=reference)
+print(json.dumps([r.get("total") for r in outcome.rows]))
+"""
 
 
 def _measure(meter: CpuMeter, call) -> tuple[float, float]:
@@ -76,6 +88,8 @@ def _class(root: Path, count: int, *, solutions: bool) -> Path:
     export.mkdir()
     for i in range(count):
         shutil.copytree(key, export / f"submission_{i}")
+        ik = export / f"submission_{i}" / "ik_utils.py"  # files of its own (not graded once)
+        ik.write_text(ik.read_text() + f"\n# submission {i}\n")
     subprocess.run(["chmod", "-R", "a+rX", str(root)], check=True)
     return export
 
@@ -115,12 +129,32 @@ def _baseline(python: Path, export: Path, reference_file: Path) -> None:
         raise RuntimeError(f"the baseline scored {scores}")
 
 
+def _baseline_batch(python: Path, export: Path, out: Path, reference_file: Path) -> None:
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    proc = subprocess.run(
+        [str(python), "-c", _BASELINE_BATCH, str(reference_file), str(export), str(out)],
+        env=env,
+        cwd="/",
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    totals = json.loads(proc.stdout.strip().splitlines()[-1])
+    if totals != [14.0] * len(totals):
+        raise RuntimeError(f"the baseline's batch scored {totals}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--submissions", type=int, default=4, help="class size K (default 4)")
     parser.add_argument("--repeats", type=int, default=3, help="repeats (default 3)")
     parser.add_argument("--baseline-src", type=Path, default=None, help="also grade with DIR")
     parser.add_argument("--out", type=Path, default=None, help="write the figures as JSON")
+    parser.add_argument(
+        "--variants",
+        default=None,
+        help="comma-separated variants to run (default: all), e.g. batch_1,baseline_batch_1",
+    )
     args = parser.parse_args(argv)
 
     from doorlab.pset.grader import grade_reference
@@ -149,6 +183,15 @@ def main(argv: list[str] | None = None) -> int:
             if args.baseline_src is not None:
                 python = _baseline_python(args.baseline_src, root / "baseline-venv")
                 variants["baseline_alone"] = lambda: _baseline(python, export, reference_file)
+                variants["baseline_batch_1"] = lambda: _baseline_batch(
+                    python, export, root / "out_baseline", reference_file
+                )
+            if args.variants:
+                wanted = args.variants.split(",")
+                unknown = sorted(set(wanted) - set(variants))
+                if unknown:
+                    parser.error(f"unknown variants {unknown}; choose from {sorted(variants)}")
+                variants = {k: v for k, v in variants.items() if k in wanted}
             for _ in range(args.repeats):
                 for name, call in variants.items():
                     samples.setdefault(name, []).append(_measure(meter, call))
@@ -164,9 +207,9 @@ def main(argv: list[str] | None = None) -> int:
             "wall_s_per_submission": statistics.median(w / per for _, w in values),
             "samples": values,
         }
-    one = figures["batch_1"]["wall_s_per_submission"]
-    two = figures["batch_2"]["wall_s_per_submission"]
-    efficiency = min(1.0, one / (2 * two))  # above 1 is noise (other work on the cores)
+    one = figures["batch_1"]["wall_s_per_submission"] if "batch_1" in figures else float("nan")
+    two = figures["batch_2"]["wall_s_per_submission"] if "batch_2" in figures else float("nan")
+    efficiency = min(1.0, one / (2 * two)) if two == two else float("nan")
     ref_wall = figures["reference"]["wall_s_per_submission"]
     derived = {n: ref_wall + CLASS_SIZE * one / (n * efficiency) for n in CLUSTER_CORES}
     print(
@@ -180,13 +223,26 @@ def main(argv: list[str] | None = None) -> int:
             f"  {name:16s} {f['cpu_s_per_submission']:13.2f} s {f['wall_s_per_submission']:14.2f} s"
             f" {unit}"
         )
-    base = figures["alone"]["cpu_s_per_submission"]
-    print(f"  batch / alone CPU {figures['batch_1']['cpu_s_per_submission'] / base:.2f}")
-    if "baseline_alone" in figures:
+    base = figures["alone"]["cpu_s_per_submission"] if "alone" in figures else float("nan")
+    if "batch_1" in figures and "alone" in figures:
+        print(f"  batch / alone CPU {figures['batch_1']['cpu_s_per_submission'] / base:.2f}")
+    if "baseline_alone" in figures and "batch_1" in figures:
         old = figures["baseline_alone"]["cpu_s_per_submission"]
         print(
             f"  batch / baseline alone CPU {figures['batch_1']['cpu_s_per_submission'] / old:.2f}"
             f", alone / baseline alone CPU {base / old:.2f}"
+        )
+    if "baseline_batch_1" in figures:
+        old = figures["baseline_batch_1"]["cpu_s_per_submission"]
+        ratio = figures["batch_1"]["cpu_s_per_submission"] / old
+        ratios = [
+            a / b
+            for (a, _), (b, _) in zip(samples["batch_1"], samples["baseline_batch_1"], strict=True)
+        ]
+        print(
+            f"  batch_1 / baseline batch_1 CPU {ratio:.3f} (per repeat: "
+            + ", ".join(f"{r:.3f}" for r in ratios)
+            + ")"
         )
     print(
         f"  throughput: {60 / one:.1f} submissions/min on 1 worker, {60 / two:.1f} on 2 "

@@ -96,6 +96,7 @@ GRADER_TEST_FILES = {
     "test_pset_sandbox.py",
     "test_pset_autograder.py",
     "test_pset_isolation.py",
+    "test_pset_semester.py",
 }
 """Test files that grade: the grader runs student code in bubblewrap's minimal root, or not
 at all (doorlab.pset.isolation)."""

@@ -39,7 +39,7 @@ def handout_zip(tmp_path_factory) -> Path:
 
 
 def test_the_handout_holds_the_stub_folder_and_this_doorlab_s_wheel(handout_zip, tmp_path):
-    stubs = render_folder(solutions=False)
+    stubs = render_folder(solutions=False, course=True)  # with the course's course.yaml
     with zipfile.ZipFile(handout_zip) as archive:
         names = set(archive.namelist())
         assert names == {f"{handout.FOLDER}/{rel}" for rel in stubs} | {f"pset5/{WHEEL}"}

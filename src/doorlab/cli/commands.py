@@ -121,6 +121,20 @@ def _pset_grade_all(args: argparse.Namespace, assignment) -> int:
 
     if args.resume and args.force:
         raise ConfigError("--resume and --force exclude each other")
+    if args.only and args.force:
+        raise ConfigError("--only and --force exclude each other (--only keeps the others)")
+    from doorlab.pset.class_outputs import Outputs
+
+    outputs = Outputs(
+        exports=tuple(dict.fromkeys(args.export)),
+        pdf=args.pdf,
+        published=args.published,
+        only=tuple(args.only),
+    )
+    if args.pdf:
+        from doorlab.runtime.pdf import find_chromium
+
+        find_chromium()  # before grading: the message names the package
     reference = None if args.reference is None else grader.load_reference(args.reference)
     if args.scheduler is not None:
         _probe(args)
@@ -138,6 +152,8 @@ def _pset_grade_all(args: argparse.Namespace, assignment) -> int:
             reference=reference,
             isolation="insecure" if args.insecure else "require",
             progress=True,
+            only=args.only,
+            outputs=outputs,
         )
     except KeyboardInterrupt as e:
         print(f"doorlab pset grade-all: interrupted; {_class_left(args.out)}", file=sys.stderr)
@@ -145,6 +161,8 @@ def _pset_grade_all(args: argparse.Namespace, assignment) -> int:
     for line in outcome.summary:
         print(f"  {line}")
     kept = f" ({len(outcome.kept)} kept from {args.out})" if outcome.kept else ""
+    if outcome.rescored:
+        kept += f" ({len(outcome.rescored)} re-scored from their stored figures)"
     print(
         f"doorlab pset grade-all: graded {len(outcome.graded)} submissions{kept} on "
         f"{outcome.executor}; sheet: {args.out / GRADES_CSV}; results: "

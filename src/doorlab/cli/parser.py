@@ -320,8 +320,8 @@ def add_grade_all_parser(actions) -> None:
         type=Path,
         required=True,
         metavar="DIR",
-        help="the class's folder: grades.csv, one results.json per submission, class.json, "
-        "summary.txt",
+        help="the class's folder: grades.csv, one results.json per submission, feedback/ "
+        "(a page per submission), class.html, summary.json, summary.txt, class.json",
     )
     _assignment_option(grade_all)
     grade_all.add_argument(
@@ -343,8 +343,36 @@ def add_grade_all_parser(actions) -> None:
     grade_all.add_argument(
         "--resume",
         action="store_true",
-        help="keep the submissions whose results are in DIR; grade the others (and those "
-        "whose grading failed)",
+        help="regrade the class in DIR: grade what changed (new files, failed gradings, new "
+        "submissions), re-score from the stored figures what only points, visibility or "
+        "margins need, keep the rest; DIR/changes.csv says what changed",
+    )
+    grade_all.add_argument(
+        "--only",
+        action="append",
+        default=[],
+        metavar="ID",
+        help="regrade (simulate again) only this submission of the class in DIR, keeping the "
+        "others; repeat for more",
+    )
+    grade_all.add_argument(
+        "--export",
+        action="append",
+        default=[],
+        choices=("canvas", "gradescope"),
+        help="also write DIR/canvas.csv (Canvas's gradebook import) or DIR/gradescope.csv "
+        "(Gradescope's roster columns with the grade): one row per student; repeat for both",
+    )
+    grade_all.add_argument(
+        "--pdf",
+        action="store_true",
+        help="print each feedback page to DIR/feedback/<submission>.pdf (headless Chromium)",
+    )
+    grade_all.add_argument(
+        "--published",
+        action="store_true",
+        help="the course has published its grades: feedback pages show the after_published "
+        "tests too",
     )
     grade_all.add_argument(
         "--force", action="store_true", help="start over in a DIR that doorlab wrote"

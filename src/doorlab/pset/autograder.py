@@ -283,7 +283,8 @@ def run_autograder(
         seed: A recorded grading's seed (rehearsals, disputes): replays its random inputs.
 
     Returns:
-        The results written (Gradescope's format).
+        The results written (Gradescope's format; the zip's late policy applied from
+        ``submission_metadata.json``'s ``created_at``).
 
     Raises:
         AutograderError: See :func:`read_settings`; no submission folder.
@@ -297,6 +298,7 @@ def run_autograder(
         raise AutograderError(f"{submission} is not a folder: there is no submission to grade")
     results_dir = root / "results"
     results_dir.mkdir(parents=True, exist_ok=True)
+    submitted = submission_time(root)  # read before the fallback makes the file root's alone
     results = grade_submission(
         submission,
         jobs=jobs or int(settings.get("jobs", 1)),
@@ -307,8 +309,30 @@ def run_autograder(
         harden=[root / name for name in HARDENED],
     )
     results["extra_data"]["autograder"] = {"digest": settings.get("digest")}
+    if assignment is not None:  # the course's late policy, from Gradescope's submission time
+        from doorlab.pset.late import apply_late
+
+        apply_late(results, assignment.late, submitted)
     write_results(results, results_dir / "results.json")
     return results
+
+
+def submission_time(root: Path):
+    """The submission's time in Gradescope's ``submission_metadata.json`` (its ``created_at``;
+    https://gradescope-autograders.readthedocs.io/en/latest/submission_metadata/), None
+    without one. The file is Gradescope's, read within bounds."""
+    from doorlab.errors import ConfigError
+    from doorlab.pset.late import submission_time as parse_time
+    from doorlab.runtime.inputs import read_text_file
+
+    path = root / "submission_metadata.json"
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(read_text_file(path, what="submission_metadata.json", max_bytes=64 << 20))
+    except (ConfigError, ValueError):
+        return None
+    return parse_time(data.get("created_at")) if isinstance(data, dict) else None
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -17,7 +17,15 @@ with ``scheduler``):
 - each finished submission's ``DIR/<submission>/results.json`` (what Gradescope would show)
   is written atomically (a staging folder renamed into place), then ``DIR/grades.csv`` is
   rewritten atomically: Ctrl-C leaves a consistent sheet of the finished submissions, and
-  ``--resume`` grades only the others (those whose results are in ``DIR`` are kept).
+  ``--resume`` grades only what needs it (:mod:`doorlab.pset.regrade`: a submission whose
+  files changed is graded again, a change of points or margins re-scores from the stored
+  figures, the rest is kept; ``changes.csv`` says what changed, ``history/`` keeps the sheet
+  replaced);
+- submissions whose graded files are identical (the same SHA-256) are graded once: the
+  grading seed comes from those files, so each would grade the same;
+- the late policy (:mod:`doorlab.pset.late`) from each submission's time in the metadata; at
+  the end, the class's pages and files (:mod:`doorlab.pset.class_outputs`: feedback pages,
+  ``class.html``, ``summary.json``, gradebook exports).
 
 ``DIR`` is doorlab's folder (:mod:`doorlab.outputs.runs`: a manifest of what doorlab wrote;
 ``--force`` replaces only such a folder). ``DIR/class.json`` holds the reference figures and the
@@ -30,14 +38,15 @@ import atexit
 import concurrent.futures
 import hashlib
 import json
-import statistics
 import sys
 import time
-from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from doorlab.errors import ConfigError, DoorlabError, OutputError
+from doorlab.pset.classstats import summarize
+from doorlab.pset.regrade import check_only, old_sheet, settings_of
 from doorlab.pset.roster import Submission, find_submissions, sheet_row, sheet_text
 from doorlab.runtime.interrupts import POLL_S, raise_if_interrupted
 
@@ -49,12 +58,22 @@ SUMMARY_TXT = "summary.txt"
 """The summary printed at the end."""
 RESULTS_JSON = "results.json"
 """Each submission's Gradescope results, in ``DIR/<submission>/``."""
-CLASS_FILES = (GRADES_CSV, CLASS_JSON, SUMMARY_TXT)
-"""What a run rewrites in ``DIR`` besides the submissions' folders."""
+CLASS_FILES = (
+    GRADES_CSV,
+    CLASS_JSON,
+    SUMMARY_TXT,
+    "changes.csv",
+    "history",
+    "feedback",
+    "class.html",
+    "summary.json",
+    "canvas.csv",
+    "gradescope.csv",
+)
+"""What a run rewrites in ``DIR`` besides the submissions' folders (:mod:`doorlab.pset.regrade`,
+:mod:`doorlab.pset.class_outputs`)."""
 QUEUED_PER_WORKER = 2
 """Submissions taken and queued per worker at a time (their files held in memory)."""
-SHOWN_SCORES = 12
-"""Distinct total scores listed in the summary's distribution (the rest summed up)."""
 
 
 # The worker's side ---------------------------------------------------------------------------
@@ -122,12 +141,16 @@ def _read_results(folder: Path) -> dict | None:
 
 @dataclass
 class _Previous:
-    """What a resumed class keeps: its reference, its assignment's digest, the results of
-    the submissions it graded."""
+    """What a resumed class keeps: its reference, its assignment's digest and settings, the
+    results of the submissions it graded, the sheet and the history (kept on)."""
 
     reference: dict
     digest: str
     results: dict[str, dict] = field(default_factory=dict)
+    settings: dict | None = None
+    sheet: str | None = None
+    history: dict[str, bytes] = field(default_factory=dict)
+    failed: set[str] = field(default_factory=set)
 
 
 def _check_out(out: Path, submissions: list[Submission], *, resume: bool, force: bool):
@@ -145,10 +168,19 @@ def _check_out(out: Path, submissions: list[Submission], *, resume: bool, force:
                 "class or --force to start over"
             )
         check_replaceable(out, force=force)
-        return None
+        if not existing:
+            return None
+        sheet, history, _ = old_sheet(out)  # --force: the old sheet goes to the history
+        if sheet is None:
+            return None
+        previous = _Previous({}, "", sheet=sheet, history=history)
+        previous.results = {s.id: r for s in submissions if (r := _read_results(out / s.id))}
+        return previous
     try:
         info = json.loads((out / CLASS_JSON).read_text())
         previous = _Previous(dict(info["reference"]), str(info["assignment_sha256"]))
+        previous.settings = info.get("assignment")
+        previous.sheet, previous.history, previous.failed = old_sheet(out)
     except (OSError, ValueError, KeyError, TypeError):
         raise OutputError(
             f"--out {str(out)!r} holds no class graded by doorlab ({CLASS_JSON} missing or "
@@ -186,24 +218,27 @@ def _commit(out: Path, submission_id: str, results: dict) -> None:
     record_written(out, [target / RESULTS_JSON, target / MANIFEST_NAME])
 
 
-def _write_text(out: Path, name: str, text: str) -> None:
-    """``out/name`` atomically, recorded as doorlab's."""
+def _write_text(out: Path, name: str, text: str | bytes, *, record: bool = True) -> None:
+    """``out/name`` (``name`` may be in a subfolder) atomically, recorded as doorlab's (with
+    ``record``; else the caller records it with others, :func:`record_written`)."""
     import os
     import tempfile
 
     from doorlab.runtime.folders import follow_umask, record_written
 
     path = out / name
-    fd, tmp = tempfile.mkstemp(prefix=f".{name}.", suffix=".tmp", dir=out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
-        with os.fdopen(fd, "w") as f:
+        with os.fdopen(fd, "wb" if isinstance(text, bytes) else "w") as f:
             f.write(text)
         follow_umask(Path(tmp), folder=False)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
-    record_written(out, [path])
+    if record:
+        record_written(out, [path])
 
 
 # The class -----------------------------------------------------------------------------------
@@ -215,10 +250,13 @@ class ClassOutcome:
 
     Attributes:
         rows: The sheet's rows (every submission), in order.
-        graded: The submissions this run graded (ids).
+        graded: The submissions this run graded (ids; simulated, or copied from an identical
+            submission's grading).
         kept: The submissions kept from ``out`` (``resume``).
         summary: The summary's lines.
         executor: Where the submissions were graded.
+        rescored: The submissions re-scored or re-judged from their stored figures.
+        changes: ``changes.csv``'s rows (:mod:`doorlab.pset.regrade`).
     """
 
     rows: list[dict]
@@ -226,6 +264,8 @@ class ClassOutcome:
     kept: list[str]
     summary: list[str]
     executor: str = ""
+    rescored: list[str] = field(default_factory=list)
+    changes: list[dict] = field(default_factory=list)
 
     @property
     def errors(self) -> int:
@@ -246,6 +286,8 @@ def grade_class(
     reference: dict | None = None,
     isolation: str = "require",
     progress: bool = False,
+    only: Sequence[str] = (),
+    outputs: object = None,
 ) -> ClassOutcome:
     """Grades every submission in ``source`` into ``out`` (see the module docstring).
 
@@ -258,16 +300,22 @@ def grade_class(
             ``scheduler``).
         scheduler: A Dask scheduler address ``tcp://HOST:PORT`` (None: local processes).
         scheduler_timeout_s: Each step of connecting to it [s].
-        resume: Keep the submissions whose results are in ``out``; grade the others.
-        force: Start over in an ``out`` that doorlab wrote.
+        resume: Regrade the class in ``out``: keep what is still right, grade what changed,
+            re-score what only needs it (:mod:`doorlab.pset.regrade`).
+        force: Start over in an ``out`` that doorlab wrote (its sheet is kept in ``history/``).
         reference: The reference episodes' figures to grade against (an earlier grading's
-            ``extra_data["reference"]``); None simulates them here, once.
+            ``extra_data["reference"]``); None simulates them here, once (with ``resume``:
+            the class's, unless given).
         isolation: ``"require"`` or ``"insecure"`` (as ``doorlab pset grade --insecure``).
         progress: A progress bar on stderr.
+        only: Submissions (ids) to grade again, simulated, in a class graded before; the
+            others are kept as they are.
+        outputs: What to write at the end besides the sheet
+            (:class:`doorlab.pset.class_outputs.Outputs`: exports, PDFs; None: the defaults).
 
     Raises:
-        ConfigError: No submissions; bad metadata; ``resume`` with another assignment; bad
-            ``jobs`` or ``scheduler``. OutputError: ``out`` may not be written.
+        ConfigError: No submissions; bad metadata; bad ``jobs``, ``scheduler`` or ``only``;
+            ``only`` with another assignment. OutputError: ``out`` may not be written.
         GradingError: The reference episodes could not be simulated (nothing written).
         KeyboardInterrupt: After writing the sheet of the submissions finished so far.
     """
@@ -282,29 +330,40 @@ def grade_class(
     elif not isinstance(jobs, int) or isinstance(jobs, bool) or jobs < 1:
         raise ConfigError(f"jobs must be an integer >= 1, got {jobs!r}")
     digest = assignment_digest(assignment)
-    previous = _check_out(out, submissions, resume=resume, force=force)
-    if previous is not None and previous.digest != digest:
-        raise ConfigError(
-            f"--out {str(out)!r} was graded with another assignment; --resume needs the same "
-            "--assignment (or --force regrades the class with this one)"
-        )
-    if previous is not None:
-        reference = previous.reference
+    previous = _check_out(out, submissions, resume=resume or bool(only), force=force)
+    resumed = previous is not None and bool(previous.digest)
+    check_only(only, submissions, previous if resumed else None, assignment, out)
+    if resumed:
+        reference_changed = reference is not None and reference != previous.reference
+        reference = reference if reference is not None else previous.reference
     elif reference is None:
         from doorlab.pset.grader import grade_reference
 
         reference = grade_reference(jobs=min(3, max(1, jobs)) if scheduler is None else 3)
     run = _ClassRun(out, submissions, reference, assignment, isolation, progress)
+    run.previous, run.outputs = previous, outputs
+    if resumed:
+        run.plan(submissions, previous, set(only), reference_changed)
+    elif previous is not None:  # --force over a class: every submission graded again
+        from doorlab.pset.regrade import Step
+
+        run.ledger.old = dict(previous.results)
+        why = Step("grade", "--force: the class graded again from scratch")
+        run.ledger.steps = {s.id: why for s in submissions if s.path is not None}
     for submission in submissions:
-        if previous is not None and submission.id in previous.results:
-            run.rows[submission.id] = sheet_row(submission, previous.results[submission.id])
-            run.kept.append(submission.id)
-        elif submission.path is None:
+        if submission.id not in run.rows and submission.path is None:
             run.rows[submission.id] = sheet_row(submission, None)
-    todo = [s for s in submissions if s.id not in run.rows]
-    info = {"reference": reference, "assignment_sha256": digest, "source": str(source)}
-    run.start(info, resume=resume, force=force, todo=todo)
+        elif only and submission.id not in run.rows and submission.id not in only:
+            error = "not graded yet (--only graded others; --resume grades it)"
+            run.rows[submission.id] = sheet_row(submission, None, error=error)
+    todo = [s for s in submissions if s.id not in run.rows and s.id not in run.planned]
+    settings = settings_of(assignment)
+    info = {"reference": reference, "assignment_sha256": digest, "assignment": settings}
+    info["source"] = str(source)
+    run.start(info, resume=resumed, force=force, todo=todo)
+    interrupted = True
     try:
+        run.apply_planned()
         if todo:
             from doorlab.runtime.executor import open_executor
 
@@ -315,14 +374,17 @@ def grade_class(
             ) as executor:
                 run.executor = executor.description
                 run.grade(executor, todo)
+        interrupted = False
     finally:
-        run.finish()
+        run.finish(interrupted=interrupted)
     return ClassOutcome(
         [run.rows[s.id] for s in submissions if s.id in run.rows],
         run.graded,
         run.kept,
         run.summary,
         run.executor,
+        run.rescored,
+        run.changes,
     )
 
 
@@ -344,6 +406,35 @@ class _ClassRun:
         self.executor = "none (every submission was in the folder)"
         self.started = False
         self.bar = None
+        from doorlab.pset.regrade import Ledger
+
+        self.ledger = Ledger(assignment, reference)
+        self.submissions = {s.id: s for s in submissions}
+        self.previous = self.outputs = None
+        self.planned: dict[str, dict] = {}  # re-scored results, written once the folder is
+        self.results: dict[str, dict] = {}  # every result in the sheet, by id
+        self.errors: dict[str, str] = {}
+        self.rescored: list[str] = []
+        self.changes: list[dict] = []
+
+    def plan(self, submissions, previous, only: set[str], reference_changed: bool) -> None:
+        """A class graded before: what to keep, re-score and grade (:mod:`doorlab.pset.regrade`)."""
+        kept, self.planned = self.ledger.plan(submissions, previous, only, reference_changed)
+        for submission in submissions:
+            if submission.id in kept:
+                self.rows[submission.id] = sheet_row(submission, kept[submission.id])
+                self.results[submission.id] = kept[submission.id]
+                self.kept.append(submission.id)
+        self.rescored = list(self.ledger.rescored)
+
+    def apply_planned(self) -> None:
+        """Writes the re-scored results (their rows, the sheet)."""
+        for sid, results in self.planned.items():
+            _commit(self.out, sid, results)
+            self.rows[sid] = sheet_row(self.submissions[sid], results)
+            self.results[sid] = results
+        if self.planned:
+            self.write_sheet()
 
     def start(self, info: dict, *, resume: bool, force: bool, todo: list) -> None:
         """Creates the folder (a new class) and writes the class's file and sheet."""
@@ -379,8 +470,15 @@ class _ClassRun:
             intake = Intake(missing=list(STUDENT_FILES), refused=str(e))
             self.done(submission, {"results": grade_taken({}, intake, assignment=self.assignment)})
             return None
+        self.ledger.took(submission, files, intake)
         if intake.refused is not None:  # over a bound: not graded, no worker needed
             self.done(submission, {"results": grade_taken({}, intake, assignment=self.assignment)})
+            return None
+        copied = self.ledger.copy_for(submission)
+        if copied is not None:  # identical files graded already: the same results
+            self.done(submission, {"results": copied})
+            return None
+        if self.ledger.wait(submission):  # identical files being graded: their results
             return None
         return {
             "files": files,
@@ -422,27 +520,37 @@ class _ClassRun:
                 self.done(submission, outcome)
 
     def done(self, submission: Submission, outcome: dict) -> None:
-        """Writes a finished submission's results and row, then the sheet."""
+        """Writes a finished submission's results and row, then the sheet; then those of the
+        submissions with identical files that waited for it."""
         results = outcome.get("results")
+        released = self.ledger.released(submission, outcome)
         if results is not None:
+            results = self.ledger.finish(submission, results)
             _commit(self.out, submission.id, results)
             self.rows[submission.id] = sheet_row(submission, results)
+            self.results[submission.id] = results
         else:
             error = str(outcome.get("error") or "no results")
             self.rows[submission.id] = sheet_row(submission, None, error=error)
+            self.errors[submission.id] = error
         self.graded.append(submission.id)
         self.write_sheet()
         if self.bar is not None:
             bad = sum(r.get("status") == "error" for r in self.rows.values())
             self.bar.set_postfix_str(f"{bad} grading errors", refresh=False)
             self.bar.update(1)
+        for waiting, copied in released:
+            self.done(waiting, copied)
 
     def write_sheet(self) -> None:
         rows = [self.rows[i] for i in self.order if i in self.rows]
         _write_text(self.out, GRADES_CSV, sheet_text(rows, self.keys))
 
-    def finish(self) -> None:
-        """The sheet of what finished, whatever ended the run; the summary."""
+    def finish(self, *, interrupted: bool = False) -> None:
+        """The sheet of what finished, whatever ended the run; the summary; the changes and
+        the sheet replaced; then (not after Ctrl-C) the class's pages and exports."""
+        from doorlab.pset import class_outputs
+
         if self.bar is not None:
             self.bar.close()
         if not self.started:
@@ -450,41 +558,20 @@ class _ClassRun:
         self.write_sheet()
         rows = [self.rows[i] for i in self.order if i in self.rows]
         self.summary = summarize(rows, self.keys, len(self.order))
+        order = [self.submissions[i] for i in self.order]
+        self.changes = self.ledger.changes(order, self.results, self.errors)
+        if self.previous is not None and self.previous.sheet is not None:
+            class_outputs.write_changes(self.out, self.previous, self.changes, _write_text)
+            self.summary.append(class_outputs.changes_line(self.changes))
         _write_text(self.out, SUMMARY_TXT, "\n".join(self.summary) + "\n")
-
-
-def summarize(rows: list[dict], keys: list[str], total: int) -> list[str]:
-    """The summary: counts by status, the score distribution, the most often failed tests."""
-    from doorlab.pset.verdicts import TESTS
-
-    counts = Counter(r.get("status") for r in rows)
-    parts = [f"{n} {status.replace('_', ' ')}" for status, n in sorted(counts.items())]
-    lines = [f"{len(rows)} of {total} submissions in the sheet: " + ", ".join(parts)]
-    scored = [r for r in rows if r.get("status") in ("graded", "not_graded")]
-    if scored:
-        totals = [float(r["total"]) for r in scored]
-        best = max(float(r.get("max_total") or 0) for r in scored)
-        lines.append(
-            f"scores (of {best:g}): mean {statistics.fmean(totals):.2f}, median "
-            f"{statistics.median(totals):g}, min {min(totals):g}, max {max(totals):g}"
-        )
-        by_score = sorted(Counter(totals).items(), reverse=True)
-        shown = [f"{score:g}: {n}" for score, n in by_score[:SHOWN_SCORES]]
-        if len(by_score) > SHOWN_SCORES:
-            shown.append(f"others: {sum(n for _, n in by_score[SHOWN_SCORES:])}")
-        lines.append("distribution (total: submissions): " + ", ".join(shown))
-        names = {t.key: t.name for t in TESTS}
-        failed = Counter(k for r in scored for k in keys if r.get(k) is not None and r[k] <= 0)
-        if failed:
-            top = failed.most_common(3)
-            lines.append(
-                "most often failed: "
-                + "; ".join(f"{names.get(k, k)} ({n} of {len(scored)})" for k, n in top)
+        if not interrupted:
+            self.summary += class_outputs.write_class_outputs(
+                self.out,
+                order,
+                rows,
+                self.results,
+                self.ledger.assignment,
+                self.outputs,
+                _write_text,
             )
-    errors = [r for r in rows if r.get("status") == "error"]
-    if errors:
-        lines.append(
-            f"{len(errors)} grading errors (the grader's, not the students'; --resume grades "
-            f"them again), first: {errors[0]['submission']}: {errors[0].get('error', '')}"
-        )
-    return lines
+            _write_text(self.out, SUMMARY_TXT, "\n".join(self.summary) + "\n")

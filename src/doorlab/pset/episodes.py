@@ -34,6 +34,12 @@ ARC_DURATION = 10.0
 """The problem set's arc plans' duration [s]."""
 GRIPPER_WIDTH = 0.005
 """The problem set's finger setpoint while the plans run [m]."""
+SERIES_PERIOD_S = 0.05
+"""Sampling of the episode series kept for the feedback figures [s] (every 5th log sample:
+201 values over the 10 s arc; a plot needs no more, and each results file stays small)."""
+SERIES_DECIMALS = 3
+"""Decimals kept of each series value (mm and deg: 1 um and 0.001 deg, below any plot's
+resolution)."""
 HELPER_KNOTS = 1001
 """Values of tau at which the reference calc_p_Q and calc_R_WL7_ref are sent to the
 student's process, which interpolates between them (:func:`reference_helper_table`)."""
@@ -151,6 +157,26 @@ class RemotePlan:
         return Command(answer[:7].copy(), answer[7:].copy())
 
 
+def episode_series(result, tracking) -> dict:
+    """The arc window's series, compact (what the feedback figures draw): time from the
+    arc's start [s], the door's opening from its angle there [deg], Q's signed radial error
+    [mm] and L7's orientation error [deg], every :data:`SERIES_PERIOD_S`."""
+    step = max(1, round(SERIES_PERIOD_S / float(np.median(np.diff(result.t)))))
+    t0 = result.arc_window[0]
+    i0 = int(np.argmin(np.abs(result.t - t0)))
+    left = np.interp(tracking.t, result.t, result.door_angles[:, 0])
+
+    def kept(values: np.ndarray) -> list[float]:
+        return np.round(values[::step], SERIES_DECIMALS).tolist()
+
+    return {
+        "t_s": kept(tracking.t - t0),
+        "door_opening_deg": kept(np.degrees(result.door_angles[i0, 0] - left)),
+        "radial_error_mm": kept(tracking.radial_error * 1e3),
+        "orientation_error_deg": kept(np.degrees(tracking.orientation_error)),
+    }
+
+
 def _episode_figures(result, scenario: Scenario) -> dict:
     from doorlab.episode.metrics import compute_metrics, compute_tracking
 
@@ -170,6 +196,7 @@ def _episode_figures(result, scenario: Scenario) -> dict:
         "door_opening_at_arc_end_rad": float(left[i0] - left[i1]),
         "handle_held": m.handle_held,
         "wall_time_s": m.wall_time_s,
+        "series": episode_series(result, tracking),
     }
 
 

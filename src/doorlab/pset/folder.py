@@ -86,6 +86,11 @@ def _context(solutions: bool, assignment=None) -> dict:
     from doorlab.pset.assignment import Assignment
 
     t = (assignment or Assignment()).tests
+    shown = {spec.key for spec in TESTS if getattr(t, spec.key).visibility != "hidden"}
+    later = {
+        "after_due_date": " (your result shows on Gradescope after the due date)",
+        "after_published": " (your result shows once the course publishes its grades)",
+    }
     values = {
         "ik_margin": t.ik_episode.radial_margin * 1e3,
         "ik_arc_end": t.ik_episode.arc_end_margin_deg,
@@ -97,25 +102,41 @@ def _context(solutions: bool, assignment=None) -> dict:
         {
             "name": spec.name,
             "points": f"{getattr(t, spec.key).points:g}",
-            "rule": _RULES[spec.name].format(**values),
+            "rule": _RULES[spec.name].format(**values)
+            + later.get(getattr(t, spec.key).visibility, ""),
         }
         for spec in TESTS
+        if spec.key in shown
     ]
     helpers = {
-        spec.name.split(": ")[0]: getattr(t, spec.key).helpers for spec in TESTS if spec.helpers
+        spec.name.split(": ")[0]: getattr(t, spec.key).helpers
+        for spec in TESTS
+        if spec.helpers and spec.key in shown
     }
     reasons = [
-        f"IK: +{values['ik_margin']:.2f} mm, because each knot may sit anywhere in the "
-        "+-1 mm box, so two valid IKs can place a knot 2 sqrt(2) mm apart.",
-        f"Arc end: {values['ik_arc_end']:g} deg; a correct plan ends within a fraction of a "
-        "degree of the reference, one that does not follow the whole arc misses by tens.",
-        "Velocity: staying below pointwise IK's error is the point of task 2 (the loop "
-        "closes on Q at 200 Hz); the orientation margin "
-        f"{values['o_margin']:g} rad is far above the difference between two correct plans, "
-        "while a wrong rotational term is off by tenths of a radian.",
-        f"Impedance: {values['door']:g} deg of door opening at the arc's end; a correct "
-        "J^T F lands within a degree of the reference, a wrong gain, sign or frame leaves "
-        "the door far behind or loses the handle.",
+        (
+            "ik_episode",
+            f"IK: +{values['ik_margin']:.2f} mm, because each knot may sit anywhere in the "
+            "+-1 mm box, so two valid IKs can place a knot 2 sqrt(2) mm apart.",
+        ),
+        (
+            "ik_episode",
+            f"Arc end: {values['ik_arc_end']:g} deg; a correct plan ends within a fraction of "
+            "a degree of the reference, one that does not follow the whole arc misses by tens.",
+        ),
+        (
+            "velocity_episode",
+            "Velocity: staying below pointwise IK's error is the point of task 2 (the loop "
+            "closes on Q at 200 Hz); the orientation margin "
+            f"{values['o_margin']:g} rad is far above the difference between two correct "
+            "plans, while a wrong rotational term is off by tenths of a radian.",
+        ),
+        (
+            "impedance_episode",
+            f"Impedance: {values['door']:g} deg of door opening at the arc's end; a correct "
+            "J^T F lands within a degree of the reference, a wrong gain, sign or frame leaves "
+            "the door far behind or loses the handle.",
+        ),
     ]
     return {
         "solutions": solutions,
@@ -125,7 +146,8 @@ def _context(solutions: bool, assignment=None) -> dict:
         "unit_limit": f"{UNIT_TIME_LIMIT_S:.0f}",
         "episode_limit": f"{EPISODE_TIME_LIMIT_S:.0f}",
         "tests": tests,
-        "reasons": reasons,
+        "reasons": [text for key, text in reasons if key in shown],
+        "hidden_tests": len(TESTS) - len(shown),
         "helpers": helpers,
         "student_files": STUDENT_FILES,
     }
@@ -144,13 +166,26 @@ def _environment() -> jinja2.Environment:
     )
 
 
-def render_folder(solutions: bool, assignment=None) -> dict[str, str]:
+def render_folder(solutions: bool, assignment=None, *, course: bool = False) -> dict[str, str]:
     """Every file of the folder: relative path -> text (the README's points and margins are
-    ``assignment``'s, default: the grader's defaults)."""
+    ``assignment``'s, default: the grader's defaults; a hidden test's are left out).
+
+    Args:
+        solutions: The reference implementations instead of the stubs.
+        assignment: The course's settings (:class:`doorlab.pset.assignment.Assignment`).
+        course: Add ``course.yaml``, the settings students may see, which the folder's
+            self-check grades with (:mod:`doorlab.pset.course`; the handout's).
+    """
     env = _environment()
     context = _context(solutions, assignment)
+    context["course_file"] = course
     out = {dest: env.get_template(src).render(context) for src, dest in TEMPLATES}
     out[NOTEBOOK_NAME] = notebook_json()
+    if course:
+        from doorlab.pset.assignment import Assignment
+        from doorlab.pset.course import COURSE_FILE, course_yaml
+
+        out[COURSE_FILE] = course_yaml(assignment or Assignment())
     return out
 
 

@@ -51,6 +51,7 @@ __all__ = [
     "grade_submission",
     "grade_taken",
     "take_files",
+    "with_intake",
     "load_reference",
     "pretty_format_json_results",
     "write_results",
@@ -274,6 +275,7 @@ def grade_submission(
     isolation: str = "require",
     harden: Sequence[str | Path] = (),
     supervisor: Supervisor | None = None,
+    only: Sequence[str] | None = None,
 ) -> dict:
     """Grades a submission as every grading path does (``doorlab pset grade``, the folder's
     ``test_pset_5a.py``, Gradescope's ``run_autograder``, ``doorlab pset grade-all``): its
@@ -286,7 +288,8 @@ def grade_submission(
 
     Args:
         source: The submission: a folder, or a zip file.
-        jobs, reference, assignment, isolation, harden, supervisor: As for :func:`grade`.
+        jobs, reference, assignment, isolation, harden, supervisor, only: As for
+            :func:`grade`.
         seed: The grading's random seed, as for :func:`grade`.
         require_files: Refuse (OutputError) a submission that holds none of the student
             files, rather than grade the stubs (``doorlab pset grade``: a mistyped folder;
@@ -320,6 +323,7 @@ def grade_submission(
         isolation=isolation,
         harden=harden,
         supervisor=supervisor,
+        only=only,
     )
 
 
@@ -349,6 +353,7 @@ def grade_taken(
     isolation: str = "require",
     harden: Sequence[str | Path] = (),
     supervisor: Supervisor | None = None,
+    only: Sequence[str] | None = None,
 ) -> dict:
     """Grades what :func:`take_files` took: a fresh stub folder with ``files`` over its stubs
     (:func:`grade`), or, for a submission the intake refused, every test 0 with the reason.
@@ -360,7 +365,10 @@ def grade_taken(
     from doorlab.pset.verdicts import TESTS, results_not_graded
 
     if intake.refused is not None:
-        results = results_not_graded(TESTS, intake.refused, assignment)
+        from doorlab.pset.assignment import Assignment
+
+        specs = [t for t in TESTS if only is None or t.name in only]
+        results = results_not_graded(specs, intake.refused, assignment or Assignment())
     else:
         try:
             tmp = tempfile.TemporaryDirectory(prefix="doorlab_submission_")
@@ -379,13 +387,28 @@ def grade_taken(
                 isolation=isolation,
                 harden=harden,
                 supervisor=supervisor,
+                only=only,
             )
     header = f"Graded by doorlab {__version__} (Drake {version('drake')})."
-    results["output"] = "\n".join(
-        filter(None, [header, intake.summary(), str(results.get("output") or "")])
-    )
+    grading = str(results.get("output") or "")
+    results["output"] = "\n".join(filter(None, [header, intake.summary(), grading]))
     results["extra_data"]["submission"] = intake.to_dict()
+    results["extra_data"]["grading_output"] = grading
     return results
+
+
+def with_intake(results: dict, intake) -> dict:
+    """A copy of ``results`` (another submission's grading of the same files) with
+    ``intake``'s account of what was taken from this submission: its top-level output and
+    ``extra_data.submission`` (the rest is the same: the same files grade the same)."""
+    import copy
+
+    out = copy.deepcopy(results)
+    header = str(out.get("output") or "").split("\n", 1)[0]
+    grading = str(out["extra_data"].get("grading_output") or "")
+    out["output"] = "\n".join(filter(None, [header, intake.summary(), grading]))
+    out["extra_data"]["submission"] = intake.to_dict()
+    return out
 
 
 def write_results(results: dict, path: str | Path) -> Path:
@@ -432,15 +455,33 @@ def pretty_format_json_results(path: str | Path) -> str:
     data = json.loads(Path(path).read_text())
     warning = isolation_warning(data)
     lines = [] if warning is None else [warning]
+    check = (data.get("extra_data") or {}).get("self_check")
+    check = check if isinstance(check, dict) else {}
+    if check.get("source"):
+        lines.append(clean_text(f"Graded with {check['source']}.", 300))
     lines += clean_text(str(data.get("output") or "")).splitlines()
+    notes = check.get("notes") if isinstance(check.get("notes"), dict) else {}
     for t in data["tests"]:
         mark = "PASS" if t["score"] >= t["max_score"] else "FAIL"
         name = clean_text(t["name"], 200)
-        lines.append(f"[{mark}] {name}: {t['score']:g} / {t['max_score']:g}")
+        note = f" ({clean_text(str(notes[t['name']]), 200)})" if t["name"] in notes else ""
+        lines.append(f"[{mark}] {name}: {t['score']:g} / {t['max_score']:g}{note}")
         for line in clean_text(str(t.get("output", ""))).splitlines():
             lines.append(f"    {line}")
+    not_run = [t for t in check.get("not_run") or [] if isinstance(t, dict)]
+    for t in not_run:
+        name, why = clean_text(str(t.get("name")), 200), clean_text(str(t.get("why")), 200)
+        lines.append(
+            f"[LATER] {name}: {float(t.get('points') or 0):g} points, not run here ({why})"
+        )
     total = sum(t["max_score"] for t in data["tests"])
-    lines.append(f"Total score: {data['score']:g} / {total:g}")
+    if isinstance(check.get("course_points"), (int, float)):
+        total = float(check["course_points"])
+    line = f"Total score: {data['score']:g} / {total:g}"
+    if not_run:
+        later = sum(float(t.get("points") or 0) for t in not_run)
+        line += f" ({later:g} of them in tests this check does not run)"
+    lines.append(line)
     return "\n".join(lines)
 
 
@@ -463,8 +504,9 @@ def load_reference(path: str | Path) -> dict[str, dict]:
 
 def main(argv: Sequence[str]) -> int:
     """``python -I -m doorlab.pset.grader FOLDER [RESULTS_JSON] [--reference FILE]
-    [--insecure | --self-check]`` (the folder's ``test_pset_5a.py`` runs it with
-    ``--self-check``: a student checking their own work needs no isolation from it): grades
+    [--insecure | --self-check] [--course COURSE_YAML]`` (the folder's ``test_pset_5a.py``
+    runs it with ``--self-check``, and ``--course`` when the folder has the handout's
+    ``course.yaml``: a student checking their own work needs no isolation from it): grades
     FOLDER's student files as Gradescope does (:func:`grade_submission`), writes the JSON
     (default ``test_results.json`` in the working directory) and prints the summary."""
     import argparse
@@ -489,13 +531,32 @@ def main(argv: Sequence[str]) -> int:
         action="store_true",
         help="a student checking their own folder: grade isolated where possible, else not",
     )
+    parser.add_argument(
+        "--course",
+        type=Path,
+        default=None,
+        help="the course's settings (the handout's course.yaml): its points, margins, random seed "
+        "and the tests it lets students run",
+    )
     args = parser.parse_args(argv)
     folder, out = args.folder.resolve(), args.out.resolve()
+    course = None if args.course is None else args.course.resolve()
     os.chdir("/")  # nothing of the folder in this process either
     try:
+        from doorlab.pset.course import default_check, load_course
+
+        check = default_check() if course is None else load_course(course)
         reference = None if args.reference is None else load_reference(args.reference)
         policy = "self-check" if args.self_check else "insecure" if args.insecure else "require"
-        results = grade_submission(folder, reference=reference, isolation=policy)
+        results = grade_submission(
+            folder,
+            reference=reference,
+            isolation=policy,
+            assignment=check.assignment,
+            only=check.run,
+        )
+        if args.self_check or course is not None:
+            results["extra_data"]["self_check"] = check.to_dict()
         write_results(results, out)
     except DoorlabError as e:
         print(f"test_pset_5a.py: {e}", file=sys.stderr)

@@ -5,8 +5,10 @@ init``'s files) and the wheel of this doorlab (:func:`doorlab.pset.wheel.wheel_b
 same the autograder zip carries, so the doorlab students run is the one that grades them).
 The folder's README installs it with ``pip install "./doorlab-<version>-py3-none-any.whl[pset]"``
 (the other packages from the package index) and says what to submit; its points and margins
-are the assignment's (``--assignment``). Written atomically; the zip's comment marks it as
-doorlab's, so ``--force`` replaces only a handout doorlab wrote.
+are the assignment's (``--assignment``), and ``course.yaml`` carries what students may see of
+it, which the folder's self-check grades with (:mod:`doorlab.pset.course`). Written
+atomically; the zip's comment marks it as doorlab's, so ``--force`` replaces only a handout
+doorlab wrote.
 """
 
 from __future__ import annotations
@@ -55,7 +57,7 @@ def write_handout(out: str | Path, *, force: bool = False, assignment: object = 
     out = Path(out)
     check_zip_destination(out, force=force, ours=_is_ours, what="a handout")
     wheel_name, wheel = wheel_bytes()
-    files = render_folder(solutions=False, assignment=assignment)
+    files = render_folder(solutions=False, assignment=assignment, course=True)
 
     def write(archive: zipfile.ZipFile) -> None:
         archive.comment = COMMENT + f" (doorlab {__version__})".encode()

@@ -60,11 +60,14 @@ class Submission:
             (``DIR/<id>/results.json``, the sheet's first column).
         path: The folder or zip; None when the metadata names it but the folder is missing.
         submitters: The students, ``[{"name", "sid", "email"}]`` (empty without metadata).
+        created_at: When it was submitted (the metadata's ``:created_at:``, ISO 8601; ""
+            without one): the late policy's time (:mod:`doorlab.pset.late`).
     """
 
     id: str
     path: Path | None
     submitters: tuple = field(default_factory=tuple)
+    created_at: str = ""
 
 
 def _text(value: object) -> str:
@@ -81,6 +84,26 @@ def _key(key: object) -> str:
 def read_metadata(path: Path) -> dict[str, tuple]:
     """The students of each submission of a Gradescope export's ``submission_metadata.yml``:
     folder name -> ``({"name", "sid", "email"}, ...)``.
+
+    Raises:
+        ConfigError: As :func:`read_metadata_entries`.
+    """
+    return {folder: people for folder, (people, _) in read_metadata_entries(path).items()}
+
+
+def _created_at(value: object) -> str:
+    """The metadata's submission time as ISO 8601 text ("" when there is none or it is no
+    time)."""
+    from doorlab.pset.late import submission_time
+
+    when = submission_time(value if not isinstance(value, str) else value[:FIELD_CHARS])
+    return when.isoformat() if when is not None else ""
+
+
+def read_metadata_entries(path: Path) -> dict[str, tuple[tuple, str]]:
+    """Each submission's students and submission time of a Gradescope export's
+    ``submission_metadata.yml``: folder name -> ``(({"name", "sid", "email"}, ...),
+    created_at)`` (``created_at``: ISO 8601, "" without one).
 
     Raises:
         ConfigError: The file cannot be read, is larger than :data:`MAX_METADATA_BYTES`, is
@@ -113,7 +136,7 @@ def read_metadata(path: Path) -> dict[str, tuple]:
             if isinstance(person, dict):
                 fields = {_key(k): v for k, v in person.items()}
                 submitters.append({k: _text(fields.get(k)) for k in ("name", "sid", "email")})
-        out[str(folder)] = tuple(submitters)
+        out[str(folder)] = (tuple(submitters), _created_at(entry.get("created_at")))
     return out
 
 
@@ -128,7 +151,7 @@ def find_submissions(folder: Path) -> list[Submission]:
     if not folder.is_dir():
         raise ConfigError(f"{folder} is not a folder of submissions")
     metadata_path = folder / METADATA_NAME
-    metadata = read_metadata(metadata_path) if metadata_path.exists() else {}
+    metadata = read_metadata_entries(metadata_path) if metadata_path.exists() else {}
     found: dict[str, Path] = {}
     zips: list[tuple[str, Path]] = []
     with os.scandir(folder) as entries:
@@ -150,7 +173,7 @@ def find_submissions(folder: Path) -> list[Submission]:
         stem = name[:-4]
         found[stem if stem and stem not in found else name] = path
     ids = sorted(set(found) | set(metadata))
-    return [Submission(i, found.get(i), metadata.get(i, ())) for i in ids]
+    return [Submission(i, found.get(i), *metadata.get(i, ((), ""))) for i in ids]
 
 
 # The sheet ---------------------------------------------------------------------------------
@@ -176,6 +199,10 @@ def columns(test_keys: list[str]) -> list[str]:
         "seed",
         "sandbox",
         "wall_time_s",
+        "submitted_at",
+        "late_days",
+        "late_penalty",
+        "same_files_as",
         "error",
     ]
 
@@ -194,6 +221,7 @@ def sheet_row(submission: Submission, results: dict | None, *, error: str = "") 
         "names": _people(submission, "name"),
         "sids": _people(submission, "sid"),
         "emails": _people(submission, "email"),
+        "submitted_at": submission.created_at,
     }
     if results is None:
         status = "absent" if submission.path is None and not error else "error"
@@ -204,6 +232,8 @@ def sheet_row(submission: Submission, results: dict | None, *, error: str = "") 
         row[spec.key] = test.get("score") if test else None
     extra = results.get("extra_data") or {}
     seed = extra.get("seed") or {}
+    late = extra.get("late") if isinstance(extra.get("late"), dict) else {}
+    batch = extra.get("batch") if isinstance(extra.get("batch"), dict) else {}
     return {
         **row,
         "total": results.get("score"),
@@ -212,7 +242,10 @@ def sheet_row(submission: Submission, results: dict | None, *, error: str = "") 
         "missing_files": ", ".join((extra.get("submission") or {}).get("missing") or []),
         "seed": seed.get("grading") if isinstance(seed, dict) else None,
         "sandbox": (extra.get("sandbox") or {}).get("mode") or "",
-        "wall_time_s": (extra.get("batch") or {}).get("wall_time_s"),
+        "wall_time_s": batch.get("wall_time_s"),
+        "late_days": late.get("days_late"),
+        "late_penalty": late.get("penalty_points"),
+        "same_files_as": batch.get("same_files_as") or "",
         "error": "",
     }
 

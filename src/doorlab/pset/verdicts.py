@@ -249,6 +249,14 @@ TESTS: tuple[TestSpec, ...] = (
         number="1.1",
     ),
     TestSpec(
+        "Task 1 episode: IK with 10 knots, doors open",
+        2.0,
+        ("student:ik", "reference:ik"),
+        _judge_ik,
+        key="ik_episode",
+        number="1.2",
+    ),
+    TestSpec(
         "Task 2 unit test: calc_p_Q",
         1.0,
         ("unit:calc_p_Q",),
@@ -273,22 +281,6 @@ TESTS: tuple[TestSpec, ...] = (
         number="2.3",
     ),
     TestSpec(
-        "Task 3 unit test: IiwaTaskSpaceImpedancePlan.CalcTorqueCommand",
-        2.0,
-        ("unit:impedance",),
-        _judge_unit("unit:impedance"),
-        key="impedance_unit",
-        number="3.1",
-    ),
-    TestSpec(
-        "Task 1 episode: IK with 10 knots, doors open",
-        2.0,
-        ("student:ik", "reference:ik"),
-        _judge_ik,
-        key="ik_episode",
-        number="1.2",
-    ),
-    TestSpec(
         "Task 2 episode: velocity plan, doors open",
         2.0,
         ("student:velocity", "reference:velocity", "reference:ik"),
@@ -296,6 +288,14 @@ TESTS: tuple[TestSpec, ...] = (
         key="velocity_episode",
         number="2.4",
         helpers=_HELPERS,
+    ),
+    TestSpec(
+        "Task 3 unit test: IiwaTaskSpaceImpedancePlan.CalcTorqueCommand",
+        2.0,
+        ("unit:impedance",),
+        _judge_unit("unit:impedance"),
+        key="impedance_unit",
+        number="3.1",
     ),
     TestSpec(
         "Task 3 episode: impedance plan, doors closed",
@@ -307,7 +307,7 @@ TESTS: tuple[TestSpec, ...] = (
         helpers=_HELPERS,
     ),
 )
-"""Every graded test, in report order."""
+"""Every graded test, in number order (task.test: the order of the results and the sheet)."""
 
 # What the student's process must not see -------------------------------------------------
 
@@ -481,10 +481,11 @@ def _gradescope_test(spec: TestSpec, settings: object, passed: bool, output: str
 
 def _gradescope_results(assignment: object, tests: list[dict], output: str) -> dict:
     """The top level of Gradescope's results: plain text everywhere (no HTML, Markdown or
-    ANSI is rendered from a student's output), the assignment's visibility."""
+    ANSI is rendered from a student's output), the assignment's visibility and its stdout's."""
     return {
         "score": sum(t["score"] for t in tests),
         "visibility": getattr(assignment, "visibility", "visible"),
+        "stdout_visibility": getattr(assignment, "stdout_visibility", "hidden"),
         "output": output,
         "output_format": "text",
         "test_output_format": "text",
@@ -516,13 +517,7 @@ def results_from_jobs(
         isolation: The grading's :class:`~doorlab.pset.isolation.Isolation` (None: no
             student process ran).
     """
-    tests = []
-    for spec in specs:
-        settings = test_settings(assignment, spec)
-        passed, output = spec.judge(results, settings)
-        if note := _helper_note(spec, settings, results):
-            output = f"{output}\n{note}" if output else note
-        tests.append(_gradescope_test(spec, settings, passed, output))
+    tests = [judge_test(spec, test_settings(assignment, spec), results) for spec in specs]
     line = ""
     if drawn is not None:
         line = (
@@ -536,8 +531,40 @@ def results_from_jobs(
         "seed": drawn,
         "reference": {k: v for k, v in results.items() if k.startswith("reference:")},
         "sandbox": _sandbox_facts(results, isolation),
+        "episodes": stored_episodes(results),
+        "settings": _settings(assignment),
     }
     return out
+
+
+def judge_test(spec: TestSpec, settings: object, results: dict[str, dict]) -> dict:
+    """One test's Gradescope entry, judged on the jobs' ``results`` under ``settings`` (its
+    assignment entry: points, visibility, margins; None: the defaults)."""
+    passed, output = spec.judge(results, settings)
+    if note := _helper_note(spec, settings, results):
+        output = f"{output}\n{note}" if output else note
+    return _gradescope_test(spec, settings, passed, output)
+
+
+def stored_episodes(results: dict[str, dict]) -> dict[str, dict]:
+    """What re-judging needs of the student's episodes (``extra_data.episodes``): each
+    ``student:*`` job's figures (with the compact series the feedback figures draw) or its
+    failure, without its times and sandbox facts (the same files give the same figures)."""
+    out = {}
+    for job, result in results.items():
+        if not job.startswith("student:") or not isinstance(result, dict):
+            continue
+        kept = {k: v for k, v in result.items() if k not in ("sandbox", "seconds")}
+        if isinstance(kept.get("figures"), dict):
+            kept["figures"] = {k: v for k, v in kept["figures"].items() if k != "wall_time_s"}
+        out[job] = kept
+    return out
+
+
+def _settings(assignment: object) -> dict | None:
+    """The settings a grading used (``extra_data.settings``), as plain data."""
+    to_dict = getattr(assignment, "to_dict", None)
+    return to_dict() if callable(to_dict) else None
 
 
 def results_not_graded(specs: Sequence[TestSpec], reason: str, assignment: object = None) -> dict:
@@ -547,5 +574,9 @@ def results_not_graded(specs: Sequence[TestSpec], reason: str, assignment: objec
     tests = [_gradescope_test(s, test_settings(assignment, s), False, text) for s in specs]
     out = _gradescope_results(assignment, tests, text)
     out["execution_time"] = 0.0
-    out["extra_data"] = {"max_score": sum(t["max_score"] for t in tests), "not_graded": reason}
+    out["extra_data"] = {
+        "max_score": sum(t["max_score"] for t in tests),
+        "not_graded": reason,
+        "settings": _settings(assignment),
+    }
     return out

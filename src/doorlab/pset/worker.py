@@ -55,6 +55,41 @@ class AnswerError(Exception):
     """The student's function returned something that is not the expected kind of value."""
 
 
+def _relative(filename: object, folder: Path) -> str | None:
+    """``filename`` relative to the student's folder (None: not one of its files)."""
+    try:
+        path = Path(str(filename)).resolve()
+    except (OSError, ValueError):
+        return None
+    return str(path.relative_to(folder)) if path.is_relative_to(folder) else None
+
+
+def import_failure(name: str, e: BaseException, folder: Path) -> str:
+    """One line saying which of the student's files did not import, where, and that every
+    test using it fails for that reason (not the test's own check)."""
+    where = None
+    if isinstance(e, SyntaxError):  # the file itself: no frame of it in the traceback
+        where = (_relative(e.filename, folder), e.lineno)
+    if where is None or where[0] is None:
+        frames = [
+            (rel, f.lineno)
+            for f in traceback.extract_tb(e.__traceback__)
+            if (rel := _relative(f.filename, folder)) is not None
+        ]
+        where = frames[-1] if frames else (name.replace(".", "/") + ".py", None)
+    rel, line = where
+    try:
+        text = (e.msg if isinstance(e, SyntaxError) else str(e)).strip().splitlines()
+    except BaseException:  # noqa: BLE001 - a student's __str__ may raise anything
+        text = []
+    detail = f"{type(e).__name__}: {text[0][:200]}" if text else type(e).__name__
+    at = f" at line {line}" if line else ""
+    return (
+        f"your file {rel} did not import ({detail}{at}), so every test that uses {rel} "
+        f'fails until it does: python3 -c "import {name}" in your folder shows the error'
+    )
+
+
 def _vector(value, size: int, what: str):
     import numpy as np
 
@@ -124,9 +159,15 @@ class Server:
         self.folder = folder
         self.plan = None
 
-    @staticmethod
-    def module(name: str):
-        return importlib.import_module(name)
+    def module(self, name: str):
+        """The student's module ``name``; a file that does not import is one line saying so
+        (not Python's import machinery's traceback)."""
+        try:
+            return importlib.import_module(name)
+        except MemoryError:  # the limit's own message (doorlab.pset.student)
+            raise
+        except Exception as e:  # noqa: BLE001 - a student's file may raise anything
+            raise AnswerError(import_failure(name, e, self.folder)) from None
 
     def _plan_class(self, kind: str):
         plans = self.module("manip_station_sim.robot_plans")

@@ -8,7 +8,9 @@ Every YAML document doorlab reads from a user (``--config``, a sweep SPEC, a ``-
   nested aliases expands to gigabytes; a scenario never needs them;
 - nesting deeper than :data:`MAX_YAML_DEPTH` (a scenario nests 4 levels, a SPEC 6; the
   object builder is recursive, a deep document would exhaust the stack);
-- more than :data:`MAX_YAML_NODES` values (building one costs ~1 kB and ~40 us).
+- more than :data:`MAX_YAML_NODES` values (building one costs ~1 kB and ~40 us);
+- a key that appears twice in one mapping (YAML requires keys to be unique; PyYAML would
+  keep the last one silently, so a setting written twice would quietly lose one of them).
 
 Files are read by :func:`read_text_file`: regular files only (a folder, ``/dev/zero`` or a
 pipe get a one-line message, and are never read), at most :data:`MAX_FILE_BYTES`.
@@ -122,9 +124,36 @@ def _where(error: yaml.YAMLError) -> str:
     return f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
 
 
+class _Mapping:
+    """A mapping being scanned: the keys seen, whether its next node is a key."""
+
+    __slots__ = ("keys", "key_next")
+
+    def __init__(self) -> None:
+        self.keys: set[str] = set()
+        self.key_next = True
+
+
+def _check_key(frames: list, event: yaml.Event) -> None:
+    """Notes a node inside a mapping; refuses a scalar key seen before in that mapping."""
+    frame = frames[-1] if frames else None
+    if not isinstance(frame, _Mapping):
+        return
+    if frame.key_next and isinstance(event, yaml.ScalarEvent):
+        if event.value in frame.keys:
+            raise ConfigError(
+                f"the key {quote_text(event.value)} appears twice in one mapping{_mark(event)}: "
+                "keep one of them"
+            )
+        frame.keys.add(event.value)
+    frame.key_next = not frame.key_next
+
+
 def _scan(text: str) -> None:
-    """Checks a document's events against the budget (nothing is built)."""
+    """Checks a document's events against the budget and its mappings' keys (nothing is
+    built)."""
     depth = nodes = documents = 0
+    frames: list = []  # per open collection: a _Mapping, or None for a list
     for event in yaml.parse(text, Loader=_Loader):
         if isinstance(event, yaml.DocumentStartEvent):
             documents += 1
@@ -137,9 +166,11 @@ def _scan(text: str) -> None:
             )
         if isinstance(event, yaml.CollectionEndEvent):
             depth -= 1
+            frames.pop()
             continue
         if not isinstance(event, yaml.NodeEvent):
             continue
+        _check_key(frames, event)
         if event.anchor is not None:
             raise ConfigError(
                 f"YAML anchors ('&{event.anchor}') are not accepted{_mark(event)}: "
@@ -150,6 +181,7 @@ def _scan(text: str) -> None:
             raise ConfigError(f"has more than {MAX_YAML_NODES} YAML values")
         if isinstance(event, yaml.CollectionStartEvent):
             depth += 1
+            frames.append(_Mapping() if isinstance(event, yaml.MappingStartEvent) else None)
             if depth > MAX_YAML_DEPTH:
                 raise ConfigError(
                     f"nests deeper than {MAX_YAML_DEPTH} levels{_mark(event)} (a scenario nests 4)"

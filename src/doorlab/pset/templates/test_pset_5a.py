@@ -1,9 +1,10 @@
 """The problem set's grader: ``python3 test_pset_5a.py test_results.json``.
 
 Writes Gradescope-format JSON and prints a summary; the tests and their thresholds are
-described in README.md (the grader itself is doorlab.pset.grader). It runs in Python's
-isolated mode and imports nothing from this folder: your code is graded in a separate,
-sandboxed process.
+described in README.md (the grader itself is doorlab.pset.grader). With your course's
+course.yaml (it comes with the handout) it grades as the course does: its points, margins and
+random seed, the tests it lets you run. It runs in Python's isolated mode and imports nothing
+from this folder: your code is graded in a separate, sandboxed process.
 """
 
 import os
@@ -59,6 +60,9 @@ def _main():
     # one (bubblewrap), else as you (the results say which).
     argv = [sys.executable, "-I", "-m", "doorlab.pset.grader", _HERE, *sys.argv[1:]]
     argv.append("--self-check")
+    course = os.path.join(_HERE, "course.yaml")  # the course's settings (the handout's)
+    if os.path.isfile(course):
+        argv += ["--course", course]
     os.execv(sys.executable, argv)
 
 
