@@ -396,6 +396,7 @@ def report(args: argparse.Namespace) -> int:
         scheduler_timeout_s=args.scheduler_timeout,
         robustness=not args.no_robustness,
         arm=not args.no_arm,
+        arm_band=not args.no_arm_band,
     )
     if args.pdf:
         from doorlab.runtime.folders import record_written

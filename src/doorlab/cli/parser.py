@@ -121,6 +121,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="skip the 'On the arm' runs and section (the lab's iiwa: kuka_driver, KUKA's loop)",
     )
+    report.add_argument(
+        "--no-arm-band",
+        action="store_true",
+        help="run 'On the arm' on the arm preset only, without the band of plausible arm "
+        "models (each plan's verdict then rests on the preset's assumptions)",
+    )
     _scheduler(report)
     _common(report)
 
