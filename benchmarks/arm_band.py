@@ -14,7 +14,7 @@ whose door moves 1 deg or more from the prediction, is an interaction the report
 
 Usage::
 
-    python benchmarks/arm_band.py [--jobs 2] [--controllers ...] [--out benchmarks/results/arm_band.json]
+    python benchmarks/arm_band.py [--jobs 2] [--out benchmarks/results/arm_band.json]
 """
 
 from __future__ import annotations

@@ -23,8 +23,8 @@ from report_fixtures import short_scenario
 
 from doorlab.config import Scenario, arm_preset
 from doorlab.episode.controllers import REGISTRY
-from doorlab.report import make_arm_cases, make_experiments
 from doorlab.outputs.pages import format_number
+from doorlab.report import make_arm_cases, make_experiments
 from doorlab.report.experiments import (
     ARM_CONDITIONS,
     ARM_TUNING,
@@ -178,8 +178,10 @@ def _freeze_percent(run_dir: Path) -> float:
     from doorlab.kuka import external_torque_limits
 
     result = EpisodeResult.load(run_dir / "log.npz")
-    tau = result.tau_external if result.tau_external_estimated is None else (
-        result.tau_external_estimated
+    tau = (
+        result.tau_external
+        if result.tau_external_estimated is None
+        else (result.tau_external_estimated)
     )
     return 100 * float(np.max(np.abs(tau) / external_torque_limits()))
 

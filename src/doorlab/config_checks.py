@@ -149,9 +149,7 @@ def validate_kuka(loop, driver, timeline) -> None:
             f"station.inner_loop.kuka_damping[{i}] must be in [{low:g}, {high:g}] (KUKA's "
             f"dimensionless damping), got {quote(value)}",
         )
-    choice(
-        "station.inner_loop.kuka_damping_model", loop.kuka_damping_model, KUKA_DAMPING_MODELS
-    )
+    choice("station.inner_loop.kuka_damping_model", loop.kuka_damping_model, KUKA_DAMPING_MODELS)
     values = loop.kuka_damping_values
     if loop.kuka_damping_model == "values":
         check(

@@ -64,6 +64,9 @@ drake-iiwa-driver writes down (``station.inner_loop.kuka_damping_model: driver_k
 STRIBECK_VELOCITY = 0.01
 """Where the joints' friction falls from stiction to Coulomb friction [rad/s] (the Stribeck
 curve's velocity, ``station.arm``); an assumption, as no source gives the iiwa's."""
+STRIBECK_ONSET = 3.0
+"""The Stribeck decay starts at this many v_eps (the regularizing tanh's width): there tanh is
+0.995, so the friction's largest value is the stiction."""
 MAX_LATENCY = 0.004
 """Largest ``station.arm.latency`` [s]: with its jitter a command must act within the cycle
 (5 ms) that follows the one that received it."""
@@ -120,7 +123,8 @@ def stribeck_friction(
     compensation: np.ndarray | float = 0.0,
 ) -> np.ndarray:
     """The joints' friction torque at joint speeds v [N m] (same shape as v): -(1 - w) (Fc +
-    (Fs - Fc) exp(-(v/vs)^2)) tanh(v / v_eps), vs = :data:`STRIBECK_VELOCITY`.
+    (Fs - Fc) exp(-(max(|v| - 3 v_eps, 0)/vs)^2)) tanh(v / v_eps), vs =
+    :data:`STRIBECK_VELOCITY` (:data:`STRIBECK_ONSET`).
 
     The tanh regularizes the sign at rest over ``v_eps`` (the simulator evaluates the torque
     at the step's start, so its slope Fs / v_eps must stay below M_ii / h:
@@ -132,8 +136,10 @@ def stribeck_friction(
     """
     v = np.asarray(v, float)
     fc, fs = np.asarray(coulomb, float), np.asarray(stiction, float)
-    level = fc + (fs - fc) * np.exp(-((v / STRIBECK_VELOCITY) ** 2))
-    return -(1.0 - np.asarray(compensation, float)) * level * np.tanh(v / np.asarray(v_eps))
+    eps = np.asarray(v_eps, float)
+    slide = np.maximum(np.abs(v) - STRIBECK_ONSET * eps, 0.0) / STRIBECK_VELOCITY
+    level = fc + (fs - fc) * np.exp(-(slide**2))
+    return -(1.0 - np.asarray(compensation, float)) * level * np.tanh(v / eps)
 
 
 def kuka_damping(

@@ -206,7 +206,9 @@ class ArmCell:
         self.latch.SetVectorState(self.latch.GetMyMutableContextFromRoot(root_context), applied)
         seed_random_sources(self.random_sources, root_context)
         for hold in self.latency_holds:  # the latency's holds: the start pose, no torque
-            hold.SetVectorState(hold.GetMyMutableContextFromRoot(root_context), applied[: 2 * NUM_JOINTS])
+            hold.SetVectorState(
+                hold.GetMyMutableContextFromRoot(root_context), applied[: 2 * NUM_JOINTS]
+            )
         memory = self.memory.GetMyMutableContextFromRoot(root_context)
         self.memory.SetVectorState(memory, np.concatenate([q0, zero]))
         status = np.zeros(STATUS_SIZE)

@@ -5,7 +5,9 @@ the cycle. C++ systems only (``SymbolicVectorSystem``, ``RandomSource``, ``Matri
 ``ZeroOrderHold``, ``InverseDynamics``): nothing here runs Python per plant step.
 
 - **Friction** (:func:`add_joint_friction`, in the station): tau_f = -(1 - w) (Fc + (Fs - Fc)
-  exp(-(v/vs)^2)) tanh(v / v_eps) per joint (:func:`doorlab.kuka.stribeck_friction`), w =
+  exp(-(max(|v| - 3 v_eps, 0)/vs)^2)) tanh(v / v_eps) per joint
+  (:func:`doorlab.kuka.stribeck_friction`: the decay starts once the tanh has saturated, so
+  that the largest friction is the stiction, 0.995 Fs), w =
   min(1, |q_ref - q| / band) the share KUKA's friction observer cancels ("only triggered when
   there is a position difference", kuka_driver.cc's comment on its IIR filter). The torque
   is explicit (evaluated at the step's start), so the tanh's slope Fs / v_eps is kept at
@@ -40,7 +42,7 @@ from pydrake.systems.primitives import (
 )
 
 from doorlab.constants import NUM_JOINTS
-from doorlab.kuka import CYCLE_PERIOD, STRIBECK_VELOCITY
+from doorlab.kuka import CYCLE_PERIOD, STRIBECK_ONSET, STRIBECK_VELOCITY
 
 MIN_FRICTION_REGULARIZATION = 1e-4
 """Smallest v_eps [rad/s] of the friction's tanh."""
@@ -71,8 +73,10 @@ def _friction_system(arm, v_eps: np.ndarray) -> SymbolicVectorSystem:
         fc, fs = float(arm.coulomb_friction[i]), float(arm.stiction[i])
         gap = abs(q_ref[i] - q[i]) / band
         w = sym.min(gap, 1.0)
-        level = fc + (fs - fc) * sym.exp(-((v[i] / STRIBECK_VELOCITY) ** 2))
-        out.append(-(1.0 - w) * level * sym.tanh(v[i] / float(v_eps[i])))
+        eps = float(v_eps[i])
+        slide = sym.max(abs(v[i]) - STRIBECK_ONSET * eps, 0.0) / STRIBECK_VELOCITY
+        level = fc + (fs - fc) * sym.exp(-(slide**2))
+        out.append(-(1.0 - w) * level * sym.tanh(v[i] / eps))
     return SymbolicVectorSystem(input=u, output=np.array(out))
 
 
@@ -211,7 +215,9 @@ def add_command_latency(
         builder.Connect(applied, hold.get_input_port())
         holds.append(hold)
     parts = [applied, *(hold.get_output_port() for hold in holds)]
-    inputs = builder.AddNamedSystem("command_latency_input", Multiplexer([size] * (steps + 1) + [1]))
+    inputs = builder.AddNamedSystem(
+        "command_latency_input", Multiplexer([size] * (steps + 1) + [1])
+    )
     for i, port in enumerate(parts):
         builder.Connect(port, inputs.get_input_port(i))
     jitter = builder.AddNamedSystem(
@@ -254,8 +260,7 @@ def latency_active(arm) -> bool:
 def describe(arm) -> str:
     """``station.arm`` in one line, for pages and summaries."""
     parts = [
-        "load data "
-        + ("exact" if arm.load_mass is None else f"{arm.load_mass:g} kg"),
+        "load data " + ("exact" if arm.load_mass is None else f"{arm.load_mass:g} kg"),
         "friction "
         + (
             "none"

@@ -127,7 +127,9 @@ def verdict_sentence(band: PlanBand) -> str:
             + f" with {'; '.join(flips)})"
         )
     stops = [
-        f"{model_label(m)}: {row.status}" for m, row in band.rows if row.status not in ("ok", "slipped")
+        f"{model_label(m)}: {row.status}"
+        for m, row in band.rows
+        if row.status not in ("ok", "slipped")
     ]
     held = [row.handle_held for _, row in band.rows]
     margin = band.values("freeze_margin")

@@ -205,9 +205,7 @@ def _plan_findings(rows: Sequence[ArmRow]) -> list[str]:
     from doorlab.studies.robustness import OPEN_THRESHOLD_DEG
 
     findings = []
-    plain = [
-        r for r in rows if not r.case.tuned and not r.case.yaw_error_rad and not r.case.model
-    ]
+    plain = [r for r in rows if not r.case.tuned and not r.case.yaw_error_rad and not r.case.model]
     for controller in dict.fromkeys(r.case.controller for r in plain):
         by = {r.case.condition: r for r in plain if r.case.controller == controller}
         if set(by) != set(ARM_CONDITIONS):
