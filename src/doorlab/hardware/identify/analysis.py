@@ -126,7 +126,8 @@ def analyse(
     rest_rows = [s for s in segments if s.kind == "rest" and s.stop > s.start]
     rows = np.arange(rest_rows[0].start, rest_rows[0].stop)
     rows = rows[len(rows) // 2 :]  # settled
-    rest = fit_rest(log["tau_external"][rows], gravity_per_kg(q_calibration), gripper_mass())
+    # the load's gravity where the arm stood (sagged by what KUKA's gravity model lacks)
+    rest = fit_rest(log["tau_external"][rows], gravity_per_kg(q[rows].mean(axis=0)), gripper_mass())
 
     stiction: list[Estimate | None] = []
     coulomb: list[Estimate | None] = []
@@ -407,7 +408,7 @@ def preset_yaml(scenario, found: Identified, *, source: str) -> str:
     """``identified.yaml``: the arm preset's station fields with the identified values, each
     with its fit's tolerance in a comment; loadable with ``--config``."""
 
-    def floats(values, digits=4) -> str:
+    def floats(values, digits=6) -> str:
         return "[" + ", ".join(f"{v:.{digits}g}" for v in values) + "]"
 
     def tol(estimates, scale=1.0) -> str:
@@ -445,13 +446,13 @@ def preset_yaml(scenario, found: Identified, *, source: str) -> str:
         "  safety:",
         f"    enabled: {'true' if st.safety.enabled else 'false'}",
         "  arm:",
-        f"    load_mass: {arm.load_mass:.4g}   # [kg] KUKA's load data, +- "
+        f"    load_mass: {arm.load_mass:.6g}   # [kg] KUKA's load data, +- "
         f"{found.rest.load_mass.tolerance:.2g} (the arm carries {gripper_mass():.3g} kg)",
         f"    stiction: {floats(arm.stiction)}   # [N m] +- {tol(found.stiction)}",
         f"    coulomb_friction: {floats(arm.coulomb_friction)}   # [N m] +- {tol(found.coulomb)}",
         f"    friction_compensation_band: {arm.friction_compensation_band:g}   # [rad] assumed",
-        f"    latency: {arm.latency:.4g}   # [s] +- {found.latency.tolerance:.2g}",
-        f"    latency_jitter: {arm.latency_jitter:.4g}   # [s] +- {found.jitter.tolerance:.2g}",
+        f"    latency: {arm.latency:.6g}   # [s] +- {found.latency.tolerance:.2g}",
+        f"    latency_jitter: {arm.latency_jitter:.6g}   # [s] +- {found.jitter.tolerance:.2g}",
         f"    external_torque_noise: {floats(arm.external_torque_noise)}   # [N m] std",
         f"    seed: {arm.seed}",
     ]
