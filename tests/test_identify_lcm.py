@@ -89,12 +89,13 @@ def _wait_for_motion(url: str, seconds: float) -> None:
     from doorlab.constants import Q_HOME
 
     bus = BusListener(url, {"IIWA_STATUS": lcmt_iiwa_status})
-    moving = (
-        lambda: any(  # noqa: E731
-            np.max(np.abs(np.array(m.joint_position_commanded) - Q_HOME)) > 0.05
-            for _, m in bus.messages["IIWA_STATUS"][-5:]
+
+    def moving() -> bool:
+        recent = bus.messages["IIWA_STATUS"][-5:]
+        return any(
+            np.max(np.abs(np.array(m.joint_position_commanded) - Q_HOME)) > 0.05 for _, m in recent
         )
-    )
+
     assert bus.poll(seconds, moving), "identify never moved the arm"
 
 

@@ -207,15 +207,24 @@ class ArmModelConfig:
       per status; kuka_driver's freeze is judged on it.
     """
 
-    load_mass: float | None = None  # [kg] KUKA's load data; None: exact, 0: none entered
-    coulomb_friction: list[float] = field(default_factory=lambda: [0.0] * 7)  # [N m]
-    stiction: list[float] = field(default_factory=lambda: [0.0] * 7)  # [N m] >= coulomb
-    friction_compensation_band: float = 5e-4  # [rad] |q_ref - q| of full compensation
-    latency: float = 0.0  # [s] beyond the cycle, in [0, 4 ms]
-    latency_jitter: float = 0.0  # [s] half-width of the uniform jitter
-    # [N m] standard deviation of the external-torque estimate's noise, per joint
+    # [kg] the mass in KUKA's load data, at the gripper's centre of mass; None: exact (the
+    # gripper's 1.09 kg), 0: none entered
+    load_mass: float | None = None
+    # [N m] per joint, the joints' Coulomb (sliding) friction where KUKA's observer is off
+    coulomb_friction: list[float] = field(default_factory=lambda: [0.0] * 7)
+    # [N m] per joint, the friction at rest (breakaway), >= coulomb_friction
+    stiction: list[float] = field(default_factory=lambda: [0.0] * 7)
+    # [rad] |q_ref - q| from which KUKA's friction observer cancels the friction fully
+    # (linearly below; an assumption, no source gives it)
+    friction_compensation_band: float = 5e-4
+    # [s] how long after its cycle a command acts, beyond the cycle, in [0, 4 ms]
+    latency: float = 0.0
+    # [s] half-width of the latency's uniform jitter, drawn per cycle (<= latency)
+    latency_jitter: float = 0.0
+    # [N m] per joint, the standard deviation of the external-torque estimate's noise
     external_torque_noise: list[float] = field(default_factory=lambda: [0.0] * 7)
-    seed: int = 0  # the noise and jitter's random seed (the same seed, the same episode)
+    # the seed of the noise and the jitter (the same seed, the same draws in any process)
+    seed: int = 0
 
     def friction(self) -> bool:
         """Whether any joint has friction."""

@@ -118,13 +118,21 @@ def verdict_sentence(band: PlanBand) -> str:
         head = f"does not open the door under any plausible model ({runs} runs)"
     else:
         names = " and ".join(ARM_PARAMETERS[p] for p in band.depends_on)
-        flips = [model_label(m) for m, row in band.rows[1:] if row.opened != band.nominal.opened]
+        flips = [(m, r) for m, r in band.rows[1:] if r.opened != band.nominal.opened]
+        alone = [model_label(m) for m, _ in flips if "+" not in m]
+        together = [model_label(m) for m, _ in flips if "+" in m]
+        other = "not" if band.nominal.opened else "it does"
+        parts = []
+        if alone:
+            parts.append(f"{other} with {'; '.join(alone)}")
+        if together:
+            parts.append(f"{other} with {'; '.join(together)} together")
         head = (
             f"is uncertain: it depends on {names} (it "
             + ("opens" if band.nominal.opened else "does not open")
             + " on the nominal model, "
-            + ("not" if band.nominal.opened else "but does")
-            + f" with {'; '.join(flips)})"
+            + ", and ".join(parts)
+            + ")"
         )
     stops = [
         f"{model_label(m)}: {row.status}"
