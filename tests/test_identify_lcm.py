@@ -13,6 +13,7 @@ commands, on a host measured loaded, skips with those measurements (tests/realti
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import subprocess
@@ -60,23 +61,27 @@ def test_identify_over_lcm_recovers_what_it_was_not_told(alone, lcm_url, tmp_pat
         assert run.returncode == 0, stdout + stderr
     facts = json.loads((gt / "driver.json").read_text())
     fits = json.loads((out / "fit.json").read_text())
-    with host.excuse(
-        f"{facts['iiwa_commands_late']} of {facts['iiwa_commands_applied']} commands late, "
-        f"{fits['stale_commands_dropped']} stale answers dropped"
-    ):
-        assert facts["iiwa_commands_late"] == 0 and fits["stale_commands_dropped"] == 0
+    late = facts["iiwa_commands_late"] + fits["stale_commands_dropped"]
+    print(
+        f"identify over LCM: {facts['iiwa_commands_late']} of {facts['iiwa_commands_applied']} "
+        f"commands late, {fits['stale_commands_dropped']} stale answers dropped; "
+        f"{host.describe()}"
+    )
 
     def check(entry, true, bound):
         assert abs(entry["value"] - true) <= entry["tolerance"], (entry, true)
         assert 0 < entry["tolerance"] <= bound
 
-    for joint in (int(j) - 1 for j in JOINTS.split(",")):
-        name = f"iiwa_joint_{joint + 1}"
-        check(fits["damping"][name], TRUE_DAMPING[joint], 0.05 * TRUE_DAMPING[joint])
-        check(fits["stiction"][name], TRUE_STICTION[joint], 0.1 * TRUE_STICTION[joint])
-    check(fits["load_mass"], TRUE_LOAD, 0.05)
-    h = load_scenario(PRESET).station.time_step  # the simulator realizes L - h/2
-    check(fits["latency"], TRUE_LATENCY - h / 2, 0.5e-3)
+    # A command that missed its cycle (the host) acts a cycle late: a fit may then miss its
+    # tolerance; that, on a loaded host, skips with the measurements.
+    with host.excuse(f"{late} commands late or dropped") if late else contextlib.nullcontext():
+        for joint in (int(j) - 1 for j in JOINTS.split(",")):
+            name = f"iiwa_joint_{joint + 1}"
+            check(fits["damping"][name], TRUE_DAMPING[joint], 0.05 * TRUE_DAMPING[joint])
+            check(fits["stiction"][name], TRUE_STICTION[joint], 0.1 * TRUE_STICTION[joint])
+        check(fits["load_mass"], TRUE_LOAD, 0.05)
+        h = load_scenario(PRESET).station.time_step  # the simulator realizes L - h/2
+        check(fits["latency"], TRUE_LATENCY - h / 2, 0.5e-3)
     identified = load_scenario(out / "identified.yaml")
     assert identified.station.inner_loop.kuka_damping_model == "values"
     assert "identified.yaml" in stdout and "status                  ok" in stdout

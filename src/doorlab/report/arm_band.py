@@ -63,14 +63,27 @@ class PlanBand:
             return "does_not_open"
         return "uncertain"
 
+    def flips(self) -> list[tuple[str, ArmRow]]:
+        """The models that change the nominal's verdict: each one-parameter model that does,
+        and each corner whose verdict neither of its models gives alone (an interaction)."""
+        nominal = self.nominal.opened
+        opened = {model: row.opened for model, row in self.rows}
+        out = []
+        for model, row in self.rows[1:]:
+            if row.opened == nominal:
+                continue
+            parts = model.split("+")
+            if len(parts) > 1 and any(opened.get(p) == row.opened for p in parts):
+                continue  # one of its models alone does it
+            out.append((model, row))
+        return out
+
     @property
     def depends_on(self) -> tuple[str, ...]:
-        """The parameters of the models whose verdict differs from the nominal's."""
-        nominal = self.nominal.opened
+        """The parameters of the models that change the verdict (:meth:`flips`)."""
         found: list[str] = []
-        for model, row in self.rows[1:]:
-            if row.opened != nominal:
-                found += [p for p in arm_model_parameters(model) if p not in found]
+        for model, _ in self.flips():
+            found += [p for p in arm_model_parameters(model) if p not in found]
         return tuple(found)
 
     def values(self, attribute: str) -> np.ndarray:
@@ -118,7 +131,7 @@ def verdict_sentence(band: PlanBand) -> str:
         head = f"does not open the door under any plausible model ({runs} runs)"
     else:
         names = " and ".join(ARM_PARAMETERS[p] for p in band.depends_on)
-        flips = [(m, r) for m, r in band.rows[1:] if r.opened != band.nominal.opened]
+        flips = band.flips()
         alone = [model_label(m) for m, _ in flips if "+" not in m]
         together = [model_label(m) for m, _ in flips if "+" in m]
         other = "not" if band.nominal.opened else "it does"
@@ -192,7 +205,9 @@ def band_table(bands: Sequence[PlanBand]) -> list[dict]:
 
 
 def band_figure(bands: Sequence[PlanBand], out_dir: Path):
-    """Per plan: the door over the arc under each model (the nominal thick, the band shaded)."""
+    """Per plan: the door over the arc under each model (the nominal thick black, a model
+    that does not open the door dashed, a stopped run's last sample marked x, the band
+    shaded); one legend for all."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -205,9 +220,12 @@ def band_figure(bands: Sequence[PlanBand], out_dir: Path):
     columns = 3
     rows_n = max(1, math.ceil(len(bands) / columns))
     fig, axes = plt.subplots(
-        rows_n, columns, figsize=(4.2 * columns, 3.0 * rows_n), sharey=True, squeeze=False
+        rows_n, columns, figsize=(4.2 * columns, 2.9 * rows_n + 0.9), sharey=True, squeeze=False
     )
-    colors = {p: f"C{i}" for i, p in enumerate(ARM_PARAMETERS)}
+    models = list(dict.fromkeys(m for band in bands for m, _ in band.rows if m))
+    colors = {m: f"C{i % 10}" for i, m in enumerate(models)}
+    handles = {}
+    verdict = {"opens": "opens", "does_not_open": "does not open", "uncertain": "uncertain"}
     for ax, band in zip(axes.flat, bands, strict=False):
         curves = []
         for model, row in band.rows:
@@ -220,41 +238,46 @@ def band_figure(bands: Sequence[PlanBand], out_dir: Path):
             t = result.t - result.arc_window[0]
             inside = (t >= 0) & (t <= result.arc_window[1] - result.arc_window[0])
             door = np.degrees(door_opening(result))
-            parameters = arm_model_parameters(model)
-            if not model:
-                ax.plot(t[inside], door[inside], color="k", lw=2.0, label="nominal", zorder=3)
-            else:
-                color = colors[parameters[0]] if len(parameters) == 1 else "0.5"
-                ax.plot(
-                    t[inside],
-                    door[inside],
-                    color=color,
-                    lw=0.9,
-                    ls="-" if row.opened else "--",
-                    label=model,
-                )
-            curves.append((t[inside], door[inside]))
+            color = "k" if not model else colors[model]
+            style = {"lw": 2.0, "zorder": 3} if not model else {"lw": 0.9}
+            (line,) = ax.plot(
+                t[inside],
+                door[inside],
+                color=color,
+                ls="-" if row.opened or not model else "--",
+                **style,
+            )
+            handles.setdefault(model or "nominal", line)
+            if row.status not in ("ok", "slipped"):  # stopped: where it stopped
+                ax.plot(t[-1], door[-1], "x", color=color, ms=7, mew=2)
+            if inside.any():
+                curves.append((t[inside], door[inside]))
         if curves:
-            grid = np.linspace(0.0, max(c[0][-1] for c in curves if len(c[0])), 200)
+            grid = np.linspace(0.0, max(c[0][-1] for c in curves), 200)
             stacked = np.array([np.interp(grid, c[0], c[1], right=np.nan) for c in curves])
             with np.errstate(all="ignore"):
                 ax.fill_between(
-                    grid, np.nanmin(stacked, 0), np.nanmax(stacked, 0), color="0.85", zorder=0
+                    grid, np.nanmin(stacked, 0), np.nanmax(stacked, 0), color="0.88", zorder=0
                 )
         ax.axhline(OPEN_THRESHOLD_DEG, color="0.4", lw=0.6, ls=":")
-        verdict = {"opens": "opens", "does_not_open": "does not open", "uncertain": "uncertain"}
         ax.set(
-            title=f"{band.title}: {verdict[band.verdict]}",
-            xlabel="time since the arc's start [s]",
+            title=f"{band.title}: {verdict[band.verdict]}", xlabel="time since the arc's start [s]"
         )
         ax.grid(True, alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=6, loc="upper left")
     for ax in axes.flat[len(bands) :]:
         ax.set_visible(False)
     for ax in axes[:, 0]:
         ax.set_ylabel("left door opened [deg]")
-    fig.tight_layout()
+    if handles:
+        fig.legend(
+            list(handles.values()),
+            list(handles),
+            loc="lower center",
+            ncol=min(5, len(handles)),
+            fontsize=7,
+            frameon=False,
+        )
+    fig.tight_layout(rect=(0, 0.9 / (2.9 * rows_n + 0.9), 1, 1))
     return fig
 
 
