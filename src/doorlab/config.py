@@ -223,7 +223,8 @@ class ArmModelConfig:
     latency_jitter: float = 0.0
     # [N m] per joint, the standard deviation of the external-torque estimate's noise
     external_torque_noise: list[float] = field(default_factory=lambda: [0.0] * 7)
-    # the seed of the noise and the jitter (the same seed, the same draws in any process)
+    # the random seed of the noise and the jitter (the same seed, the same draws in any
+    # process)
     seed: int = 0
 
     def friction(self) -> bool:

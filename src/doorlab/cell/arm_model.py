@@ -246,9 +246,9 @@ def seed_random_sources(sources, root_context) -> None:
     any process (a RandomSource's default seed counts the instances built before it)."""
     from pydrake.common import RandomGenerator
 
-    for source, seed in sources:
+    for source, seed_value in sources:
         source.SetRandomContext(
-            source.GetMyMutableContextFromRoot(root_context), RandomGenerator(seed)
+            source.GetMyMutableContextFromRoot(root_context), RandomGenerator(seed_value)
         )
 
 

@@ -17,11 +17,11 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from doorlab.outputs.pages import format_number
-from doorlab.report.arm_page import ArmRow
 from doorlab.report.experiments import (
     ARM_MODELS,
     ARM_PARAMETERS,
@@ -38,19 +38,20 @@ class PlanBand:
 
     Attributes:
         controller: Registry name. tuned: With :data:`ARM_TUNING`'s settings.
-        rows: (model, row) per model of the band ("" the nominal).
+        rows: (model, row) per model of the band ("" the nominal); each row a
+            :class:`doorlab.report.arm_page.ArmRow`.
     """
 
     controller: str
     tuned: bool
-    rows: tuple[tuple[str, ArmRow], ...]
+    rows: tuple[tuple[str, Any], ...]
 
     @property
     def title(self) -> str:
         return f"{self.controller} (tuned)" if self.tuned else self.controller
 
     @property
-    def nominal(self) -> ArmRow:
+    def nominal(self) -> Any:
         return self.rows[0][1]
 
     @property
@@ -63,7 +64,7 @@ class PlanBand:
             return "does_not_open"
         return "uncertain"
 
-    def flips(self) -> list[tuple[str, ArmRow]]:
+    def flips(self) -> list[tuple[str, Any]]:
         """The models that change the nominal's verdict: each one-parameter model that does,
         and each corner whose verdict neither of its models gives alone (an interaction)."""
         nominal = self.nominal.opened
@@ -90,7 +91,7 @@ class PlanBand:
         return np.array([getattr(row, attribute) for _, row in self.rows], float)
 
 
-def plan_bands(rows: Sequence[ArmRow]) -> list[PlanBand]:
+def plan_bands(rows: Sequence[Any]) -> list[PlanBand]:
     """The bands of the plans that have a nominal run on the arm, in the rows' order."""
     bands = {}
     for row in rows:
