@@ -99,6 +99,26 @@ def test_arm_conditions_from_a_preset_base():
     assert arm_condition(base, "arm") == arm_preset(cell)
 
 
+def test_an_identified_base_keeps_its_arm_on_the_arm():
+    """doorlab report --config identified.yaml: the arm condition keeps the base's measured
+    damping and arm model (the band then moves them); doorlab's cell and the timing-only
+    condition run doorlab's loop with the nominal arm model."""
+    from doorlab.config import update_scenario
+
+    identified = update_scenario(
+        arm_preset(Scenario(controller="velocity")),
+        "station: {inner_loop: {kuka_damping_model: values, kuka_damping_values: "
+        "[70, 100, 80, 45, 32, 32, 32]}, arm: {load_mass: 0.8, latency: 0.002}}",
+    )
+    arm = arm_condition(identified, "arm")
+    assert arm.station.inner_loop == identified.station.inner_loop
+    assert arm.station.arm == identified.station.arm
+    for condition in ("cell", "timing"):
+        other = arm_condition(identified, condition)
+        assert other.station.inner_loop.kind == "stiffness"
+        assert other.station.arm == Scenario().station.arm
+
+
 def _fake_metrics(case, k: int) -> dict:
     """Hand-written metrics of a case the fixture does not run: numbers it knows (on the
     arm: the IK plan never opens the door, the adaptive plan always does, the others from

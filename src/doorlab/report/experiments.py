@@ -289,19 +289,29 @@ def arm_condition(base: Scenario, condition: str) -> Scenario:
     """``base`` (doors closed) under a condition of :data:`ARM_CONDITIONS` (a validated copy).
 
     ``cell`` keeps ``base`` but with doorlab's timing, and doorlab's default loop if ``base``
-    runs KUKA's; ``timing`` adds kuka_driver's timing; ``arm`` is the arm preset on ``cell``.
+    runs KUKA's; ``timing`` adds kuka_driver's timing; in both the arm's model
+    (``station.arm``) is the nominal one. ``arm`` is the arm preset on ``cell``, with ``base``'s
+    own KUKA loop and arm model when it has them (``base`` an identified preset: its measured
+    damping, load data, friction, latency and noise).
     """
-    from doorlab.config import InnerLoopConfig, arm_preset, validate
+    from doorlab.config import ArmModelConfig, InnerLoopConfig, arm_preset, validate
 
     scenario = copy.deepcopy(base)
+    kuka_loop = None
+    if scenario.station.inner_loop.kind == "kuka_joint_impedance":
+        kuka_loop = copy.deepcopy(scenario.station.inner_loop)
+        scenario.station.inner_loop = InnerLoopConfig()
+    arm_model = copy.deepcopy(scenario.station.arm)
     scenario.doors, scenario.door_angles = "closed", None
     scenario.station.driver.timing = "next_step"
-    if scenario.station.inner_loop.kind == "kuka_joint_impedance":
-        scenario.station.inner_loop = InnerLoopConfig()
+    scenario.station.arm = ArmModelConfig()
     if condition == "timing":
         scenario.station.driver.timing = "kuka_driver"
     elif condition == "arm":
         scenario = arm_preset(scenario)
+        if kuka_loop is not None:
+            scenario.station.inner_loop = kuka_loop
+        scenario.station.arm = arm_model
     return validate(scenario)
 
 
