@@ -80,7 +80,6 @@ from pydrake.systems.primitives import (
 )
 
 from doorlab.cell import models
-from doorlab.cell.arm_model import add_joint_friction
 from doorlab.cell.frames import (
     ARM_JOINTS,
     CUPBOARD_MODEL,
@@ -468,7 +467,10 @@ def build_station(
         saturation = add(Saturation(-JOINT_TORQUE_LIMITS, JOINT_TORQUE_LIMITS), "torque_saturation")
         builder.Connect(adder.get_output_port(), saturation.get_input_port())
         if kind == "kuka_joint_impedance" and config.arm.friction():
-            # The joints' friction, less what KUKA's friction observer cancels.
+            # The joints' friction, less what KUKA's friction observer cancels (imported here:
+            # the student's view of the problem set holds the station, not the arm's model).
+            from doorlab.cell.arm_model import add_joint_friction
+
             friction = add_joint_friction(
                 builder,
                 demux.get_output_port(0),
