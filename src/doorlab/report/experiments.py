@@ -236,10 +236,10 @@ ARM_CORNERS: tuple[tuple[str, str], ...] = (
 """Pairs of :data:`ARM_MODELS` also run together: the pairs whose effects interact, measured
 by ``benchmarks/arm_band.py`` over every pair of parameters on every plan
 (``benchmarks/results/arm_band.json``): kuka_driver's damping with the latency stops the tuned
-velocity plan (each alone opens the door) and leaves the tuned impedance plan 1.4 deg short;
-the link-side damping with friction or latency moves the impedance plan's door 1.5 and 1.3
-deg from the one-at-a-time sum. The other 11 pairs change no verdict and move no door by 1
-deg or more."""
+velocity plan and leaves the tuned impedance plan's door at 38.5 deg (each alone opens the
+door); the link-side damping with friction or latency moves the impedance plan's door 1.5 and
+1.3 deg from the one-at-a-time sum. The other 11 pairs change no verdict and move no door by
+1 deg or more."""
 
 
 def arm_model_names() -> tuple[str, ...]:
