@@ -117,6 +117,12 @@ def test_an_identified_base_keeps_its_arm_on_the_arm():
         other = arm_condition(identified, condition)
         assert other.station.inner_loop.kind == "stiffness"
         assert other.station.arm == Scenario().station.arm
+    cases, new = make_arm_cases(identified)  # the band's damping models replace the values
+    scenarios = dict(new)
+    for case in cases:
+        if case.model.startswith("damping_link"):
+            loop = scenarios[case.run].station.inner_loop
+            assert loop.kuka_damping_model == "link" and loop.kuka_damping_values is None
 
 
 def _fake_metrics(case, k: int) -> dict:

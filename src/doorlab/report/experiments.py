@@ -199,13 +199,13 @@ ARM_MODELS: tuple[ArmModel, ...] = (
         "damping_link",
         "damping",
         "KUKA's damping on the link-side inertia (DLR's design)",
-        "station: {inner_loop: {kuka_damping_model: link}}",
+        "station: {inner_loop: {kuka_damping_model: link, kuka_damping_values: null}}",
     ),
     ArmModel(
         "damping_driver_kd",
         "damping",
         "kuka_driver's own hold damping, 50/35 N m s/rad",
-        "station: {inner_loop: {kuka_damping_model: driver_kd}}",
+        "station: {inner_loop: {kuka_damping_model: driver_kd, kuka_damping_values: null}}",
     ),
     ArmModel("load_none", "load", "no load data entered", "station: {arm: {load_mass: 0.0}}"),
     ArmModel(
