@@ -22,6 +22,7 @@ from doorlab.config import (
     DOOR_STATES,
     IK_OBJECTIVES,
     INNER_LOOPS,
+    KUKA_DAMPING_MODELS,
     MIN_TIME_STEP,
     Scenario,
     load_scenario,
@@ -66,6 +67,7 @@ CHOICES = [
     ("station.inner_loop.kind", "pid", INNER_LOOPS),
     ("station.contact_approximation", "hydroelastic", CONTACT_APPROXIMATIONS),
     ("ik.objective", "best", IK_OBJECTIVES),
+    ("station.inner_loop.kuka_damping_model", "guess", KUKA_DAMPING_MODELS),
 ]
 
 
@@ -183,6 +185,45 @@ BAD_VALUES = [
         (f"ik.grasp_offset={v!r}", _with("ik.grasp_offset", v), "ik.grasp_offset")
         for v in ([0.011, 0.0, 0.0], [0.0, NAN, 0.0], [0.0, 0.0], [0.0, 0.0, 0.0, 0.0], 0.001)
     ],
+    # the arm's uncertain parameters (station.arm)
+    *[
+        (f"arm.load_mass={v!r}", _with("station.arm.load_mass", v), "station.arm.load_mass")
+        for v in (-0.1, 7.5, NAN)
+    ],
+    (
+        "arm.stiction below coulomb",
+        _with("station.arm.coulomb_friction", [1.0] * 7),
+        "station.arm.stiction[0]",
+    ),
+    ("arm.stiction short", _with("station.arm.stiction", [1.0] * 6), "station.arm.stiction"),
+    ("arm.latency=-1", _with("station.arm.latency", -0.001), "station.arm.latency"),
+    ("arm.latency=5ms", _with("station.arm.latency", 0.005), "station.arm.latency"),
+    (
+        "arm.latency on a 2 ms step",
+        _with("station.arm.latency", 0.002),
+        "station.arm.latency needs a station.time_step",
+    ),
+    (
+        "arm.jitter above latency",
+        _with("station.arm.latency_jitter", 0.001),
+        "station.arm.latency",
+    ),
+    (
+        "arm.noise=-1",
+        _with("station.arm.external_torque_noise", [-1.0] + [0.0] * 6),
+        "station.arm.external_torque_noise[0]",
+    ),
+    ("arm.seed=-1", _with("station.arm.seed", -1), "station.arm.seed"),
+    (
+        "kuka_damping_values without values",
+        _with("station.inner_loop.kuka_damping_values", [50.0] * 7),
+        "station.inner_loop.kuka_damping_values",
+    ),
+    (
+        "kuka_damping_model values without values",
+        _with("station.inner_loop.kuka_damping_model", "values"),
+        "station.inner_loop.kuka_damping_values",
+    ),
 ]
 
 

@@ -20,41 +20,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from stepped_driver import SteppedDriver
 
 from doorlab.config import Scenario, load_scenario, validate
 from doorlab.episode.controllers import episode_plans, run_controller
 from doorlab.hardware.episode import HardwareOutcome, run_hardware_episode
 from doorlab.hardware.link import DriverLink
 from doorlab.hardware.protocol import IIWA_STATUS_PERIOD
-from doorlab.hardware.sim_driver import SimDriver
 from doorlab.kuka import clamp_command, external_torque_limits
 
 PRESET = Path(__file__).resolve().parents[1] / "examples" / "kuka_arm.yaml"
-
-
-class SteppedDriver:
-    """``doorlab sim-driver``'s library on memq://, advanced one status at a time by the
-    client's waits (:class:`~doorlab.hardware.link.DriverLink`'s pump) on its own clock."""
-
-    def __init__(self, scenario: Scenario):
-        self.driver = SimDriver(scenario, lcm_url="memq://", record=True)
-        self.lcm = self.driver.lcm
-        self.simulator = self.driver.simulator
-        self.simulator.set_target_realtime_rate(0.0)
-        self.simulator.Initialize()
-        self.offset = self.driver.systems.status_offset
-
-    def clock(self) -> float:
-        return self.driver.time
-
-    def pump(self, timeout: float) -> None:
-        t = self.driver.time
-        k = math.floor((t - self.offset) / IIWA_STATUS_PERIOD + 1e-9) + 1
-        t_next = k * IIWA_STATUS_PERIOD + self.offset  # when the driver publishes status k
-        self.driver.systems.advance_to(
-            self.simulator, t_next if t_next <= t + timeout + 1e-9 else t + timeout
-        )
-        self.lcm.HandleSubscriptions(0)  # deliver it
 
 
 def preset(controller: str, arc: float = 10.0) -> Scenario:

@@ -134,22 +134,27 @@ def test_failing_robustness_runs_do_not_fail_the_report(tmp_path: Path, monkeypa
 
 def test_cli_no_robustness_reaches_run_report(tmp_path: Path, monkeypatch, capsys):
     """``doorlab report --no-robustness`` asks run_report for no robustness runs, ``--no-arm``
-    for no runs on the arm; the default asks for both; --help names the flags."""
+    for no runs on the arm, ``--no-arm-band`` for the arm without the band of arm models; the
+    default asks for all; --help names the flags."""
     import doorlab.report
     from doorlab.cli.parser import main
 
-    calls, arms = [], []
+    calls, arms, bands = [], [], []
 
     def fake(out, **kwargs):
         calls.append(kwargs["robustness"])
         arms.append(kwargs["arm"])
+        bands.append(kwargs["arm_band"])
         return 0
 
     monkeypatch.setattr(doorlab.report, "run_report", fake)
     assert main(["report", "--out", str(tmp_path / "a"), "--no-robustness"]) == 0
     assert main(["report", "--out", str(tmp_path / "b")]) == 0
     assert main(["report", "--out", str(tmp_path / "c"), "--no-arm"]) == 0
-    assert calls == [False, True, True] and arms == [True, True, False]
+    assert main(["report", "--out", str(tmp_path / "d"), "--no-arm-band"]) == 0
+    assert calls == [False, True, True, True] and arms == [True, True, False, True]
+    assert bands == [True, True, True, False]
     assert main(["report", "--help"]) == 0
     help_text = capsys.readouterr().out
     assert "--no-robustness" in help_text and "--no-arm" in help_text
+    assert "--no-arm-band" in help_text

@@ -72,6 +72,10 @@ TARGETS = {
                 "figures/hinge_convergence.png",
                 "The adaptive plan's hinge estimate error over time, per yaw error",
             ),
+            "arm_band": (
+                "figures/arm_band.png",
+                "The left door on the arm, each plan under each plausible model of the arm",
+            ),
         },
     ),
     "sweep_impedance": Target(

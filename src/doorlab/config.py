@@ -23,6 +23,7 @@ from pydrake.common.yaml import yaml_load_typed
 
 from doorlab.config_checks import (  # noqa: F401 (the bounds, named here too)
     COMMAND_TIMINGS,
+    KUKA_DAMPING_MODELS,
     MAX_EPISODE_DURATION,
     MAX_LOG_SAMPLES,
     MIN_ARC_SAMPLES,
@@ -31,6 +32,7 @@ from doorlab.config_checks import (  # noqa: F401 (the bounds, named here too)
     gains,
     non_negative,
     positive,
+    validate_arm_model,
     validate_kuka,
     validate_safety,
     validate_timeline,
@@ -113,6 +115,15 @@ class InnerLoopConfig:
     # [-] KUKA's dimensionless joint damping per joint, 0.1-1.0 (kind kuka_joint_impedance;
     # Dq = 2 d sqrt(Kq M_ii), see the class docstring).
     kuka_damping: list[float] = field(default_factory=lambda: list(KUKA_DAMPING))
+    # How KUKA turns d into N m s/rad (one of KUKA_DAMPING_MODELS; KUKA does not publish it):
+    # "rotor_link" 2 d sqrt(Kq M_ii) with M_ii of links, gripper and the motors' reflected
+    # inertia at the grasp pose; "link" the same with the link-side M_ii (no rotor: DLR's
+    # design, whose torque feedback hides the motor inertia); "driver_kd" kuka_driver's own
+    # torque-only hold, 50, 50, 50, 50, 35, 35, 35 (d does not apply); "values"
+    # kuka_damping_values (a measured damping: doorlab identify writes it).
+    kuka_damping_model: str = "rotor_link"
+    # [N m s/rad] per joint, for kuka_damping_model "values" (None otherwise).
+    kuka_damping_values: list[float] | None = None
     # Inverse-dynamics PID gains of the original station (act through M(q)).
     id_kp: float = 100.0  # [1/s^2] proportional gain
     id_ki: float = 1.0  # [1/s^3] integral gain
@@ -168,6 +179,60 @@ class DriverConfig:
 
 
 @dataclass
+class ArmModelConfig:
+    """What doorlab cannot read from a source about the lab's iiwa (kind
+    ``kuka_joint_impedance``; the damping's mapping is ``inner_loop.kuka_damping_model``).
+
+    Each field is a model of the arm that no source pins down (docs/guides/real-arm.md, "The
+    arm's uncertain parameters"): ``doorlab report``'s "On the arm" runs each plan over their
+    plausible range, and ``doorlab identify`` measures them on the lab's arm. Defaults: the
+    model before it was measured (exact load data, no friction, no latency beyond the cycle).
+
+    - **Load data** (``load_mass``): the mass KUKA's model carries at the flange, at the
+      gripper's centre of mass. KUKA's gravity compensation and its external-torque estimate
+      use it; the gripper's real 1.09 kg is what the plant has. None: exact (the gripper's
+      mass); 0: none entered (``DrakeFRITorqueDriver`` attaches no tool).
+    - **Friction** (``coulomb_friction``, ``stiction``): the joints' residual friction,
+      a Stribeck curve (stiction at rest decaying to Coulomb friction above
+      :data:`doorlab.kuka.STRIBECK_VELOCITY`); KUKA's friction observer cancels it only
+      away from the commanded position, fully once |q_ref - q| >=
+      ``friction_compensation_band`` and in proportion below (kuka_driver.cc's IIR filter
+      exists to make that difference).
+    - **Latency** (``latency``, ``latency_jitter``): how long after its cycle a command
+      acts, beyond the cycle itself; each cycle's latency is latency + jitter x U(-1, 1),
+      within [0, 5 ms). It needs a plant step that divides the 5 ms cycle.
+    - **External torque** (``external_torque_noise``): the status's external torque is
+      KUKA's estimate, measured minus its model: the contact torques, plus the gravity of
+      the load its load data leaves out, plus Gaussian noise of this standard deviation
+      per status; kuka_driver's freeze is judged on it.
+    """
+
+    # [kg] the mass in KUKA's load data, at the gripper's centre of mass; None: exact (the
+    # gripper's 1.09 kg), 0: none entered
+    load_mass: float | None = None
+    # [N m] per joint, the joints' Coulomb (sliding) friction where KUKA's observer is off
+    coulomb_friction: list[float] = field(default_factory=lambda: [0.0] * 7)
+    # [N m] per joint, the friction at rest (breakaway), >= coulomb_friction
+    stiction: list[float] = field(default_factory=lambda: [0.0] * 7)
+    # [rad] |q_ref - q| from which KUKA's friction observer cancels the friction fully
+    # (linearly below; an assumption, no source gives it)
+    friction_compensation_band: float = 5e-4
+    # [s] how long after its cycle a command acts, beyond the cycle, in [0, 4 ms]
+    latency: float = 0.0
+    # [s] half-width of the latency's uniform jitter, drawn per cycle (<= latency)
+    latency_jitter: float = 0.0
+    # [N m] per joint, the standard deviation of the external-torque estimate's noise
+    external_torque_noise: list[float] = field(default_factory=lambda: [0.0] * 7)
+    # the random seed of the noise and the jitter (the same seed, the same draws in any
+    # process)
+    seed: int = 0
+
+    def friction(self) -> bool:
+        """Whether any joint has friction."""
+        return any(v > 0 for v in (*self.coulomb_friction, *self.stiction))
+
+
+@dataclass
 class StationConfig:
     """Physics of the cell."""
 
@@ -192,6 +257,7 @@ class StationConfig:
     gripper: GripperConfig = field(default_factory=GripperConfig)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     driver: DriverConfig = field(default_factory=DriverConfig)
+    arm: ArmModelConfig = field(default_factory=ArmModelConfig)
 
 
 @dataclass
@@ -488,6 +554,7 @@ def validate(scenario: Scenario) -> Scenario:
 
     validate_safety(station.safety)
     validate_kuka(loop, station.driver, scenario.timeline)
+    validate_arm_model(station.arm, station.time_step)
 
     check(
         station.time_step >= MIN_TIME_STEP,

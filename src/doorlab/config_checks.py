@@ -26,6 +26,9 @@ MAX_LOG_SAMPLES = 300_000
 about 50 numbers, ~120 MB kept in memory before the metrics' copies."""
 COMMAND_TIMINGS = ("next_step", "kuka_driver")
 """``station.driver.timing``: when a plan's command acts (:class:`doorlab.config.DriverConfig`)."""
+KUKA_DAMPING_MODELS = ("rotor_link", "link", "driver_kd", "values")
+"""``station.inner_loop.kuka_damping_model``: how KUKA's dimensionless damping becomes N m s/rad
+(:func:`doorlab.cell.station.loop_gains`)."""
 
 
 def check(condition: bool, message: str) -> None:
@@ -146,6 +149,22 @@ def validate_kuka(loop, driver, timeline) -> None:
             f"station.inner_loop.kuka_damping[{i}] must be in [{low:g}, {high:g}] (KUKA's "
             f"dimensionless damping), got {quote(value)}",
         )
+    choice("station.inner_loop.kuka_damping_model", loop.kuka_damping_model, KUKA_DAMPING_MODELS)
+    values = loop.kuka_damping_values
+    if loop.kuka_damping_model == "values":
+        check(
+            values is not None,
+            "station.inner_loop.kuka_damping_model 'values' needs "
+            "station.inner_loop.kuka_damping_values (7 numbers [N m s/rad])",
+        )
+    if values is not None:
+        gains("station.inner_loop.kuka_damping_values", values, allow_zero=False)
+        check(
+            loop.kuka_damping_model == "values",
+            "station.inner_loop.kuka_damping_values applies to kuka_damping_model 'values' "
+            f"only; it is {quote(loop.kuka_damping_model)} (set it to values, or remove the "
+            "values)",
+        )
     choice("station.driver.timing", driver.timing, COMMAND_TIMINGS)
     positive("station.driver.velocity_filter_cutoff", driver.velocity_filter_cutoff)
     positive("station.driver.external_torque_limit", driver.external_torque_limit)
@@ -155,3 +174,57 @@ def validate_kuka(loop, driver, timeline) -> None:
             "station.driver.timing kuka_driver runs the plans at kuka_driver's 5 ms cycle: "
             f"timeline.control_period must be 0.005, got {quote(timeline.control_period)}",
         )
+
+
+MAX_LOAD_MASS = 7.0
+"""Largest ``station.arm.load_mass`` [kg]: the iiwa 7's payload."""
+
+
+def validate_arm_model(arm, time_step: float) -> None:
+    """``station.arm`` (:class:`doorlab.config.ArmModelConfig`)."""
+    from doorlab.kuka import CYCLE_PERIOD, MAX_LATENCY
+
+    mass = arm.load_mass
+    if mass is not None:
+        check(
+            isinstance(mass, (int, float)) and math.isfinite(mass) and 0 <= mass <= MAX_LOAD_MASS,
+            f"station.arm.load_mass must be in [0, {MAX_LOAD_MASS:g}] kg (the iiwa 7's payload) "
+            f"or null (exact: the gripper's mass), got {quote(mass)}",
+        )
+    gains("station.arm.coulomb_friction", arm.coulomb_friction, allow_zero=True)
+    gains("station.arm.stiction", arm.stiction, allow_zero=True)
+    for i, (fc, fs) in enumerate(zip(arm.coulomb_friction, arm.stiction, strict=True)):
+        check(
+            fs >= fc,
+            f"station.arm.stiction[{i}] ({quote(fs)} N m) must be >= "
+            f"station.arm.coulomb_friction[{i}] ({quote(fc)} N m): friction at rest is the "
+            "largest",
+        )
+        check(fs <= 20.0, f"station.arm.stiction[{i}] must be at most 20 N m, got {quote(fs)}")
+    positive("station.arm.friction_compensation_band", arm.friction_compensation_band)
+    non_negative("station.arm.latency", arm.latency)
+    non_negative("station.arm.latency_jitter", arm.latency_jitter)
+    check(
+        arm.latency + arm.latency_jitter <= MAX_LATENCY + 1e-12
+        and arm.latency_jitter <= arm.latency + 1e-12,
+        f"station.arm.latency ({quote(arm.latency)} s) and latency_jitter "
+        f"({quote(arm.latency_jitter)} s): latency - jitter >= 0 and latency + jitter <= "
+        f"{MAX_LATENCY:g} s (a command acts within the cycle after the one that received it)",
+    )
+    if arm.latency > 0 or arm.latency_jitter > 0:
+        steps = CYCLE_PERIOD / time_step
+        check(
+            abs(steps - round(steps)) < 1e-9,
+            f"station.arm.latency needs a station.time_step that divides the 5 ms cycle "
+            f"(e.g. 0.0025, the arm preset's), got {quote(time_step)}",
+        )
+    gains("station.arm.external_torque_noise", arm.external_torque_noise, allow_zero=True)
+    for i, value in enumerate(arm.external_torque_noise):
+        check(
+            value <= 10.0,
+            f"station.arm.external_torque_noise[{i}] must be at most 10 N m, got {quote(value)}",
+        )
+    check(
+        isinstance(arm.seed, int) and not isinstance(arm.seed, bool) and 0 <= arm.seed < 2**31,
+        f"station.arm.seed must be an integer in [0, 2^31), got {quote(arm.seed)}",
+    )

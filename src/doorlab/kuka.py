@@ -57,6 +57,19 @@ KUKA_STIFFNESS = (1000.0, 1000.0, 1000.0, 500.0, 500.0, 500.0, 500.0)
 """``DrakeFRITorqueDriver``'s joint stiffness [N m/rad]."""
 KUKA_DAMPING = (1.0,) * NUM_JOINTS
 """``DrakeFRITorqueDriver``'s damping (KUKA's dimensionless value, ``setDampingForAllJoints``)."""
+DRIVER_HOLD_DAMPING = (50.0, 50.0, 50.0, 50.0, 35.0, 35.0, 35.0)
+"""kuka_driver's ``kTorqueOnlyKd`` [N m s/rad]: the damping of its own joint hold in
+torque-only mode (with ``kTorqueOnlyKp``, KUKA's stiffness), the one damping in N m s/rad that
+drake-iiwa-driver writes down (``station.inner_loop.kuka_damping_model: driver_kd``)."""
+STRIBECK_VELOCITY = 0.01
+"""Where the joints' friction falls from stiction to Coulomb friction [rad/s] (the Stribeck
+curve's velocity, ``station.arm``); an assumption, as no source gives the iiwa's."""
+STRIBECK_ONSET = 3.0
+"""The Stribeck decay starts at this many v_eps (the regularizing tanh's width): there tanh is
+0.995, so the friction's largest value is the stiction."""
+MAX_LATENCY = 0.004
+"""Largest ``station.arm.latency`` [s]: with its jitter a command must act within the cycle
+(5 ms) that follows the one that received it."""
 
 
 def external_torque_limits(ext_trq_limit: float = EXTERNAL_TORQUE_LIMIT) -> np.ndarray:
@@ -100,6 +113,33 @@ def clamp_command(q: np.ndarray) -> np.ndarray:
     """kuka_driver's clamp of ``joint_position``: within the joint limits less 1 deg [rad]."""
     limit = DRIVER_JOINT_LIMITS - JOINT_LIMIT_MARGIN
     return np.clip(np.asarray(q, float), -limit, limit)
+
+
+def stribeck_friction(
+    v: np.ndarray,
+    coulomb: np.ndarray,
+    stiction: np.ndarray,
+    v_eps: np.ndarray,
+    compensation: np.ndarray | float = 0.0,
+) -> np.ndarray:
+    """The joints' friction torque at joint speeds v [N m] (same shape as v): -(1 - w) (Fc +
+    (Fs - Fc) exp(-(max(|v| - 3 v_eps, 0)/vs)^2)) tanh(v / v_eps), vs =
+    :data:`STRIBECK_VELOCITY` (:data:`STRIBECK_ONSET`).
+
+    The tanh regularizes the sign at rest over ``v_eps`` (the simulator evaluates the torque
+    at the step's start, so its slope Fs / v_eps must stay below M_ii / h:
+    :func:`doorlab.cell.station.friction_regularization`).
+
+    Args:
+        v: Joint speeds [rad/s]. coulomb, stiction: Fc, Fs [N m]. v_eps: [rad/s] (> 0).
+        compensation: w in [0, 1], the share KUKA's friction observer cancels.
+    """
+    v = np.asarray(v, float)
+    fc, fs = np.asarray(coulomb, float), np.asarray(stiction, float)
+    eps = np.asarray(v_eps, float)
+    slide = np.maximum(np.abs(v) - STRIBECK_ONSET * eps, 0.0) / STRIBECK_VELOCITY
+    level = fc + (fs - fc) * np.exp(-(slide**2))
+    return -(1.0 - np.asarray(compensation, float)) * level * np.tanh(v / eps)
 
 
 def kuka_damping(

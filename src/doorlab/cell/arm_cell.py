@@ -56,9 +56,16 @@ from pydrake.systems.primitives import (
     ZeroOrderHold,
 )
 
+from doorlab.cell.arm_model import (
+    add_command_latency,
+    add_external_torque_estimate,
+    latency_active,
+    load_data_error,
+    seed_random_sources,
+)
 from doorlab.cell.frames import ARM_JOINTS, FINGER_JOINTS
 from doorlab.cell.safety import Violation
-from doorlab.cell.station import Station, build_station, initialize_cell
+from doorlab.cell.station import Station, build_station, initialize_cell, make_controller_plant
 from doorlab.config import StationConfig
 from doorlab.constants import NUM_JOINTS
 from doorlab.errors import SafetyStop
@@ -173,6 +180,8 @@ class ArmCell:
     latch: ZeroOrderHold
     memory: ZeroOrderHold
     sampler: ZeroOrderHold
+    latency_holds: tuple[ZeroOrderHold, ...] = ()
+    random_sources: tuple = ()
 
     def _joints(self):
         plant = self.station.plant
@@ -195,6 +204,11 @@ class ArmCell:
         q0, zero = self.q_initial, np.zeros(NUM_JOINTS)
         applied = np.concatenate([q0, zero, [0.0, gripper.initial_width, gripper.force_limit]])
         self.latch.SetVectorState(self.latch.GetMyMutableContextFromRoot(root_context), applied)
+        seed_random_sources(self.random_sources, root_context)
+        for hold in self.latency_holds:  # the latency's holds: the start pose, no torque
+            hold.SetVectorState(
+                hold.GetMyMutableContextFromRoot(root_context), applied[: 2 * NUM_JOINTS]
+            )
         memory = self.memory.GetMyMutableContextFromRoot(root_context)
         self.memory.SetVectorState(memory, np.concatenate([q0, zero]))
         status = np.zeros(STATUS_SIZE)
@@ -224,8 +238,11 @@ class ArmCell:
         return bool(latched.value()[APPLIED_SLICES["valid"]][0] > 0.5)
 
 
-def _add_command_latch(builder: DiagramBuilder, cell, q_initial: np.ndarray, offset: float):
-    """Commands -> gate -> latch -> the station; returns (latch, its Demultiplexer)."""
+def _add_command_latch(
+    builder: DiagramBuilder, cell, q_initial: np.ndarray, offset: float, config: StationConfig
+):
+    """Commands -> gate -> latch (-> ``station.arm``'s latency) -> the station; returns (latch,
+    its Demultiplexer, the latency's holds)."""
     n = NUM_JOINTS
     gate_in = builder.AddNamedSystem("command_gate_input", Multiplexer([n, n, 1]))
     for i, name in enumerate(("iiwa_position", "iiwa_feedforward_torque", "iiwa_command_valid")):
@@ -244,17 +261,28 @@ def _add_command_latch(builder: DiagramBuilder, cell, q_initial: np.ndarray, off
     builder.Connect(latch_in.get_output_port(), latch.get_input_port())
     applied = builder.AddNamedSystem("applied_command", Demultiplexer([n, n, 1, 1, 1]))
     builder.Connect(latch.get_output_port(), applied.get_input_port())
-    for i, name in (
-        (0, "iiwa_position"),
-        (1, "iiwa_feedforward_torque"),
-        (3, "wsg_position"),
-        (4, "wsg_force_limit"),
-    ):
+    holds, sources = [], []
+    arm = config.arm
+    if latency_active(arm):  # the arm's latency beyond the cycle (station.arm)
+        command = builder.AddNamedSystem("applied_arm_command", Multiplexer([n, n]))
+        builder.Connect(applied.get_output_port(0), command.get_input_port(0))
+        builder.Connect(applied.get_output_port(1), command.get_input_port(1))
+        delayed, holds, sources = add_command_latency(
+            builder, command.get_output_port(), arm, time_step=config.time_step, offset=offset
+        )
+        split = builder.AddNamedSystem("delayed_arm_command", Demultiplexer([n, n]))
+        builder.Connect(delayed, split.get_input_port())
+        arm_ports = [split.get_output_port(0), split.get_output_port(1)]
+    else:
+        arm_ports = [applied.get_output_port(0), applied.get_output_port(1)]
+    for port, name in zip(arm_ports, ("iiwa_position", "iiwa_feedforward_torque"), strict=True):
+        builder.Connect(port, cell.GetInputPort(name))
+    for i, name in ((3, "wsg_position"), (4, "wsg_force_limit")):
         builder.Connect(applied.get_output_port(i), cell.GetInputPort(name))
     builder.ExportOutput(latch.get_output_port(), "applied_command")
     builder.ExportOutput(applied.get_output_port(0), "applied_iiwa_position")
     builder.ExportOutput(applied.get_output_port(1), "applied_feedforward_torque")
-    return latch, applied
+    return latch, applied, holds, sources
 
 
 def _add_velocity_filter(builder: DiagramBuilder, q_port, cutoff: float, offset: float):
@@ -276,9 +304,12 @@ def _add_velocity_filter(builder: DiagramBuilder, q_port, cutoff: float, offset:
     return memory, velocity
 
 
-def _add_status(builder: DiagramBuilder, cell, applied, velocity, offset: float):
-    """Each cycle's status (:data:`STATUS_LAYOUT`) sampled and exported; returns the sampler."""
+def _add_status(builder: DiagramBuilder, cell, applied, velocity, offset: float, config):
+    """Each cycle's status (:data:`STATUS_LAYOUT`) sampled and exported, its external torque
+    KUKA's estimate (:func:`doorlab.cell.arm_model.add_external_torque_estimate`); returns the
+    sampler."""
     n = NUM_JOINTS
+    tau_external, noise = _external_torque(builder, cell, config.arm)
     plant_v = builder.AddNamedSystem("plant_velocity", PassThrough(n))
     builder.Connect(cell.GetOutputPort("iiwa_velocity_estimated"), plant_v.get_input_port())
     wsg_commanded = builder.AddNamedSystem("wsg_commanded", Multiplexer([1, 1]))
@@ -289,7 +320,7 @@ def _add_status(builder: DiagramBuilder, cell, applied, velocity, offset: float)
         "q_commanded": applied.get_output_port(0),
         "tau_feedforward": applied.get_output_port(1),
         "tau_commanded": cell.GetOutputPort("iiwa_torque_commanded"),
-        "tau_external": cell.GetOutputPort("iiwa_torque_external"),
+        "tau_external": tau_external,
         "v_estimated": velocity.get_output_port(),
         "v_measured": plant_v.get_output_port(),
         "wsg_commanded": wsg_commanded.get_output_port(),
@@ -319,7 +350,23 @@ def _add_status(builder: DiagramBuilder, cell, applied, velocity, offset: float)
     builder.Connect(fields["q_measured"], state.get_input_port(0))
     builder.Connect(fields["v_estimated"], state.get_input_port(1))
     builder.ExportOutput(state.get_output_port(), "iiwa_state")
-    return sampler
+    return sampler, noise
+
+
+def _external_torque(builder: DiagramBuilder, cell, arm):
+    """KUKA's estimate of the external torques (the contact torques when its model is
+    exact and noise-free)."""
+    believed = true = None
+    if load_data_error(arm):
+        believed, true = make_controller_plant(arm.load_mass), make_controller_plant()
+    return add_external_torque_estimate(
+        builder,
+        cell.GetOutputPort("iiwa_torque_external"),
+        cell.GetOutputPort("iiwa_state"),
+        arm,
+        believed=believed,
+        true=true,
+    )
 
 
 def build_arm_cell(config: StationConfig, *, q_initial: np.ndarray) -> ArmCell:
@@ -335,21 +382,32 @@ def build_arm_cell(config: StationConfig, *, q_initial: np.ndarray) -> ArmCell:
     station = build_station(config, gripper_period=CYCLE_PERIOD)
     cell = builder.AddNamedSystem("station", station.diagram)
     offset = cycle_offset(config.time_step)
-    latch, applied = _add_command_latch(builder, cell, q_initial, offset)
+    latch, applied, holds, sources = _add_command_latch(builder, cell, q_initial, offset, config)
     memory, velocity = _add_velocity_filter(
         builder,
         cell.GetOutputPort("iiwa_position_measured"),
         config.driver.velocity_filter_cutoff,
         offset,
     )
-    sampler = _add_status(builder, cell, applied, velocity, offset)
+    sampler, noise = _add_status(builder, cell, applied, velocity, offset, config)
     for name in ("plant_state", "door_angles", "wsg_state_measured", "wsg_force_measured"):
         builder.ExportOutput(cell.GetOutputPort(name), name)
     for name in ("torque_commanded", "torque_external", "position_measured"):
         builder.ExportOutput(cell.GetOutputPort(f"iiwa_{name}"), f"station_{name}")
     diagram = builder.Build()
     diagram.set_name("doorlab_arm_cell")
-    return ArmCell(diagram, station, q_initial, config, offset, latch, memory, sampler)
+    return ArmCell(
+        diagram,
+        station,
+        q_initial,
+        config,
+        offset,
+        latch,
+        memory,
+        sampler,
+        tuple(holds),
+        tuple(sources + noise),
+    )
 
 
 class ExternalTorqueFreeze(SafetyStop):

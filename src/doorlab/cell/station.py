@@ -92,7 +92,7 @@ from doorlab.cell.frames import (
 )
 from doorlab.config import InnerLoopConfig, StationConfig
 from doorlab.constants import JOINT_TORQUE_LIMITS, NUM_JOINTS, Q_GRASP
-from doorlab.kuka import kuka_damping
+from doorlab.kuka import DRIVER_HOLD_DAMPING, kuka_damping
 
 GRIPPER_LUMPED_BODY = "wsg_lumped"
 """Name of the rigid body that stands for the whole gripper in the controller plant."""
@@ -267,11 +267,16 @@ def gripper_spatial_inertia(finger_separation: float = 0.01) -> SpatialInertia:
 
 
 @cache
-def make_controller_plant() -> MultibodyPlant:
+def make_controller_plant(load_mass: float | None = None) -> MultibodyPlant:
     """The controllers' model: the arm with the gripper lumped into one body welded at X_L7G.
 
     Built once per process and shared (it is finalized, so no user can change it): the
     inner loop, the plans and the metrics each keep their own Context of it.
+
+    Args:
+        load_mass: The lumped body's mass [kg] (its centre of mass and its inertia per kg
+            stay the gripper's): the load data KUKA's model carries
+            (``station.arm.load_mass``); None: the gripper's own.
 
     Returns:
         A finalized continuous MultibodyPlant with 7 positions (the arm joints).
@@ -281,7 +286,12 @@ def make_controller_plant() -> MultibodyPlant:
     models.add_package(parser)
     iiwa = models.add_model(parser, "iiwa7")
     plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("iiwa_link_0", iiwa))
-    lumped = plant.AddRigidBody(GRIPPER_LUMPED_BODY, iiwa, gripper_spatial_inertia())
+    inertia = gripper_spatial_inertia()
+    if load_mass is not None:
+        inertia = SpatialInertia(
+            load_mass, inertia.get_com(), inertia.get_unit_inertia(), skip_validity_check=True
+        )
+    lumped = plant.AddRigidBody(GRIPPER_LUMPED_BODY, iiwa, inertia)
     plant.WeldFrames(plant.GetFrameByName(L7_FRAME, iiwa), lumped.body_frame(), models.X_L7G)
     plant.Finalize()
     return plant
@@ -305,37 +315,59 @@ STIFFNESS_LOOPS = ("stiffness", "kuka_joint_impedance")
 
 
 @cache
-def grasp_pose_inertia() -> np.ndarray:
+def grasp_pose_inertia(rotor: bool = True) -> np.ndarray:
     """The controllers' model's joint inertia M_ii at the grasp pose Q_GRASP (7,) [kg m^2]
-    (links, lumped gripper, the motors' reflected inertia)."""
+    (links, lumped gripper, and with ``rotor`` the motors' reflected inertia 160^2 x the
+    rotor's; without, the link-side inertia DLR's design tunes for)."""
     plant = make_controller_plant()
     context = plant.CreateDefaultContext()
     plant.SetPositions(context, Q_GRASP)
+    if not rotor:
+        for index in plant.GetJointActuatorIndices():
+            plant.get_joint_actuator(index).SetRotorInertia(context, 0.0)
     inertia = np.diag(plant.CalcMassMatrix(context)).copy()
     inertia.flags.writeable = False
     return inertia
+
+
+def kuka_joint_damping(loop: InnerLoopConfig) -> np.ndarray:
+    """KUKA's joint damping in N m s/rad (7,), as ``loop.kuka_damping_model`` says:
+    ``rotor_link`` 2 d sqrt(K M_ii) with M_ii at the grasp pose, rotors included; ``link``
+    the same with the link-side M_ii; ``driver_kd`` kuka_driver's torque-only hold
+    (:data:`doorlab.kuka.DRIVER_HOLD_DAMPING`); ``values`` ``kuka_damping_values``."""
+    model = loop.kuka_damping_model
+    kq = np.asarray(loop.kuka_stiffness, float)
+    if model == "values":
+        return np.asarray(loop.kuka_damping_values, float)
+    if model == "driver_kd":
+        return np.asarray(DRIVER_HOLD_DAMPING, float)
+    return kuka_damping(kq, loop.kuka_damping, grasp_pose_inertia(rotor=model == "rotor_link"))
 
 
 def loop_gains(loop: InnerLoopConfig) -> tuple[np.ndarray, np.ndarray]:
     """Kq [N m/rad] and Dq [N m s/rad] (7,) of a :data:`STIFFNESS_LOOPS` inner loop.
 
     ``stiffness``: ``kq`` and ``dq`` x ``dq_scale``. ``kuka_joint_impedance``:
-    ``kuka_stiffness`` and KUKA's damping in N m s/rad, 2 d sqrt(K M_ii) with M_ii at the grasp
-    pose (:func:`doorlab.kuka.kuka_damping`, :func:`grasp_pose_inertia`).
+    ``kuka_stiffness`` and KUKA's damping in N m s/rad (:func:`kuka_joint_damping`).
     """
     if loop.kind == "kuka_joint_impedance":
-        kq = np.asarray(loop.kuka_stiffness, float)
-        return kq, kuka_damping(kq, loop.kuka_damping, grasp_pose_inertia())
+        return np.asarray(loop.kuka_stiffness, float), kuka_joint_damping(loop)
     return np.asarray(loop.kq, float), np.asarray(loop.dq, float) * loop.dq_scale
 
 
 def joint_damping(config: StationConfig) -> np.ndarray:
     """The damping that acts on each arm joint with a stiffness loop, (7,) [N m s/rad].
 
-    Dq + h Kq (:func:`loop_gains`; see :class:`doorlab.config.InnerLoopConfig`): the h Kq term
-    is what SAP's implicit PD actuators added by evaluating the spring at the step's end.
+    doorlab's ``stiffness`` loop: Dq + h Kq (:func:`loop_gains`; see
+    :class:`doorlab.config.InnerLoopConfig`): the h Kq term is what SAP's implicit PD actuators
+    added by evaluating the spring at the step's end, kept so that both loops (and the gains
+    derived under them) give the same physics. KUKA's loop: Dq alone, so that
+    ``station.time_step`` does not change KUKA's physics (the explicit spring stays stable:
+    docs/guides/real-arm.md, "The simulator's step").
     """
     kq, dq = loop_gains(config.inner_loop)
+    if config.inner_loop.kind == "kuka_joint_impedance":
+        return dq
     return dq + config.time_step * kq
 
 
@@ -419,8 +451,12 @@ def build_station(
         zero_velocity = add(ConstantVectorSource(np.zeros(NUM_JOINTS)), "zero_velocity")
         builder.Connect(q_ref.get_output_port(), desired.get_input_port(0))
         builder.Connect(zero_velocity.get_output_port(), desired.get_input_port(1))
+        # KUKA's gravity compensation carries its load data (station.arm.load_mass).
+        loop_model = controller_plant
+        if kind == "kuka_joint_impedance" and config.arm.load_mass is not None:
+            loop_model = make_controller_plant(config.arm.load_mass)
         spring = add(
-            JointStiffnessController(controller_plant, kq, np.zeros(NUM_JOINTS)),
+            JointStiffnessController(loop_model, kq, np.zeros(NUM_JOINTS)),
             "stiffness_plus_gravity",
         )
         builder.Connect(arm_state, spring.get_input_port_estimated_state())
@@ -430,7 +466,26 @@ def build_station(
         builder.Connect(tau_ff.get_output_port(), adder.get_input_port(1))
         saturation = add(Saturation(-JOINT_TORQUE_LIMITS, JOINT_TORQUE_LIMITS), "torque_saturation")
         builder.Connect(adder.get_output_port(), saturation.get_input_port())
-        builder.Connect(saturation.get_output_port(), plant.get_actuation_input_port(iiwa))
+        if kind == "kuka_joint_impedance" and config.arm.friction():
+            # The joints' friction, less what KUKA's friction observer cancels (imported here:
+            # the student's view of the problem set holds the station, not the arm's model).
+            from doorlab.cell.arm_model import add_joint_friction
+
+            friction = add_joint_friction(
+                builder,
+                demux.get_output_port(0),
+                demux.get_output_port(1),
+                q_ref.get_output_port(),
+                config.arm,
+                inertia=grasp_pose_inertia(),
+                h=config.time_step,
+            )
+            actuation = add(Adder(2, NUM_JOINTS), "motor_plus_friction")
+            builder.Connect(saturation.get_output_port(), actuation.get_input_port(0))
+            builder.Connect(friction, actuation.get_input_port(1))
+            builder.Connect(actuation.get_output_port(), plant.get_actuation_input_port(iiwa))
+        else:
+            builder.Connect(saturation.get_output_port(), plant.get_actuation_input_port(iiwa))
         # The torque the joints receive includes the damping the joints apply themselves.
         damping_torque = add(MatrixGain(-np.diag(damping)), "joint_damping_torque")
         builder.Connect(demux.get_output_port(1), damping_torque.get_input_port())

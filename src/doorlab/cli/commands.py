@@ -221,6 +221,16 @@ def sim_driver(args: argparse.Namespace) -> int:
     )
 
 
+def identify(args: argparse.Namespace) -> int:
+    """``doorlab identify``: the calibration on the arm over LCM; returns the exit code."""
+    from doorlab.config import arm_preset
+    from doorlab.hardware.cli import run_identify_command
+
+    base = load_scenario(args.config) if args.config is not None else arm_preset()
+    scenario = validate(apply_overrides(base, args.overrides))
+    return run_identify_command(args, scenario)
+
+
 def apply_overrides(scenario: Scenario, overrides: Sequence[str]) -> Scenario:
     """Applies ``KEY=VALUE`` overrides (dotted keys, one YAML value each) to a scenario.
 
@@ -414,6 +424,7 @@ def report(args: argparse.Namespace) -> int:
         scheduler_timeout_s=args.scheduler_timeout,
         robustness=not args.no_robustness,
         arm=not args.no_arm,
+        arm_band=not args.no_arm_band,
     )
     if args.pdf:
         from doorlab.runtime.folders import record_written

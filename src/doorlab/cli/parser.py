@@ -50,7 +50,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(
-        dest="command", metavar="{run,report,sweep,pset,sim-driver}", parser_class=OneLineParser
+        dest="command",
+        metavar="{run,report,sweep,pset,sim-driver,identify}",
+        parser_class=OneLineParser,
     )
 
     run = sub.add_parser("run", help="run one controller and write its metrics, logs and plots")
@@ -121,6 +123,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="skip the 'On the arm' runs and section (the lab's iiwa: kuka_driver, KUKA's loop)",
     )
+    report.add_argument(
+        "--no-arm-band",
+        action="store_true",
+        help="run 'On the arm' on the arm preset only, without the band of plausible arm "
+        "models (each plan's verdict then rests on the preset's assumptions)",
+    )
     _scheduler(report)
     _common(report)
 
@@ -164,6 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_pset_parser(sub)
     add_sim_driver_parser(sub)
+    add_identify_parser(sub)
     return parser
 
 
@@ -436,6 +445,65 @@ def add_sim_driver_parser(sub) -> None:
     _common(driver)
 
 
+def _joints(text: str) -> tuple[int, ...]:
+    """``--joints 1,2,7`` -> (0, 1, 6): distinct joint numbers 1-7."""
+    parts = [p.strip() for p in text.split(",") if p.strip()]
+    if not parts or any(not p.isdigit() or not 1 <= int(p) <= 7 for p in parts):
+        raise argparse.ArgumentTypeError(
+            f"must be joint numbers 1-7 separated by commas (e.g. 1,2,7), got {text!r}"
+        )
+    return tuple(sorted({int(p) - 1 for p in parts}))
+
+
+def add_identify_parser(sub) -> None:
+    """``doorlab identify``: the arm's uncertain parameters measured on the arm over LCM."""
+    identify = sub.add_parser(
+        "identify",
+        help="measure the lab arm's damping, friction, load data, latency and torque noise "
+        "over LCM and write an arm preset (identified.yaml)",
+    )
+    identify.add_argument(
+        "--lcm-url",
+        default=None,
+        metavar="URL",
+        help="the drivers' LCM URL (default: $LCM_DEFAULT_URL or udpm://239.255.76.67:7667?ttl=0)",
+    )
+    identify.add_argument(
+        "--wait",
+        type=seconds(0.01, 3600.0),
+        default=5.0,
+        metavar="S",
+        help="seconds to wait for the driver's first status (default 5)",
+    )
+    identify.add_argument(
+        "--yes",
+        action="store_true",
+        help="do not ask before the arm moves (the script is printed)",
+    )
+    identify.add_argument(
+        "--out",
+        type=Path,
+        default=Path("doorlab_out") / "identify",
+        help="the folder to write (identified.yaml, fit.json, identify_log.npz, script.json; "
+        "default doorlab_out/identify)",
+    )
+    identify.add_argument(
+        "--repeats",
+        type=bounded_int(1, 10),
+        default=2,
+        metavar="N",
+        help="each joint's breakaways, steps and timed steps per direction (default 2; 1-10)",
+    )
+    identify.add_argument(
+        "--joints",
+        type=_joints,
+        default=tuple(range(7)),
+        metavar="LIST",
+        help="the joints to identify, e.g. 1,2,7 (default all seven)",
+    )
+    _common(identify)
+
+
 def _common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--config",
@@ -477,6 +545,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "sweep": commands.sweep,
             "pset": commands.pset,
             "sim-driver": commands.sim_driver,
+            "identify": commands.identify,
         }
         return actions[args.command](args)
     except DoorlabError as e:

@@ -48,6 +48,10 @@ class EpisodeResult:
             (:func:`doorlab.hardware.estimates.door_angle_estimate`); None in simulation.
         status_time: The real cell's ``utime`` of the status each sample shows, as seconds
             (n,) [s]; None in simulation.
+        tau_external_estimated: With ``station.driver.timing: kuka_driver``, the external
+            torque the arm's status carries (n, 7) [N m]: KUKA's estimate (its load data,
+            noise: :mod:`doorlab.cell.arm_model`), what kuka_driver's freeze judges; None
+            otherwise (on the real cell ``tau_external`` is that estimate).
         cell: ``simulation`` or ``hardware`` (the real cell over LCM).
         cycle_log: With ``station.driver.timing: kuka_driver``, the status of every 5 ms
             cycle, as the arm's driver would send it: ``t`` (m,) [s] and
@@ -73,6 +77,7 @@ class EpisodeResult:
     plan_log: dict[str, np.ndarray] = field(default_factory=dict, compare=False)
     door_angle_estimated: np.ndarray | None = None
     status_time: np.ndarray | None = None
+    tau_external_estimated: np.ndarray | None = None
     cell: str = "simulation"
     cycle_log: dict[str, np.ndarray] = field(default_factory=dict, compare=False)
 

@@ -222,6 +222,7 @@ def _build_arm_episode(
         "tau_feedforward": cell.GetOutputPort("applied_feedforward_torque"),
         "tau_commanded": cell.GetOutputPort("station_torque_commanded"),
         "tau_external": cell.GetOutputPort("station_torque_external"),
+        "tau_external_estimated": cell.GetOutputPort("iiwa_torque_external"),
         "plant_state": cell.GetOutputPort("plant_state"),
     }
     if scenario.station.safety.enabled:
@@ -383,6 +384,7 @@ def _result(
         wall_time_s=wall_time,
         scenario_yaml=yaml_dump_typed(scenario),
         cycle_log=cycle_log,
+        tau_external_estimated=data.get("tau_external_estimated"),
         **schedule_fields(episode.schedule, arc_index),
     )
     return result, bool(np.all(np.isfinite(data["plant_state"])))

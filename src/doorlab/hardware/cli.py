@@ -112,3 +112,38 @@ def _exit_promptly(code: int) -> int:
 
         atexit.register(leave)
     return code
+
+
+def run_identify_command(args: argparse.Namespace, scenario: Scenario) -> int:
+    """``doorlab identify``; returns the exit code."""
+    from doorlab.hardware.identify.run import check_scenario, identify_summary, run_identify
+    from doorlab.hardware.identify.script import ScriptSettings
+    from doorlab.hardware.link import DriverLink
+    from doorlab.runtime.folders import check_replaceable
+
+    check_scenario(scenario)
+    url = resolve_lcm_url(args.lcm_url)
+    check_replaceable(args.out, force=args.force)
+    settings = ScriptSettings(joints=args.joints, repeats=args.repeats)
+    link = DriverLink(url=url)
+    print(
+        f"doorlab identify: waiting up to {args.wait:g} s for IIWA_STATUS on {link.url}",
+        flush=True,
+    )
+    try:
+        first = link.wait_first_status(args.wait)
+        outcome = run_identify(
+            scenario,
+            args.out,
+            link=link,
+            wait=args.wait,
+            confirm=_confirm(args.yes),
+            settings=settings,
+            force=args.force,
+            first=first,
+        )
+    except NoDriver as e:
+        print(f"doorlab identify: error: {e}", file=sys.stderr)
+        return _exit_promptly(EXIT_CODES["driver_lost"])
+    print(identify_summary(outcome), flush=True)
+    return _exit_promptly(outcome.exit_code)

@@ -33,12 +33,16 @@ class Status:
         q: joint_position_measured (7,) [rad].
         q_commanded: joint_position_commanded (7,) [rad] (the driver's echo of the last
             command it applies).
+        v: joint_velocity_estimated (7,) [rad/s] (kuka_driver's filtered velocity).
+        tau_external: joint_torque_external (7,) [N m] (KUKA's estimate).
     """
 
     arrival: float
     utime: int
     q: np.ndarray
     q_commanded: np.ndarray
+    v: np.ndarray | None = None
+    tau_external: np.ndarray | None = None
 
     @property
     def valid(self) -> bool:
@@ -95,6 +99,8 @@ class DriverLink:
                 int(message.utime),
                 np.array(message.joint_position_measured, float),
                 np.array(message.joint_position_commanded, float),
+                np.array(message.joint_velocity_estimated, float),
+                np.array(message.joint_torque_external, float),
             )
         )
 

@@ -15,7 +15,8 @@ from drake-iiwa-driver's ``kuka-driver/kuka_driver.cc``):
   ``joint_velocity_estimated`` (kuka_driver's 40 Hz low-pass of the finite difference),
   ``joint_position_commanded`` (the command the arm tracked up to this cycle),
   ``joint_torque_commanded`` = ``joint_torque_measured`` (what the joints receive),
-  ``joint_torque_external`` (the contact torques on the arm's joints); ``joint_position_ipo``
+  ``joint_torque_external`` (KUKA's estimate: the contact torques on the arm's joints plus
+  what its load data leaves out, plus noise, :mod:`doorlab.cell.arm_model`); ``joint_position_ipo``
   is zero (Drake's IiwaStatusSender). A client that answers status k before cycle k + 1 gets
   exactly the same episode however fast it is; a later answer acts a cycle (or more) later,
   and the driver counts those (:meth:`SimDriverSystems.command_delays`).

@@ -53,6 +53,12 @@ class ArmRow:
     peak_contact_torque_Nm: float
     freeze_ratio: float
     freeze_joint: int | None
+    max_orientation_error_rad: float = math.nan
+
+    @property
+    def freeze_margin(self) -> float:
+        """1 - the largest |external torque| over its freeze limit [-] (nan: not logged)."""
+        return 1.0 - self.freeze_ratio
 
     @property
     def opened(self) -> bool:
@@ -65,14 +71,18 @@ class ArmRow:
 
 
 def _freeze(folder: Path, limit: float) -> tuple[float, int | None]:
-    """The largest |tau_external| / kuka_driver's limit over the run, and its joint."""
+    """The largest |tau_external| / kuka_driver's limit over the run, and its joint: on each
+    cycle's status (KUKA's estimate, what the driver judges) when the run kept the arm's
+    timing, else on the logged contact torques."""
     from doorlab.episode.result import EpisodeResult
     from doorlab.kuka import external_torque_limits
 
     try:
-        tau = np.abs(EpisodeResult.load(folder / "log.npz").tau_external)
+        result = EpisodeResult.load(folder / "log.npz")
     except (OSError, ValueError, KeyError):
         return math.nan, None
+    estimated = result.tau_external_estimated
+    tau = np.abs(result.tau_external if estimated is None else estimated)
     ratio = tau / external_torque_limits(limit)
     if not ratio.size:
         return math.nan, None
@@ -105,6 +115,7 @@ def arm_row(case: ArmCase, record: RunRecord, out_dir: Path, limit: float) -> Ar
         peak_contact_torque_Nm=number("peak_external_torque_arc_Nm"),
         freeze_ratio=ratio,
         freeze_joint=joint,
+        max_orientation_error_rad=number("max_orientation_error_rad"),
     )
 
 
@@ -194,7 +205,7 @@ def _plan_findings(rows: Sequence[ArmRow]) -> list[str]:
     from doorlab.studies.robustness import OPEN_THRESHOLD_DEG
 
     findings = []
-    plain = [r for r in rows if not r.case.tuned and not r.case.yaw_error_rad]
+    plain = [r for r in rows if not r.case.tuned and not r.case.yaw_error_rad and not r.case.model]
     for controller in dict.fromkeys(r.case.controller for r in plain):
         by = {r.case.condition: r for r in plain if r.case.controller == controller}
         if set(by) != set(ARM_CONDITIONS):
@@ -231,6 +242,7 @@ def _tuning_findings(rows: Sequence[ArmRow]) -> list[str]:
             and r.case.condition == condition
             and r.case.tuned == tuned
             and bool(r.case.yaw_error_rad) == yaw
+            and not r.case.model
         ]
         return found[0] if found else None
 
@@ -285,9 +297,14 @@ def _answer(rows: Sequence[ArmRow], model: DragModel) -> str:
     by = {
         r.case.condition: r
         for r in rows
-        if r.case.controller == "impedance" and not r.case.tuned and not r.case.yaw_error_rad
+        if r.case.controller == "impedance"
+        and not r.case.tuned
+        and not r.case.yaw_error_rad
+        and not r.case.model
     }
-    tuned = [r for r in rows if r.case.controller == "impedance" and r.case.tuned]
+    tuned = [
+        r for r in rows if r.case.controller == "impedance" and r.case.tuned and not r.case.model
+    ]
     tuned_arm = [r for r in tuned if r.case.condition == "arm"]
     if set(by) != set(ARM_CONDITIONS):
         return "The impedance plan's runs are missing: no answer."
@@ -350,7 +367,7 @@ def _door_figure(rows: Sequence[ArmRow], out_dir: Path):
     for ax, controller in zip(axes, controllers, strict=True):
         for row in rows:
             case = row.case
-            if case.controller != controller or case.yaw_error_rad:
+            if case.controller != controller or case.yaw_error_rad or case.model:
                 continue
             if case.tuned and case.condition != "arm":
                 continue
@@ -404,6 +421,8 @@ def arm_context(
     table = []
     for row in rows:
         case = row.case
+        if case.model:
+            continue  # the band's models: their own table
         held = {True: "held", False: "lost"}.get(row.handle_held, "n/a")
         joint = ARM_JOINTS[row.freeze_joint][-1] if row.freeze_joint is not None else ""
         table.append(
@@ -420,6 +439,7 @@ def arm_context(
                     format_number(row.door_arc_end_deg),
                     held,
                     format_number(1e3 * row.max_radial_error_m),
+                    format_number(math.degrees(row.max_orientation_error_rad)),
                     format_number(row.peak_contact_torque_Nm),
                     f"{format_number(100 * row.freeze_ratio)} ({joint})" if joint else "n/a",
                     "yes" if row.opened else "no",
@@ -437,9 +457,29 @@ def arm_context(
         *_tuning_findings(rows),
         _freeze_finding(rows, limit),
     ]
+    from doorlab.report.arm_band import (
+        band_figure,
+        band_summary,
+        band_table,
+        plan_bands,
+        verdict_sentence,
+    )
+
+    bands = plan_bands(rows)
+    band_embedded = ""
+    if any(len(band.rows) > 1 for band in bands):
+        band_embedded = figures.embed(
+            "arm_band",
+            band_figure(bands, out_dir),
+            "The left door over the arc on the arm, each plan under each plausible model of "
+            "the arm (the nominal black; dashed: the door not opened; grey: the band).",
+        )
     return {
         "rows": table,
         "figures": Markup(embedded),
+        "band_rows": band_table(bands),
+        "band_figure": Markup(band_embedded),
+        "verdicts": [verdict_sentence(band) for band in bands],
         "findings": findings,
         "answer": _answer(rows, model),
         "threshold": f"{OPEN_THRESHOLD_DEG:g}",
@@ -450,6 +490,7 @@ def arm_context(
                 "condition": r.case.condition,
                 "tuned": r.case.tuned,
                 "yaw_error_rad": r.case.yaw_error_rad,
+                "model": r.case.model,
                 "opened": r.opened,
                 "external_torque_over_freeze_limit": r.freeze_ratio
                 if math.isfinite(r.freeze_ratio)
@@ -457,4 +498,5 @@ def arm_context(
             }
             for r in rows
         ],
+        "verdicts_summary": band_summary(bands),
     }

@@ -153,6 +153,119 @@ plan gives up compliance against a hinge that is not where it believes)."""
 
 
 @dataclass(frozen=True)
+class ArmModel:
+    """One plausible model of the lab's arm other than the preset's (the nominal one).
+
+    Attributes:
+        name: Its name (a run folder's suffix). parameter: The uncertain parameter it moves
+            (one of :data:`ARM_PARAMETERS`). label: What it is, for the page.
+        yaml: The scenario YAML that makes it, on top of the arm preset.
+    """
+
+    name: str
+    parameter: str
+    label: str
+    yaml: str
+
+
+ARM_PARAMETERS: dict[str, str] = {
+    "damping": "KUKA's damping mapping",
+    "load": "the load data",
+    "friction": "the joints' friction",
+    "latency": "the latency beyond the cycle",
+    "noise": "the external torque's noise",
+}
+"""The arm's uncertain parameters (docs/guides/real-arm.md, "The arm's uncertain
+parameters"), each with what the nominal model (the arm preset) takes: KUKA's damping on the
+rotor-and-link inertia, exact load data, no friction, no latency beyond the cycle, an exact
+external torque."""
+ARM_STICTION = (2.0, 2.0, 1.5, 1.5, 1.0, 0.5, 0.5)
+"""The band's high friction: stiction per joint [N m] (Coulomb friction 0.7 of it), with KUKA's
+friction observer off at the commanded position; an assumption (no source gives the iiwa's
+residual joint friction), to be replaced by ``doorlab identify``'s measurement."""
+ARM_NOISE = 0.1
+"""The band's external-torque noise [N m], standard deviation per joint and status; an
+assumption (``doorlab identify`` measures it at rest)."""
+
+
+def _friction_yaml() -> str:
+    stiction = ", ".join(f"{v:g}" for v in ARM_STICTION)
+    coulomb = ", ".join(f"{0.7 * v:g}" for v in ARM_STICTION)
+    return f"station: {{arm: {{stiction: [{stiction}], coulomb_friction: [{coulomb}]}}}}"
+
+
+ARM_MODELS: tuple[ArmModel, ...] = (
+    ArmModel(
+        "damping_link",
+        "damping",
+        "KUKA's damping on the link-side inertia (DLR's design)",
+        "station: {inner_loop: {kuka_damping_model: link, kuka_damping_values: null}}",
+    ),
+    ArmModel(
+        "damping_driver_kd",
+        "damping",
+        "kuka_driver's own hold damping, 50/35 N m s/rad",
+        "station: {inner_loop: {kuka_damping_model: driver_kd, kuka_damping_values: null}}",
+    ),
+    ArmModel("load_none", "load", "no load data entered", "station: {arm: {load_mass: 0.0}}"),
+    ArmModel(
+        "friction_high",
+        "friction",
+        "friction up to 2 N m, KUKA's observer off at the commanded position",
+        _friction_yaml(),
+    ),
+    ArmModel(
+        "latency_3ms",
+        "latency",
+        "3 +- 1 ms of latency beyond the cycle",
+        "station: {arm: {latency: 0.003, latency_jitter: 0.001}}",
+    ),
+    ArmModel(
+        "noise",
+        "noise",
+        f"external-torque noise {ARM_NOISE:g} N m",
+        "station: {arm: {external_torque_noise: [" + ", ".join([f"{ARM_NOISE:g}"] * 7) + "]}}",
+    ),
+)
+"""The band's models other than the nominal, each one parameter at a plausible extreme."""
+ARM_CORNERS: tuple[tuple[str, str], ...] = (
+    ("damping_driver_kd", "latency_3ms"),
+    ("damping_link", "friction_high"),
+    ("damping_link", "latency_3ms"),
+)
+"""Pairs of :data:`ARM_MODELS` also run together: the pairs whose effects interact, measured
+by ``benchmarks/arm_band.py`` over every pair of parameters on every plan
+(``benchmarks/results/arm_band.json``): kuka_driver's damping with the latency stops the tuned
+velocity plan and leaves the tuned impedance plan's door at 38.5 deg (each alone opens the
+door); the link-side damping with friction or latency moves the impedance plan's door 1.5 and
+1.3 deg from the one-at-a-time sum. The other 11 pairs change no verdict and move no door by
+1 deg or more."""
+
+
+def arm_model_names() -> tuple[str, ...]:
+    """The band's models: "" (the nominal), each of :data:`ARM_MODELS`, each corner
+    ("a+b")."""
+    return ("", *(m.name for m in ARM_MODELS), *(f"{a}+{b}" for a, b in ARM_CORNERS))
+
+
+def arm_model_parameters(model: str) -> tuple[str, ...]:
+    """The parameters a band model moves (none for the nominal)."""
+    by_name = {m.name: m for m in ARM_MODELS}
+    return tuple(by_name[name].parameter for name in model.split("+") if name)
+
+
+def apply_arm_model(scenario: Scenario, model: str) -> Scenario:
+    """``scenario`` (on the arm preset) under a band model (a validated copy)."""
+    from doorlab.config import update_scenario
+
+    by_name = {m.name: m for m in ARM_MODELS}
+    scenario = copy.deepcopy(scenario)
+    for name in filter(None, model.split("+")):
+        scenario = update_scenario(scenario, by_name[name].yaml)
+    return scenario
+
+
+@dataclass(frozen=True)
 class ArmCase:
     """One run of the report's "On the arm" section.
 
@@ -160,6 +273,8 @@ class ArmCase:
         run: The run folder's name (shared with an identical run of the report if any).
         controller: Registry name. condition: One of :data:`ARM_CONDITIONS`.
         tuned: With :data:`ARM_TUNING`'s settings. yaw_error_rad: The cupboard's yaw error.
+        model: The band's model (condition ``arm``; :func:`arm_model_names`): "" the
+            nominal (the preset).
     """
 
     run: str
@@ -167,38 +282,54 @@ class ArmCase:
     condition: str
     tuned: bool = False
     yaw_error_rad: float = 0.0
+    model: str = ""
 
 
 def arm_condition(base: Scenario, condition: str) -> Scenario:
     """``base`` (doors closed) under a condition of :data:`ARM_CONDITIONS` (a validated copy).
 
     ``cell`` keeps ``base`` but with doorlab's timing, and doorlab's default loop if ``base``
-    runs KUKA's; ``timing`` adds kuka_driver's timing; ``arm`` is the arm preset on ``cell``.
+    runs KUKA's; ``timing`` adds kuka_driver's timing; in both the arm's model
+    (``station.arm``) is the nominal one. ``arm`` is the arm preset on ``cell``, with ``base``'s
+    own KUKA loop and arm model when it has them (``base`` an identified preset: its measured
+    damping, load data, friction, latency and noise).
     """
-    from doorlab.config import InnerLoopConfig, arm_preset, validate
+    from doorlab.config import ArmModelConfig, InnerLoopConfig, arm_preset, validate
 
     scenario = copy.deepcopy(base)
+    kuka_loop = None
+    if scenario.station.inner_loop.kind == "kuka_joint_impedance":
+        kuka_loop = copy.deepcopy(scenario.station.inner_loop)
+        scenario.station.inner_loop = InnerLoopConfig()
+    arm_model = copy.deepcopy(scenario.station.arm)
     scenario.doors, scenario.door_angles = "closed", None
     scenario.station.driver.timing = "next_step"
-    if scenario.station.inner_loop.kind == "kuka_joint_impedance":
-        scenario.station.inner_loop = InnerLoopConfig()
+    scenario.station.arm = ArmModelConfig()
     if condition == "timing":
         scenario.station.driver.timing = "kuka_driver"
     elif condition == "arm":
         scenario = arm_preset(scenario)
+        if kuka_loop is not None:
+            scenario.station.inner_loop = kuka_loop
+        scenario.station.arm = arm_model
     return validate(scenario)
 
 
 def make_arm_cases(
-    base: Scenario | None = None, existing: Sequence[tuple[str, Scenario]] = ()
+    base: Scenario | None = None,
+    existing: Sequence[tuple[str, Scenario]] = (),
+    *,
+    band: bool = True,
 ) -> tuple[tuple[ArmCase, ...], tuple[tuple[str, Scenario], ...]]:
     """The "On the arm" runs: every controller under every condition; the plans of
     :data:`ARM_TUNING` tuned on the arm and in doorlab's cell, there also with the cupboard
-    turned :data:`ARM_COST_YAW_DEG` (tuned and not).
+    turned :data:`ARM_COST_YAW_DEG` (tuned and not); and every plan on the arm (tuned ones
+    too) under each other model of the band (:func:`arm_model_names`).
 
     Args:
         base: The report's base scenario. existing: Runs the report has already: a case
             with the very same scenario reuses it.
+        band: Also the band's models (False: the nominal arm only).
 
     Returns:
         (the cases, the (name, scenario) runs still to run).
@@ -208,22 +339,32 @@ def make_arm_cases(
 
     base = base if base is not None else Scenario()
     yaw = math.radians(ARM_COST_YAW_DEG)
-    wanted = [(c, condition, False, 0.0) for c in REGISTRY for condition in ARM_CONDITIONS]
+    wanted = [(c, condition, False, 0.0, "") for c in REGISTRY for condition in ARM_CONDITIONS]
     for controller in ARM_TUNING:
         wanted += [
-            (controller, "arm", True, 0.0),
-            (controller, "cell", True, 0.0),
-            (controller, "cell", False, yaw),
-            (controller, "cell", True, yaw),
+            (controller, "arm", True, 0.0, ""),
+            (controller, "cell", True, 0.0, ""),
+            (controller, "cell", False, yaw, ""),
+            (controller, "cell", True, yaw, ""),
+        ]
+    if band:
+        plans = [(c, False) for c in REGISTRY] + [(c, True) for c in ARM_TUNING]
+        wanted += [
+            (c, "arm", tuned, 0.0, model)
+            for c, tuned in plans
+            for model in arm_model_names()
+            if model
         ]
     known = list(existing)
     cases, new = [], []
-    for controller, condition, tuned, yaw_error in wanted:
+    for controller, condition, tuned, yaw_error, model in wanted:
         scenario = arm_condition(base, condition)
         scenario.controller = controller
         scenario.station.cupboard_yaw_error = yaw_error
         if tuned:
             scenario = update_scenario(scenario, ARM_TUNING[controller])
+        if model:
+            scenario = apply_arm_model(scenario, model)
         same = [name for name, other in known if other == scenario]
         if same:
             name = same[0]
@@ -231,7 +372,8 @@ def make_arm_cases(
             prefix = {"cell": "arm_cell", "timing": "arm_timing", "arm": "arm_preset"}
             name = f"{prefix[condition]}_{controller}" + ("_tuned" if tuned else "")
             name += f"_yaw_p{ARM_COST_YAW_DEG:g}" if yaw_error else ""
+            name += f"_{model.replace('+', '_and_')}" if model else ""
             new.append((name, scenario))
             known.append((name, scenario))
-        cases.append(ArmCase(name, controller, condition, tuned, yaw_error))
+        cases.append(ArmCase(name, controller, condition, tuned, yaw_error, model))
     return tuple(cases), tuple(new)

@@ -265,5 +265,6 @@ def build_page(
         ]
     if on_arm is not None:
         summary["on_the_arm"] = on_arm["summary"]
+        summary["on_the_arm_verdicts"] = on_arm["verdicts_summary"]
     write_json(out_dir / "summary.json", summary)
     return index

@@ -132,6 +132,7 @@ def run_report(
     robustness: bool = True,
     scheduler_timeout_s: float | None = None,
     arm: bool = True,
+    arm_band: bool = True,
 ) -> int:
     """Runs the experiments in parallel and writes the report folder atomically.
 
@@ -151,6 +152,8 @@ def run_report(
             reusing the experiments' identical runs; no replay) and add its section.
         arm: Also run the "On the arm" cases (:func:`make_arm_cases` on ``base``, reusing
             identical runs; no replay) and add its section.
+        arm_band: With ``arm``, also each plan under the band's other models of the arm
+            (:func:`doorlab.report.experiments.arm_model_names`): the verdicts with their band.
 
     Returns:
         0 if every experiment's status is ``ok``, 1 otherwise (failed runs are on the page).
@@ -187,7 +190,7 @@ def run_report(
             raise ConfigError(f"experiment names clash with the robustness runs: {clash}")
     arm_cases: tuple[ArmCase, ...] = ()
     if arm:
-        arm_cases, arm_extra = make_arm_cases(base, (*experiments, *extra))
+        arm_cases, arm_extra = make_arm_cases(base, (*experiments, *extra), band=arm_band)
         clash = sorted(set(names) & {name for name, _ in arm_extra})
         if clash:
             raise ConfigError(f"experiment names clash with the arm runs: {clash}")
