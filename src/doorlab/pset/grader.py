@@ -289,27 +289,22 @@ def grade_submission(
         jobs, reference, assignment, isolation, harden, supervisor: As for :func:`grade`.
         seed: The grading's random seed, as for :func:`grade`.
         require_files: Refuse (OutputError) a submission that holds none of the student
-            files, rather than grade the stubs (``doorlab pset grade``: a mistyped folder;
-            Gradescope grades it: every test 0, as it should).
+            files (``doorlab pset grade``: a mistyped folder, a notebook alone); without it
+            such a submission is not graded either (the one intake's rule): every test 0,
+            the reason in the results (Gradescope, ``grade-all``).
 
     Returns:
         :func:`grade`'s results; their top-level ``output`` says which doorlab graded, what was
         taken from the submission and the grading seed; ``extra_data["submission"]`` lists it.
 
     Raises:
-        OutputError: ``source`` is neither a folder nor a zip file; with ``require_files``,
-            it holds none of the student files.
+        OutputError: ``source`` is neither a folder, a zip nor a file; with
+            ``require_files``, it holds none of the student files.
         GradingError: As for :func:`grade`.
     """
-    from doorlab.pset.verdicts import STUDENT_FILES
-
     files, intake = take_files(source)
-    if require_files and intake.refused is None and not intake.taken:
-        raise OutputError(
-            f"{source} holds none of {', '.join(STUDENT_FILES)} (nothing to grade; "
-            f"{len(intake.rejected)} refused): give the problem-set folder, its files "
-            "or a zip of them"
-        )
+    if require_files and intake.nothing:
+        raise OutputError(f"{source} is not graded: {intake.refused}")
     return grade_taken(
         files,
         intake,
@@ -381,9 +376,8 @@ def grade_taken(
                 supervisor=supervisor,
             )
     header = f"Graded by doorlab {__version__} (Drake {version('drake')})."
-    results["output"] = "\n".join(
-        filter(None, [header, intake.summary(), str(results.get("output") or "")])
-    )
+    taken = intake.summary() if intake.refused is None else ""  # else the output says why
+    results["output"] = "\n".join(filter(None, [header, taken, str(results.get("output") or "")]))
     results["extra_data"]["submission"] = intake.to_dict()
     return results
 
