@@ -103,6 +103,13 @@ def grade_task(payload: dict) -> dict:
 # The class's folder ------------------------------------------------------------------------
 
 
+def _reserved_names() -> tuple[str, ...]:
+    """What no submission's id may be: the class folder's own files."""
+    from doorlab.runtime.folders import MANIFEST_NAME
+
+    return (*CLASS_FILES, MANIFEST_NAME)
+
+
 def assignment_digest(assignment) -> str:
     """SHA-256 of the assignment's settings (the defaults when None)."""
     from doorlab.pset.assignment import Assignment
@@ -274,7 +281,7 @@ def grade_class(
     from doorlab.runtime.executor import CONNECT_TIMEOUT_S, check_scheduler
 
     source, out = Path(source), Path(out)
-    submissions = find_submissions(source)
+    submissions = find_submissions(source, reserved=_reserved_names())
     if not submissions:
         raise ConfigError(f"{source} holds no submission (folders or .zip files)")
     if scheduler is not None:

@@ -123,8 +123,11 @@ def read_metadata(path: Path) -> dict[str, tuple]:
     return out
 
 
-def find_submissions(folder: Path) -> list[Submission]:
+def find_submissions(folder: Path, *, reserved=()) -> list[Submission]:
     """The submissions in ``folder`` (see the module docstring), sorted by id.
+
+    ``reserved``: names no submission's id may take (the class folder's own files: an
+    upload with such a name is renamed as a duplicate is).
 
     Raises:
         ConfigError: ``folder`` is not a folder; it holds more than :data:`MAX_SUBMISSIONS`
@@ -135,7 +138,7 @@ def find_submissions(folder: Path) -> list[Submission]:
         raise ConfigError(f"{folder} is not a folder of submissions")
     metadata_path = folder / METADATA_NAME
     metadata = read_metadata(metadata_path) if metadata_path.exists() else {}
-    found: dict[str, Path] = {}
+    folders: list[tuple[str, Path]] = []
     files: list[tuple[str, Path]] = []
     with os.scandir(folder) as entries:
         for count, entry in enumerate(entries):
@@ -149,18 +152,21 @@ def find_submissions(folder: Path) -> list[Submission]:
             except OSError:
                 continue
             if stat.S_ISDIR(mode):
-                found[name] = Path(entry.path)
+                folders.append((name, Path(entry.path)))
             elif stat.S_ISREG(mode):
                 files.append((name, Path(entry.path)))
-    # Every upload is one submission: the folders keep their names; then each zip takes its
-    # name without .zip, and each other file its name, unless an earlier upload has it (in
+    # Every upload is one submission: each folder keeps its name, then each zip takes its
+    # name without .zip and each other file its name, unless an earlier upload has it (in
     # name order, so the same folder gives the same ids): then its whole name, then the
     # name with ~2, ~3... appended. Nothing is overwritten.
-    for name, path in sorted(files):
+    taken = set(reserved)
+    found: dict[str, Path] = {}
+    for name, path in [*sorted(folders), *sorted(files)]:
         stem = name[:-4] if name.lower().endswith(".zip") and len(name) > 4 else name
-        candidates = [stem, name]
-        candidates += [f"{name}~{k}" for k in range(2, len(found) + 3)]
-        found[next(c for c in candidates if c not in found)] = path
+        candidates = [stem, name, *(f"{name}~{k}" for k in range(2, len(taken) + 3))]
+        chosen = next(c for c in candidates if c not in taken)
+        taken.add(chosen)
+        found[chosen] = path
     ids = sorted(set(found) | set(metadata))
     return [Submission(i, found.get(i), metadata.get(i, ())) for i in ids]
 
