@@ -40,8 +40,9 @@ UNIT_TIME_LIMIT_S = 60.0
 EPISODE_TIME_LIMIT_S = 150.0
 """Time limit of an episode [s] (a correct one takes 5-15 s on a busy 2-core machine)."""
 JOB_MARGIN_S = 30.0
-"""How much longer than its test's limit a trusted job process may run before the
-supervisor kills it [s] (it enforces the limit itself; this catches a hung grader)."""
+"""How much longer than its test's longest time (:data:`doorlab.pset.clock.HARD_FACTOR`
+times its limit, in wall time) a trusted job process may run before the supervisor kills it
+[s] (it enforces the limit itself; this catches a hung or starved grader: the grader's error)."""
 STDERR_KEPT_CHARS = 2000
 """Characters of a trusted job's own stderr kept for a failure's message."""
 
@@ -69,11 +70,11 @@ def _first_line(e: BaseException) -> str:
     return f"{type(e).__name__}: {line}".rstrip(": ")
 
 
-def _student(job, folder, workdir, limit, isolation, student_view, on_start):
+def _student(job, folder, workdir, limit, isolation, student_view, on_start, group=None):
     from doorlab.pset.student import StudentProcess
 
     if student_view is None:
-        return StudentProcess(folder, workdir, job, limit, isolation)
+        return StudentProcess(folder, workdir, job, limit, isolation, group)
     from doorlab.pset.views import ForkedStudent
 
     return ForkedStudent(student_view, folder, job, limit, on_start=on_start)
@@ -89,6 +90,7 @@ def run_job(
     *,
     student_view: object = None,
     on_start=None,
+    student_group: object = None,
 ) -> dict:
     """Runs one job in this process and returns its JSON-ready result.
 
@@ -103,6 +105,8 @@ def run_job(
         student_view: The :class:`~doorlab.pset.views.StudentView` whose first process
             forks the student's process (None: start one, as without the view).
         on_start: Called with the student's process (pid, start time) once it said hello.
+        student_group: The cgroup of a student process started without the view (None:
+            none, or the view's).
     """
     from doorlab.pset.channel import ProtocolError
     from doorlab.pset.student import SandboxError, StudentFailure
@@ -117,7 +121,10 @@ def run_job(
             return {"figures": reference_episode(name)}
         # The student's process starts first (no thread may exist at its fork), then the
         # grader's side imports Drake while it starts.
-        with _student(job, folder, workdir, limit, isolation, student_view, on_start) as student:
+        student = _student(
+            job, folder, workdir, limit, isolation, student_view, on_start, student_group
+        )
+        with student:
             try:
                 if kind == "unit":
                     from doorlab.pset.checks import UNIT_CHECKS
@@ -160,8 +167,10 @@ class _Running:
 
     def __init__(self, job: str, pid: int, fd: int, err, limit: float):
         self.job, self.pid, self.fd, self.err = job, pid, fd, err
+        from doorlab.pset.clock import HARD_FACTOR
+
         self.start = time.perf_counter()
-        self.deadline = time.monotonic() + limit + JOB_MARGIN_S
+        self.deadline = time.monotonic() + HARD_FACTOR * limit + JOB_MARGIN_S
         self.limit = limit
         self.data = bytearray()
         self.students: list[tuple[int, int | None]] = []
@@ -174,10 +183,13 @@ class _Jobs:
     at a time; the first is started for the first student job, a second (up to ``parallel``)
     only when a slot would otherwise stay idle (the reference episodes all started)."""
 
-    def __init__(self, folder: Path, workdir: Path, scale: float, isolation, options: dict):
+    def __init__(
+        self, folder: Path, workdir: Path, scale: float, isolation, options: dict, groups=None
+    ):
         self.folder, self.workdir, self.scale = folder, workdir, scale
         self.isolation = isolation
         self.options = options  # job -> its options (run_job)
+        self.groups = groups  # the grading's cgroups (doorlab.pset.cgroups), or None
         self.views: dict = {}
         self.running: dict[int, _Running] = {}
         self.selector = selectors.DefaultSelector()
@@ -192,7 +204,8 @@ class _Jobs:
 
         if key not in self.views:
             limit = max(UNIT_TIME_LIMIT_S, EPISODE_TIME_LIMIT_S) * self.scale
-            self.views[key] = StudentView(self.isolation, self.workdir, key, limit)
+            group = None if self.groups is None else self.groups.student(key)
+            self.views[key] = StudentView(self.isolation, self.workdir, key, limit, group)
         return self.views[key]
 
     def _next(self, pending: list[str], parallel: int) -> tuple[str, str | None] | None:
@@ -249,6 +262,10 @@ class _Jobs:
         err = tempfile.TemporaryFile(dir=self.workdir)
         others = [r.fd for r in self.running.values()]
         parent = os.getpid()
+        student_group = None  # a student process without the view: a group of its own
+        if self.groups is not None and student_view is None and not job.startswith("reference:"):
+            student_group = self.groups.student("student_" + job.replace(":", "_"))
+        oom_before = self.groups.trusted.oom_kills() if self.groups is not None else 0
         sys.stdout.flush()
         sys.stderr.flush()
         pid = os.fork()
@@ -258,14 +275,25 @@ class _Jobs:
                 os.close(result_r)
                 for fd in others:
                     os.close(fd)
+                if self.groups is not None:
+                    self.groups.trusted.join()
                 code = _job_process(
-                    job, self, jobdir, limit, student_view, result_w, err.fileno(), parent
+                    job,
+                    self,
+                    jobdir,
+                    limit,
+                    student_view,
+                    result_w,
+                    err.fileno(),
+                    parent,
+                    student_group,
                 )
             finally:
                 os._exit(code)
         os.close(result_w)
         running = _Running(job, pid, result_r, err, limit)
         running.view = key
+        running.oom_before = oom_before
         self.running[pid] = running
         self.selector.register(result_r, selectors.EVENT_READ, running)
 
@@ -297,11 +325,16 @@ class _Jobs:
         if result is None:
             for pid, start in running.students:  # a job that died: its student's process
                 kill_process(pid, start)
-            if timed_out:
-                message = f"time limit: still running after {running.limit:.0f} s"
-                result = {"passed": False, "error": message}
+            if timed_out:  # it enforces the test's time itself: the grader hung or starved
+                seconds = time.perf_counter() - running.start
+                message = (
+                    f"the grader's process for this test was still running after {seconds:.0f} "
+                    f"s of wall time (its test's limit: {running.limit:.0f} s; a loaded "
+                    "machine, or the grader hung)"
+                )
+                result = {"grader_error": message}
             else:
-                result = self._failure(running, status)
+                result = self._failure(running, status, self._oom_killed(running))
         running.err.close()
         # Orphans of a job that died come here (we are their subreaper): kill them.
         keep = {*self.running, *(v.proc.pid for v in self.views.values())}
@@ -321,21 +354,32 @@ class _Jobs:
                 return message["result"]
         return None
 
+    def _oom_killed(self, running: _Running) -> bool:
+        """Whether the kernel killed a trusted process of the grading for want of memory
+        while ``running`` ran."""
+        if self.groups is None:
+            return False
+        return self.groups.trusted.oom_kills() > getattr(running, "oom_before", 0)
+
     @staticmethod
-    def _failure(running: _Running, status: int) -> dict:
+    def _failure(running: _Running, status: int, oom: bool = False) -> dict:
+        """A trusted process that ended without a result: the grader's failure (out of
+        memory, a crash, a signal from outside), never the student's verdict."""
+        from doorlab.pset.safe_text import clean_text
+
         running.err.seek(0, os.SEEK_END)
         size = running.err.tell()
         running.err.seek(max(0, size - STDERR_KEPT_CHARS))
         tail = running.err.read().decode("utf-8", "replace")
         if os.WIFSIGNALED(status):
             how = f"killed by signal {os.WTERMSIG(status)}"
+            if oom or os.WTERMSIG(status) == signal.SIGKILL:
+                how += " (out of memory?)" if not oom else ": the machine ran out of memory"
         else:
             how = f"exit code {os.WEXITSTATUS(status)}"
-        return {
-            "passed": False,
-            "error": f"the grader's process for this test ended without a result ({how})",
-            "output": tail,
-        }
+        last = clean_text(tail.strip().splitlines()[-1], 300) if tail.strip() else ""
+        message = f"the grader's process for this test ended without a result ({how})"
+        return {"grader_error": message + (f": {last}" if last else "")}
 
     def close(self) -> None:
         """Ends the views (every process in them dies with them)."""
@@ -345,7 +389,9 @@ class _Jobs:
         self.selector.close()
 
 
-def _job_process(job, jobs: _Jobs, jobdir, limit, student_view, result_w, err_fd, parent) -> int:
+def _job_process(
+    job, jobs: _Jobs, jobdir, limit, student_view, result_w, err_fd, parent, student_group=None
+) -> int:
     """The forked job: its trusted process's settings, the job, its result on ``result_w``.
     (Its signals are the supervisor's: a signal kills what it started, then ends it.)"""
     os.dup2(err_fd, 1)  # anything printed (Drake's warnings) goes to the job's stderr file
@@ -368,6 +414,7 @@ def _job_process(job, jobs: _Jobs, jobdir, limit, student_view, result_w, err_fd
             jobs.options.get(job, {}),
             student_view=student_view,
             on_start=started,
+            student_group=student_group,
         )
     except BaseException:  # noqa: BLE001 - the grader's own failure: its stderr says why
         traceback.print_exc()
@@ -460,12 +507,21 @@ def supervise(request: dict, prepared: dict | None = None) -> dict:
     ran, isolation = _run(folder, todo, options, request, parallel, prepared)
     if isinstance(isolation, str):
         return {"grader_error": isolation}
+    cgroup = ran.pop(_CGROUP_KEY, None)
     results.update(ran)
     errors = [r["grader_error"] for r in results.values() if "grader_error" in r]
     if errors:
         return {"grader_error": errors[0]}
     elapsed = time.perf_counter() - start
-    return results_from_jobs(specs, results, elapsed, assignment, drawn, isolation)
+    out = results_from_jobs(specs, results, elapsed, assignment, drawn, isolation)
+    sandbox_facts = out.get("extra_data", {}).get("sandbox")
+    if isinstance(sandbox_facts, dict) and cgroup is not None:
+        sandbox_facts["cgroup"] = cgroup
+    return out
+
+
+_CGROUP_KEY = "_cgroup"
+"""Where :func:`_run` puts what the grading's cgroups were (not a job)."""
 
 
 def _run(folder, todo: list[str], options: dict, request: dict, parallel: int, prepared):
@@ -476,20 +532,43 @@ def _run(folder, todo: list[str], options: dict, request: dict, parallel: int, p
         workdir = Path(tmp)
         os.chmod(workdir, 0o711)
         os.chdir(workdir)
-        runner = None
+        runner = groups = None
         try:
             student_jobs = [j for j in todo if not j.startswith("reference:")]
             isolation = _isolation(request, workdir, prepared) if student_jobs else None
             if isinstance(isolation, str):
                 return {}, isolation
             scale = float(request.get("time_limit_scale", 1.0))
-            runner = _Jobs(folder, workdir, scale, isolation, options)
-            return runner.run(todo, parallel), isolation
+            groups, cgroup = _grading_groups(isolation)
+            runner = _Jobs(folder, workdir, scale, isolation, options, groups)
+            ran = runner.run(todo, parallel)
+            if cgroup is not None:
+                ran[_CGROUP_KEY] = cgroup
+            return ran, isolation
         finally:
             if runner is not None:
                 runner.close()
             sandbox.kill_descendants()
+            if groups is not None:
+                groups.close()
             os.chdir("/")
+
+
+def _grading_groups(isolation):
+    """The grading's cgroups (:mod:`doorlab.pset.cgroups`) and what the results say of them:
+    (groups or None, description or None without a student process)."""
+    from doorlab.pset.cgroups import CgroupError, GradingGroups
+
+    setup = None if isolation is None else isolation.cgroup_setup()
+    if setup is None:
+        return None, None
+    if setup.version is None:
+        return None, setup.describe()
+    try:
+        groups = GradingGroups(setup)
+    except CgroupError as e:
+        return None, {"version": None, "why_none": str(e)}
+    return groups, setup.describe()
 
 
 def _warm(todo: list[str], options: dict[str, dict]) -> None:

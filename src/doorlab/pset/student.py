@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from doorlab.pset import sandbox, view
+from doorlab.pset.cgroups import VIEW_MEMORY_BYTES, CgroupError
 from doorlab.pset.channel import (
     KIND_ARRAY,
     Channel,
@@ -36,6 +37,7 @@ from doorlab.pset.channel import (
     parse_array,
     parse_json,
 )
+from doorlab.pset.clock import Clock
 from doorlab.pset.isolation import Isolation
 from doorlab.pset.safe_text import clean_text
 
@@ -195,15 +197,25 @@ class StudentProcess:
     Args:
         folder: The submission. workdir: The grading's private folder (scratch copies go
             in it). name: The test's job name (the scratch folder's name).
-        time_limit: Wall and CPU time for the whole test [s].
-        identity: The user to run as (see :func:`doorlab.pset.sandbox.sandbox_identity`).
+        time_limit: The whole test's time (:class:`doorlab.pset.clock.Clock`: wall time
+            less the grader's wait for a CPU) and the student's CPU time [s].
+        isolation: How the grading isolates the student's code.
+        group: The cgroup its processes go in (:mod:`doorlab.pset.cgroups`; None: none).
     """
 
     def __init__(
-        self, folder: Path, workdir: Path, name: str, time_limit: float, isolation: Isolation
+        self,
+        folder: Path,
+        workdir: Path,
+        name: str,
+        time_limit: float,
+        isolation: Isolation,
+        group=None,
     ):
         self.limits = sandbox.Limits(cpu_seconds=time_limit)
-        self.deadline = time.monotonic() + time_limit
+        self.deadline = Clock(time_limit)
+        self.group = group
+        self._oom_kills = group.oom_kills() if group is not None else 0
         self.started = time.time()
         self.facts: dict = {}
         self.isolation = isolation
@@ -256,7 +268,9 @@ class StudentProcess:
             argv += [plan.python, "-I", "-S", "-B", "-c", view.worker_code(plan, drop)]
             argv += channel_args
             env = student_environment(view.SCRATCH_MOUNT, "/tmp")
+        groups = []
         try:
+            groups = self.group.join_descriptors() if self.group is not None else []
             self.proc = sandbox.spawn(
                 argv,
                 cwd=self.scratch,
@@ -265,14 +279,20 @@ class StudentProcess:
                 identity=identity,
                 switch_user=plan is None,
                 pass_fds=(request_r, answer_w),
+                cgroup_fds=groups,
+                new_namespaces=self.isolation.namespaces if plan is None else 0,
             )
-        except (OSError, subprocess.SubprocessError) as e:  # the latter: a limit refused
+        except (OSError, subprocess.SubprocessError, CgroupError) as e:  # a limit refused
             raise SandboxError(f"cannot start the student's process: {e}") from None
         finally:
             os.close(request_r)
             os.close(answer_w)
+            for fd in groups:
+                os.close(fd)
         self.channel = Channel(self._answer_r, self._request_w)
         self._output_stream = self.proc.stdout
+        cpu = self.group.cpu_seconds if self.group is not None else None
+        self.deadline.watch_student(self.proc.pid, cpu)
 
     def _started(self) -> None:
         """After the hello, before any request (the student's code has not run yet)."""
@@ -342,6 +362,9 @@ class StudentProcess:
                 "(the output limit); the test was stopped"
             )
         if isinstance(error, ChannelTimeout):
+            starved = self.deadline.starved()
+            if starved is not None:  # not the student's: no verdict
+                raise SandboxError(starved)
             return (
                 f"time limit: your code did not answer within {self.limits.cpu_seconds:.0f} s "
                 "(an endless loop? a long sleep?)"
@@ -352,11 +375,20 @@ class StudentProcess:
                 return "your code closed the grader's channel"
             return f"your code's process sent something that is not an answer ({error})"
         if code < 0:
+            if code == -signal.SIGKILL and self._out_of_memory():
+                return (
+                    f"your code's processes used more than {VIEW_MEMORY_BYTES >> 30} GiB of "
+                    "memory together (the limit of its view): the kernel ended one"
+                )
             return _signal_message(-code, self.limits)
         return (
             f"your code ended its process (exit code {code}) before answering "
             "(sys.exit, os._exit or os.kill in your code?)"
         )
+
+    def _out_of_memory(self) -> bool:
+        """Whether the kernel killed a process of the test's group for want of memory."""
+        return self.group is not None and self.group.oom_kills() > self._oom_kills
 
     def _detail(self, traceback: str = "") -> str:
         parts = []
