@@ -40,6 +40,7 @@ from doorlab.pset.channel import (
 from doorlab.pset.clock import Clock
 from doorlab.pset.isolation import Isolation
 from doorlab.pset.safe_text import clean_text
+from doorlab.pset.syscalls import FilterError, filter_descriptor
 
 MAX_SUBMISSION_BYTES = 64 << 20
 """Largest submission copied to the scratch folder [bytes]."""
@@ -259,12 +260,20 @@ class StudentProcess:
         self._answer_r, answer_w = os.pipe()
         os.set_blocking(self._request_w, False)
         channel_args = [str(request_r), str(answer_w), json.dumps(self.isolation.guard)]
+        passed, seccomp = [request_r, answer_w], None
         if plan is None:
             argv = [sys.executable, "-I", "-B", "-m", "doorlab.pset.worker", *channel_args]
             env = student_environment(str(self.scratch), str(self.scratch))
         else:
             drop = None if identity is None else (identity.uid, identity.gid)
-            argv = view.bwrap_argv(plan, self.scratch, tmp_dirs, as_root=identity is not None)
+            try:
+                seccomp = filter_descriptor()
+            except FilterError as e:
+                raise SandboxError(f"cannot start the student's process: {e}") from None
+            passed.append(seccomp)
+            argv = view.bwrap_argv(
+                plan, self.scratch, tmp_dirs, as_root=identity is not None, seccomp_fd=seccomp
+            )
             argv += [plan.python, "-I", "-S", "-B", "-c", view.worker_code(plan, drop)]
             argv += channel_args
             env = student_environment(view.SCRATCH_MOUNT, "/tmp")
@@ -278,16 +287,14 @@ class StudentProcess:
                 limits=self.limits,
                 identity=identity,
                 switch_user=plan is None,
-                pass_fds=(request_r, answer_w),
+                pass_fds=tuple(passed),
                 cgroup_fds=groups,
                 new_namespaces=self.isolation.namespaces if plan is None else 0,
             )
         except (OSError, subprocess.SubprocessError, CgroupError) as e:  # a limit refused
             raise SandboxError(f"cannot start the student's process: {e}") from None
         finally:
-            os.close(request_r)
-            os.close(answer_w)
-            for fd in groups:
+            for fd in [*passed, *groups]:
                 os.close(fd)
         self.channel = Channel(self._answer_r, self._request_w)
         self._output_stream = self.proc.stdout

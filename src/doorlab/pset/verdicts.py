@@ -358,6 +358,9 @@ GRADER_MODULES = {
             "views",
             "isolation",
             "safe_text",
+            "cgroups",
+            "clock",
+            "syscalls",
         )
     },
 }
@@ -417,6 +420,7 @@ def _sandbox_facts(results: dict[str, dict], isolation) -> dict:
         "network_isolated": every("network_isolated"),
         "reference_hidden": every("reference_hidden"),
         "pid_namespace": every("pid_namespace"),
+        "user_namespaces_refused": every("user_namespaces_refused"),
         "python_path_read_only": bool(facts)
         and not any(f.get("python_path_writable") for f in facts),
         "seen": {

@@ -48,6 +48,7 @@ from doorlab.pset.student import (
     copy_submission,
     student_environment,
 )
+from doorlab.pset.syscalls import FilterError, filter_descriptor
 
 VIEW_START_TIMEOUT_S = 60.0
 """How long a view's first process may take to start and import [s] (about 1 s idle)."""
@@ -143,13 +144,19 @@ class StudentView:
         tmp_dirs = view.job_tmp_dirs(plan, self.root / "tmp", drop)
         self.control, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         self._log = open(self.root / "log", "w+b")  # noqa: SIM115 - closed in close()
-        argv = view.bwrap_argv(
-            plan, self.scratch, tmp_dirs, as_root=identity is not None, as_pid_1=True
-        )
-        argv += [plan.python, "-I", "-S", "-B", "-c", view.zygote_code(plan, drop)]
-        argv += [str(theirs.fileno()), json.dumps(isolation.guard)]
-        groups = []
+        groups, seccomp = [], None
         try:
+            seccomp = filter_descriptor()
+            argv = view.bwrap_argv(
+                plan,
+                self.scratch,
+                tmp_dirs,
+                as_root=identity is not None,
+                as_pid_1=True,
+                seccomp_fd=seccomp,
+            )
+            argv += [plan.python, "-I", "-S", "-B", "-c", view.zygote_code(plan, drop)]
+            argv += [str(theirs.fileno()), json.dumps(isolation.guard)]
             groups = group.join_descriptors() if group is not None else []
             self.proc = sandbox.spawn(
                 argv,
@@ -158,17 +165,17 @@ class StudentView:
                 limits=sandbox.Limits(cpu_seconds=cpu_seconds),
                 identity=identity,
                 switch_user=False,
-                pass_fds=(theirs.fileno(),),
+                pass_fds=(theirs.fileno(), seccomp),
                 output=self._log.fileno(),
                 cgroup_fds=groups,
             )
-        except (OSError, subprocess.SubprocessError, CgroupError) as e:
+        except (OSError, subprocess.SubprocessError, CgroupError, FilterError) as e:
             self.control.close()
             self._log.close()
             raise SandboxError(f"cannot start the student's view: {e}") from None
         finally:
             theirs.close()
-            for fd in groups:
+            for fd in [*groups, *([] if seccomp is None else [seccomp])]:
                 os.close(fd)
         self.pid = None
         if self._ready(time.monotonic() + VIEW_START_TIMEOUT_S):
