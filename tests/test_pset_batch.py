@@ -227,6 +227,8 @@ def resumed(klass, tmp_path_factory) -> dict:
     sends it) once 12 submissions are in the sheet, then --resume."""
     export, _, reference = klass
     out = tmp_path_factory.mktemp("resumed") / "class"
+    tmp = tmp_path_factory.mktemp("resumed_tmp")  # its TMPDIR: what it leaves there is seen
+    os.chmod(tmp, 0o755)
     argv = ["pset", "grade-all", str(export), "--out", str(out), "--reference", str(reference)]
     process = subprocess.Popen(
         [sys.executable, "-m", "doorlab.cli", *argv, "--jobs", "2"],
@@ -234,6 +236,7 @@ def resumed(klass, tmp_path_factory) -> dict:
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,
+        env={**os.environ, "TMPDIR": str(tmp)},
     )
     deadline = time.monotonic() + 300
     while time.monotonic() < deadline:
@@ -247,6 +250,9 @@ def resumed(klass, tmp_path_factory) -> dict:
         pytest.fail("12 submissions were not graded in time")
     os.killpg(process.pid, signal.SIGINT)
     _, err = process.communicate(timeout=120)
+    deadline = time.monotonic() + 20  # the supervisors end with their workers, a moment later
+    while time.monotonic() < deadline and (_alive_in(process.pid) or any(tmp.iterdir())):
+        time.sleep(0.1)
     first = {
         "code": process.returncode,
         "err": err,
@@ -255,9 +261,21 @@ def resumed(klass, tmp_path_factory) -> dict:
         "left": sorted(
             p.name for p in out.iterdir() if p.name.startswith(".") and "partial" in p.name
         ),
+        "tmp_left": sorted(p.name for p in tmp.iterdir()),
     }
     code = main([*argv, "--resume", "--jobs", "2"])
     return {"out": out, "first": first, "code": code, "rows": read_sheet(out / GRADES_CSV)}
+
+
+def _alive_in(session: int) -> bool:
+    """Whether a process of session ``session`` (the interrupted command's) is still there."""
+    for entry in Path("/proc").iterdir():
+        try:
+            if entry.name.isdigit() and os.getsid(int(entry.name)) == session:
+                return True
+        except OSError:
+            continue
+    return False
 
 
 def test_ctrl_c_leaves_a_consistent_sheet_and_resume_grades_each_submission_once(resumed):
@@ -265,6 +283,9 @@ def test_ctrl_c_leaves_a_consistent_sheet_and_resume_grades_each_submission_once
     assert first["code"] == 130, first["err"][-2000:]
     assert "interrupted;" in first["err"] and "Traceback" not in first["err"], first["err"][-2000:]
     assert first["left"] == []  # no staging folder left behind
+    # Issue 31: nothing in its TMPDIR either (no supervisor's, grading's or submission's
+    # folder: the last held the students' files).
+    assert first["tmp_left"] == []
     done = {row["submission"] for row in first["rows"]}
     # The sheet after Ctrl-C: the finished submissions, each with its whole results file; a
     # grading the grader failed (an "error" row, the grader's, not the student's; seen once, on
@@ -356,20 +377,35 @@ def test_the_class_graded_again_on_a_dask_cluster_gives_the_identical_sheet(
     klass, resumed, tmp_path
 ):
     """A LocalCluster of 2 worker processes through --scheduler: the identical sheet (times
-    aside), and the identical results files."""
-    distributed = pytest.importorskip("distributed")
+    aside), and the identical results files. The cluster is doorlab's (TLS, a key made for
+    it); the command connects with the certificates in Dask's configuration, as the docs
+    tell a course to."""
+    pytest.importorskip("distributed")
+    import dask
+
+    from doorlab.pset.cluster import local_cluster
+
     export, _, reference = klass
     out = tmp_path / "dask"
-    with distributed.LocalCluster(
-        n_workers=2,
-        threads_per_worker=1,
-        processes=True,
-        host="127.0.0.1",
-        dashboard_address=None,
-        silence_logs=40,
-    ) as cluster:
+    with local_cluster(2) as cluster:
+        files = {}
+        for name, key in (
+            ("ca.pem", "tls_ca_file"),
+            ("client.pem", "tls_client_cert"),
+            ("client.key", "tls_client_key"),
+        ):
+            files[key] = tmp_path / name
+            files[key].write_text(getattr(cluster.security, key))
+        config = {
+            "distributed.comm.tls.ca-file": str(files["tls_ca_file"]),
+            "distributed.comm.tls.client.cert": str(files["tls_client_cert"]),
+            "distributed.comm.tls.client.key": str(files["tls_client_key"]),
+            "distributed.comm.require-encryption": True,
+        }
         argv = ["pset", "grade-all", str(export), "--out", str(out), "--reference", str(reference)]
-        assert main([*argv, "--scheduler", cluster.scheduler_address]) == 0
+        assert cluster.address.startswith("tls://")
+        with dask.config.set(config):
+            assert main([*argv, "--scheduler", cluster.address]) == 0
     assert without_times(read_sheet(out / GRADES_CSV)) == without_times(resumed["rows"])
     for row in resumed["rows"]:
         sid = row["submission"]

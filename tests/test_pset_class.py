@@ -12,6 +12,7 @@ on a machine whose cgroups this user may write (they skip, saying why, elsewhere
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import shutil
@@ -123,3 +124,84 @@ def test_six_honest_submissions_beside_a_fork_cycler_keep_full_marks(tmp_path, r
     assert 50 <= forks["most"] <= cgroups.VIEW_TASKS, forks
     assert results["extra_data"]["sandbox"]["cgroup"]["version"] == SETUP.version
     assert outcome.errors == 0
+
+
+DASK_PATCH = r"""
+import json, os, re, socket
+ev = {"addresses": [], "connect": {}}
+for pid in [p for p in os.listdir("/proc") if p.isdigit()]:  # the scheduler's address
+    try:
+        text = open(f"/proc/{pid}/cmdline", "rb").read().decode(errors="replace")
+    except OSError:
+        continue
+    ev["addresses"] += re.findall(r"(?:tcp|tls)://[\w.:\[\]-]+", text)
+for address in [*ev["addresses"], ADDRESS]:  # and the real one, as if it leaked anyway
+    host, port = address.split("://", 1)[1].rsplit(":", 1)
+    try:
+        socket.create_connection((host, int(port)), timeout=5).close()
+        ev["connect"][address] = "connected"
+    except OSError as e:
+        ev["connect"][address] = type(e).__name__
+print("EVIDENCE dask " + json.dumps(ev))
+raise NotImplementedError("calc_p_Q: no scheduler reached")
+"""
+"""calc_p_Q: finds the Dask scheduler's address and connects to it (to Client.run a patch)."""
+
+
+def test_the_student_s_code_cannot_reach_a_tls_cluster_and_nothing_connects_without_its_key(
+    tmp_path, reference
+):
+    """A class graded on a Dask cluster doorlab starts (TLS, a key made for it): the
+    attacker's code finds no scheduler address in /proc and cannot connect to the real one
+    from its view (its own network namespace: loopback only); outside the view, a client
+    without the cluster's key cannot connect, one with it can."""
+    distributed = pytest.importorskip("distributed")
+    from distributed.comm import connect
+
+    from doorlab.pset.cluster import local_cluster
+
+    with local_cluster(1) as cluster:
+        address = cluster.address
+        export = _class(tmp_path, 0, (DASK_PATCH, {"ADDRESS": address}))
+        out = tmp_path / "out"
+        grade_class(export, out, reference=reference, scheduler=address, security=cluster.security)
+        # Outside the view, without the key: no plain client, no TLS client of another key.
+        with pytest.raises(TypeError, match="TLS expects"):
+            distributed.Client(address, timeout=5, set_as_default=False)
+        other = distributed.Security.temporary().get_connection_args("client")
+        with pytest.raises((OSError, TimeoutError)):
+            asyncio.run(connect(address, timeout=5, **other))
+        with distributed.Client(address, security=cluster.security, timeout=10) as client:
+            assert client.scheduler_info()["type"] == "Scheduler"
+    rows = _rows(out)
+    assert rows["attacker"]["status"] == "graded", rows
+    results = json.loads((out / "attacker" / RESULTS_JSON).read_text())
+    found = evidence(results)["dask"]
+    assert found["addresses"] == [], found
+    assert found["connect"] == {address: "ConnectionRefusedError"}, found
+    assert results["extra_data"]["sandbox"]["network_isolated"] is True
+
+
+def test_a_cluster_whose_workers_would_not_isolate_the_network_is_refused():
+    """--scheduler where a worker's gradings would run the student's code without a network
+    namespace (no view, not root): refused in one line before anything is graded."""
+    from concurrent.futures import Future
+
+    from doorlab.errors import ConfigError
+    from doorlab.pset.cluster import check_workers
+
+    class Worker:
+        def __init__(self, facts):
+            self.facts = facts
+
+        def submit(self, fn, *args):
+            future = Future()
+            future.set_result(self.facts)
+            return future
+
+    bare = {"mode": "none", "network_isolated": False, "reason": "bwrap is not installed"}
+    with pytest.raises(ConfigError, match="without a network namespace") as refused:
+        check_workers(Worker(bare), "insecure")
+    assert "\n" not in str(refused.value) and "bwrap is not installed" in str(refused.value)
+    view = {"mode": "bwrap", "network_isolated": True, "reason": ""}
+    assert check_workers(Worker(view), "require") == view

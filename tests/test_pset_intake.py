@@ -226,11 +226,17 @@ def _remove_deep(top: Path) -> None:
 
 @pytest.fixture
 def recorded_grade(monkeypatch):
-    """``doorlab.pset.grader.grade`` replaced by a recorder of the folder it is given."""
+    """``doorlab.pset.grader.grade`` replaced by a recorder of the student files it would
+    grade (a folder, or the taken files over the stubs)."""
     calls = []
 
-    def fake_grade(folder, **kwargs):
-        calls.append(_graded(Path(folder)))
+    def fake_grade(folder, *, files=None, **kwargs):
+        if files is not None:
+            calls.append(
+                {rel: files.get(rel, STUBS[rel].encode()).decode() for rel in STUDENT_FILES}
+            )
+        else:
+            calls.append(_graded(Path(folder)))
         return {"score": 0.0, "tests": [], "output": "", "execution_time": 0.0, "extra_data": {}}
 
     monkeypatch.setattr(grader, "grade", fake_grade)

@@ -92,6 +92,7 @@ def grade_task(payload: dict) -> dict:
             assignment=None if data is None else assignment_from_dict(data),
             isolation=payload["isolation"],
             supervisor=_worker_supervisor(),
+            network_isolated=payload.get("network_isolated", False),
         )
     except Exception as e:  # noqa: BLE001 - a grader's failure is a row, never a lost class
         text = str(e) if isinstance(e, DoorlabError) else f"{type(e).__name__}: {e}"
@@ -253,6 +254,7 @@ def grade_class(
     reference: dict | None = None,
     isolation: str = "require",
     progress: bool = False,
+    security: object = None,
 ) -> ClassOutcome:
     """Grades every submission in ``source`` into ``out`` (see the module docstring).
 
@@ -271,10 +273,15 @@ def grade_class(
             ``extra_data["reference"]``); None simulates them here, once.
         isolation: ``"require"`` or ``"insecure"`` (as ``doorlab pset grade --insecure``).
         progress: A progress bar on stderr.
+        security: With ``scheduler``: a ``distributed.Security`` (a ``tls://`` cluster's
+            certificates; default: Dask's configuration's). With a scheduler, a cluster whose
+            workers would run the student's code without a network namespace is refused
+            (:func:`doorlab.pset.cluster.check_workers`).
 
     Raises:
         ConfigError: No submissions; bad metadata; ``resume`` with another assignment; bad
-            ``jobs`` or ``scheduler``. OutputError: ``out`` may not be written.
+            ``jobs`` or ``scheduler``; a cluster whose workers would let the student's code
+            reach it. OutputError: ``out`` may not be written.
         GradingError: The reference episodes could not be simulated (nothing written).
         KeyboardInterrupt: After writing the sheet of the submissions finished so far.
     """
@@ -295,6 +302,13 @@ def grade_class(
             f"--out {str(out)!r} was graded with another assignment; --resume needs the same "
             "--assignment (or --force regrades the class with this one)"
         )
+    timeout_s = scheduler_timeout_s or CONNECT_TIMEOUT_S
+    if scheduler is not None:  # before anything is written: the workers isolate the network
+        from doorlab.pset.cluster import check_workers
+        from doorlab.runtime.executor import open_executor
+
+        with open_executor(scheduler=scheduler, timeout_s=timeout_s, security=security) as ex:
+            check_workers(ex, isolation)
     if previous is not None:
         reference = previous.reference
     elif reference is None:
@@ -302,6 +316,7 @@ def grade_class(
 
         reference = grade_reference(jobs=min(3, max(1, jobs)) if scheduler is None else 3)
     run = _ClassRun(out, submissions, reference, assignment, isolation, progress)
+    run.network_isolated = scheduler is not None
     for submission in submissions:
         if previous is not None and submission.id in previous.results:
             run.rows[submission.id] = sheet_row(submission, previous.results[submission.id])
@@ -318,7 +333,8 @@ def grade_class(
             with open_executor(
                 jobs=min(jobs, len(todo)),
                 scheduler=scheduler,
-                timeout_s=scheduler_timeout_s or CONNECT_TIMEOUT_S,
+                timeout_s=timeout_s,
+                security=security,
             ) as executor:
                 run.executor = executor.description
                 run.grade(executor, todo)
@@ -351,6 +367,7 @@ class _ClassRun:
         self.executor = "none (every submission was in the folder)"
         self.started = False
         self.bar = None
+        self.network_isolated = False  # a cluster's gradings: no network for the student
 
     def start(self, info: dict, *, resume: bool, force: bool, todo: list) -> None:
         """Creates the folder (a new class) and writes the class's file and sheet."""
@@ -395,6 +412,7 @@ class _ClassRun:
             "reference": self.reference,
             "assignment": None if self.assignment is None else self.assignment.to_dict(),
             "isolation": self.isolation,
+            "network_isolated": self.network_isolated,
         }
 
     def grade(self, executor, todo: list[Submission]) -> None:

@@ -13,6 +13,7 @@ doorlab's reference solution, simulated in the same grading (or passed in, ``ref
 
 from __future__ import annotations
 
+import base64
 import json
 import os
 import subprocess
@@ -63,8 +64,9 @@ class GradingError(DoorlabError):
 
 
 def grade(
-    folder: str | Path,
+    folder: str | Path | None,
     *,
+    files: dict[str, bytes] | None = None,
     jobs: int = 2,
     reference: dict[str, dict] | None = None,
     only: Sequence[str] | None = None,
@@ -74,6 +76,7 @@ def grade(
     isolation: str = "require",
     harden: Sequence[str | Path] = (),
     supervisor: Supervisor | None = None,
+    network_isolated: bool = False,
 ) -> dict:
     """Grades a problem-set folder; returns the Gradescope results (write them with
     :func:`write_results`).
@@ -82,7 +85,11 @@ def grade(
     detached) is dead. The folder is not written to.
 
     Args:
-        folder: The folder written by ``doorlab pset init`` (the submission).
+        folder: The folder written by ``doorlab pset init`` (the submission); None with
+            ``files``.
+        files: The student files' bytes by their place in the folder (what
+            :func:`take_files` took): graded over a fresh stub folder, which the supervisor
+            writes in its own private folder.
         jobs: Tests run at a time.
         reference: Results of the ``reference:*`` jobs to reuse (e.g. an earlier grading's
             ``extra_data["reference"]``); None simulates them in this grading.
@@ -101,6 +108,9 @@ def grade(
         harden: Paths the autograder's fallback makes unreadable to the student's user.
         supervisor: A :class:`Supervisor` that serves several gradings, one at a time (a
             batch's worker); None starts one for this grading.
+        network_isolated: Refuse (GradingError) unless the student's code gets a network
+            namespace of its own (a grading on a Dask cluster's worker: else its code could
+            reach the cluster).
 
     Returns:
         Gradescope's results: ``{"score", "visibility", "output", "output_format",
@@ -118,7 +128,10 @@ def grade(
             rather than zeros the submission did not earn.
     """
     request = {
-        "folder": str(Path(folder).resolve()),
+        "folder": None if folder is None else str(Path(folder).resolve()),
+        "files": None
+        if files is None
+        else {k: base64.b64encode(v).decode() for k, v in files.items()},
         "jobs": int(jobs),
         "reference": reference,
         "only": None if only is None else list(only),
@@ -127,6 +140,7 @@ def grade(
         "seed": None if seed is None else int(seed),
         "isolation": isolation,
         "harden": [str(p) for p in harden],
+        "network_isolated": bool(network_isolated),
     }
     if supervisor is not None:
         return supervisor.run(request)
@@ -344,6 +358,7 @@ def grade_taken(
     isolation: str = "require",
     harden: Sequence[str | Path] = (),
     supervisor: Supervisor | None = None,
+    network_isolated: bool = False,
 ) -> dict:
     """Grades what :func:`take_files` took: a fresh stub folder with ``files`` over its stubs
     (:func:`grade`), or, for a submission the intake refused, every test 0 with the reason.
@@ -351,30 +366,25 @@ def grade_taken(
     from importlib.metadata import version
 
     from doorlab import __version__
-    from doorlab.pset.folder import init_folder
     from doorlab.pset.verdicts import TESTS, results_not_graded
 
     if intake.refused is not None:
         results = results_not_graded(TESTS, intake.refused, assignment)
     else:
-        try:
-            tmp = tempfile.TemporaryDirectory(prefix="doorlab_submission_")
-        except OSError as e:
-            raise OutputError(f"cannot make a temporary folder: {e.strerror or e}") from None
-        with tmp:
-            folder = init_folder(Path(tmp.name) / "pset")
-            for rel, data in files.items():
-                (folder / rel).write_bytes(data)
-            results = grade(
-                folder,
-                jobs=jobs,
-                reference=reference,
-                assignment=assignment,
-                seed=seed,
-                isolation=isolation,
-                harden=harden,
-                supervisor=supervisor,
-            )
+        # The supervisor writes the fresh folder in its own private folder (it removes it
+        # however it ends, a signal included): nothing of the student's is left in /tmp.
+        results = grade(
+            None,
+            files=files,
+            jobs=jobs,
+            reference=reference,
+            assignment=assignment,
+            seed=seed,
+            isolation=isolation,
+            harden=harden,
+            supervisor=supervisor,
+            network_isolated=network_isolated,
+        )
     header = f"Graded by doorlab {__version__} (Drake {version('drake')})."
     taken = intake.summary() if intake.refused is None else ""  # else the output says why
     results["output"] = "\n".join(filter(None, [header, taken, str(results.get("output") or "")]))

@@ -23,6 +23,7 @@ the last job and every process below it are dead.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import selectors
@@ -487,6 +488,15 @@ def supervise(request: dict, prepared: dict | None = None) -> dict:
         todo = _order({j for t in TESTS for j in t.jobs if j.startswith("reference:")})
         parallel = max(1, int(request.get("jobs", 2)))
         return {"reference": _run(None, todo, {}, request, parallel, prepared)[0]}
+    if request.get("files") is not None:
+        import shutil
+
+        folder, tmp = _submission_folder(request["files"])
+        try:
+            return supervise({**request, "files": None, "folder": str(folder)}, prepared)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+            _OWN_FOLDERS.remove(tmp)
     folder = Path(request["folder"])
     try:
         data = request.get("assignment")
@@ -507,6 +517,9 @@ def supervise(request: dict, prepared: dict | None = None) -> dict:
     ran, isolation = _run(folder, todo, options, request, parallel, prepared)
     if isinstance(isolation, str):
         return {"grader_error": isolation}
+    if request.get("network_isolated") and isolation is not None:
+        if not isolation.network_isolated:  # checked before any job ran (see _run)
+            return {"grader_error": _NO_NETWORK_NAMESPACE}
     cgroup = ran.pop(_CGROUP_KEY, None)
     results.update(ran)
     errors = [r["grader_error"] for r in results.values() if "grader_error" in r]
@@ -520,6 +533,10 @@ def supervise(request: dict, prepared: dict | None = None) -> dict:
     return out
 
 
+_NO_NETWORK_NAMESPACE = (
+    "this worker would run the student's code without a network namespace (no bubblewrap "
+    "view, not root), so it could reach the cluster: not graded here"
+)
 _CGROUP_KEY = "_cgroup"
 """Where :func:`_run` puts what the grading's cgroups were (not a job)."""
 
@@ -528,7 +545,7 @@ def _run(folder, todo: list[str], options: dict, request: dict, parallel: int, p
     """Runs ``todo`` in a private folder: (results by job, the isolation or why there is
     none)."""
     _warm(todo, options)
-    with tempfile.TemporaryDirectory(prefix="doorlab_grade_") as tmp:
+    with tempfile.TemporaryDirectory(prefix="doorlab_grade_") as tmp, _own(tmp):
         workdir = Path(tmp)
         os.chmod(workdir, 0o711)
         os.chdir(workdir)
@@ -538,8 +555,13 @@ def _run(folder, todo: list[str], options: dict, request: dict, parallel: int, p
             isolation = _isolation(request, workdir, prepared) if student_jobs else None
             if isinstance(isolation, str):
                 return {}, isolation
+            if request.get("network_isolated") and isolation is not None:
+                if not isolation.network_isolated:  # no student code runs: refused
+                    return {}, isolation
             scale = float(request.get("time_limit_scale", 1.0))
             groups, cgroup = _grading_groups(isolation)
+            if groups is not None:
+                _OWN_GROUPS.append(groups)
             runner = _Jobs(folder, workdir, scale, isolation, options, groups)
             ran = runner.run(todo, parallel)
             if cgroup is not None:
@@ -551,7 +573,36 @@ def _run(folder, todo: list[str], options: dict, request: dict, parallel: int, p
             sandbox.kill_descendants()
             if groups is not None:
                 groups.close()
+                _OWN_GROUPS.remove(groups)
             os.chdir("/")
+
+
+@contextlib.contextmanager
+def _own(folder: str):
+    """``folder`` is this supervisor's while the block runs (:data:`_OWN_FOLDERS`)."""
+    _OWN_FOLDERS.append(folder)
+    try:
+        yield
+    finally:
+        _OWN_FOLDERS.remove(folder)
+
+
+def _submission_folder(files: dict[str, str]):
+    """A fresh stub folder with the request's student files over its stubs (base64), in a
+    private folder of this supervisor's; returns (the folder, its private folder)."""
+    import base64
+
+    from doorlab.pset.folder import init_folder
+    from doorlab.pset.verdicts import STUDENT_FILES
+
+    tmp = tempfile.mkdtemp(prefix="doorlab_submission_")
+    _OWN_FOLDERS.append(tmp)
+    folder = init_folder(Path(tmp) / "pset")
+    for rel, data in files.items():
+        if rel not in STUDENT_FILES:
+            raise ValueError(f"not a student file: {rel!r}")
+        (folder / rel).write_bytes(base64.b64decode(data))
+    return folder, tmp
 
 
 def _grading_groups(isolation):
@@ -608,8 +659,21 @@ def _isolation(request: dict, workdir: Path, prepared: dict | None = None):
     return isolation
 
 
+_OWN_FOLDERS: list[str] = []
+"""This supervisor's private folders (the submission's copy, the grading's, the prepared
+view): removed when it ends, a signal included."""
+_OWN_GROUPS: list = []
+"""The cgroups of the grading running now (:mod:`doorlab.pset.cgroups`)."""
+
+
 def _on_signal(signum, frame):
+    import shutil
+
     sandbox.kill_descendants()
+    for groups in _OWN_GROUPS:
+        groups.close()
+    for folder in reversed(_OWN_FOLDERS):
+        shutil.rmtree(folder, ignore_errors=True)
     os._exit(128 + signum)
 
 
@@ -647,6 +711,7 @@ def serve_main() -> int:
 
     answers = _supervisor_setup(interrupt=False)
     prepared = {"folder": tempfile.mkdtemp(prefix="doorlab_supervisor_")}
+    _OWN_FOLDERS.append(prepared["folder"])
     os.chmod(prepared["folder"], 0o711)
     try:
         for line in sys.stdin:
