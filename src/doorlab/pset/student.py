@@ -137,6 +137,58 @@ def remove_leftovers(uid: int, since: float) -> list[str]:
     return removed
 
 
+SYSV_IPC = {"shm": ("shmid", "shmctl"), "sem": ("semid", "semctl"), "msg": ("msqid", "msgctl")}
+"""System V IPC objects (``/proc/sysvipc/<kind>``): their id column and the call removing one."""
+POSIX_QUEUES = "/dev/mqueue"
+"""Where POSIX message queues are listed (when that file system is mounted)."""
+IPC_RMID = 0
+
+
+def remove_ipc_leftovers(uid: int, since: float) -> list[str]:
+    """Removes the System V shared memory, semaphores and message queues, and the POSIX
+    message queues, that user ``uid`` created since ``since`` (a time.time()); returns what
+    it removed. For the separate-user fallback where the machine refuses it an IPC namespace
+    of its own (:data:`doorlab.pset.isolation.OWN_NAMESPACES`)."""
+    import ctypes
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    removed = []
+    for kind, (id_column, call) in SYSV_IPC.items():
+        try:
+            header, *lines = Path(f"/proc/sysvipc/{kind}").read_text().splitlines()
+        except (OSError, ValueError):
+            continue
+        names = header.split()
+        for line in lines:
+            row = dict(zip(names, line.split(), strict=False))
+            try:
+                mine = int(row["cuid"]) == uid and int(row["ctime"]) >= since - 1.0
+                number = int(row[id_column])
+            except (KeyError, ValueError):
+                continue
+            if not mine:
+                continue
+            remove = getattr(libc, call)
+            result = (
+                remove(number, 0, IPC_RMID) if kind == "sem" else remove(number, IPC_RMID, None)
+            )
+            if result == 0:
+                removed.append(f"System V {kind} {number}")
+    try:
+        queues = list(os.scandir(POSIX_QUEUES))
+    except OSError:
+        queues = []
+    for entry in queues:
+        try:
+            st = entry.stat(follow_symlinks=False)
+            if st.st_uid == uid and st.st_ctime >= since - 1.0:
+                os.unlink(entry.path)
+                removed.append(entry.path)
+        except OSError:
+            continue
+    return removed
+
+
 _NO_MODULE = re.compile(r"ModuleNotFoundError: No module named '([A-Za-z_][\w.]*)'")
 
 
@@ -333,6 +385,8 @@ class StudentProcess:
         user = self.isolation.user()
         if self.isolation.mode == "uid" and user is not None:
             remove_leftovers(user.uid, self.started)
+            if not self.isolation.namespaces & sandbox.CLONE_NEWIPC:  # no IPC namespace
+                remove_ipc_leftovers(user.uid, self.started)
 
     def _end(self) -> None:
         """Kills the process and every process it started; waits for them."""
