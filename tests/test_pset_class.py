@@ -17,6 +17,7 @@ import json
 import os
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import pset_fixtures
@@ -205,3 +206,55 @@ def test_a_cluster_whose_workers_would_not_isolate_the_network_is_refused():
     assert "\n" not in str(refused.value) and "bwrap is not installed" in str(refused.value)
     view = {"mode": "bwrap", "network_isolated": True, "reason": ""}
     assert check_workers(Worker(view), "require") == view
+
+
+def _half_a_cpu(name: str) -> cgroups.Group:
+    """A cgroup of 0.5 CPU (a quota: as in a Gradescope container), below this process's."""
+    base = cgroups.Group(SETUP, {k: Path(v) for k, v in SETUP.bases.items()})
+    group = base.child(name, holds_groups=True)
+    if SETUP.version == 2:
+        (group.folders["unified"] / "cpu.max").write_text("50000 100000")
+    else:
+        (group.folders["cpu"] / "cpu.cfs_period_us").write_text("100000")
+        (group.folders["cpu"] / "cpu.cfs_quota_us").write_text("50000")
+    return group
+
+
+@needs_cgroups
+@pytest.mark.slow
+def test_an_honest_submission_beside_50_busy_children_in_half_a_cpu_keeps_full_marks(
+    tmp_path, reference
+):
+    """``grade-all --jobs 2`` in a group of 0.5 CPU: the attacker's calc_p_Q starts 50
+    processes that spin for most of a minute; the honest submission, graded meanwhile, gets
+    its grading's share of the half CPU (each grading is a cgroup with the same weight) and
+    is 14 and graded; the attacker's test ends at its time limit, its own failure."""
+    export = _class(tmp_path, 1, (BUSY_CHILDREN, {"CHILDREN": 50, "SECONDS": 50}))
+    out = tmp_path / "out"
+    reference_file = tmp_path / "reference.json"
+    reference_file.write_text(json.dumps({"extra_data": {"reference": reference}}))
+    group = _half_a_cpu(f"doorlab-test-{os.getpid()}")
+    fds = group.join_descriptors()
+    argv = ["pset", "grade-all", str(export), "--out", str(out), "--jobs", "2"]
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-m", "doorlab.cli", *argv, "--reference", str(reference_file)],
+            capture_output=True,
+            text=True,
+            timeout=900,
+            pass_fds=fds,
+            preexec_fn=lambda: cgroups.join_by_descriptors(fds),
+        )
+        used = group.cpu_seconds()
+    finally:
+        for fd in fds:
+            os.close(fd)
+        group.remove()
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rows = _rows(out)
+    assert (rows["honest_0"]["status"], float(rows["honest_0"]["total"])) == ("graded", FULL)
+    assert rows["attacker"]["status"] == "graded", rows["attacker"]
+    results = json.loads((out / "attacker" / RESULTS_JSON).read_text())
+    calc_p_Q = next(t for t in results["tests"] if "calc_p_Q" in t["name"])
+    assert "time limit" in calc_p_Q["output"], calc_p_Q["output"]
+    print(f"the class used {used:.1f} CPU-s in the 0.5-CPU group")

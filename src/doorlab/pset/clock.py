@@ -26,6 +26,10 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+UNIT_TIME_LIMIT_S = 60.0
+"""Time limit of a unit test [s] (a correct one takes 2-5 s)."""
+EPISODE_TIME_LIMIT_S = 150.0
+"""Time limit of an episode [s] (a correct one takes 5-15 s on a busy 2-core machine)."""
 HARD_FACTOR = 3.0
 """A test ends after at most this many times its limit in wall time."""
 LITTLE_CPU = 0.1

@@ -133,7 +133,7 @@ class RemotePlan:
 
     def command(self, t: float, state):
         """The student's q_ref (7,) [rad] and tau_ff (7,) [N m] at t [s]."""
-        from doorlab.control.plans import Command
+        from doorlab.control.plan_base import Command
         from doorlab.pset.station_api import StudentCodeError
 
         q_cmd = state.q if self._q_cmd is None else self._q_cmd
@@ -217,7 +217,7 @@ def student_episode(
     plan alone; ``student`` on the student's."""
     from dataclasses import replace
 
-    from doorlab.control.plans import JointSpacePlan
+    from doorlab.control.plan_base import JointSpacePlan
     from doorlab.episode.simulation import run_episode
     from doorlab.pset.station_api import problem_set_scenario
 

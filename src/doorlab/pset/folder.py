@@ -14,7 +14,7 @@ from pathlib import Path
 import jinja2
 
 from doorlab.errors import OutputError
-from doorlab.pset.jobs import EPISODE_TIME_LIMIT_S, UNIT_TIME_LIMIT_S
+from doorlab.pset.clock import EPISODE_TIME_LIMIT_S, UNIT_TIME_LIMIT_S
 from doorlab.pset.notebook import NOTEBOOK_NAME, notebook_json
 from doorlab.pset.verdicts import STUDENT_FILES, TESTS
 

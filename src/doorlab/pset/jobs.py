@@ -35,11 +35,8 @@ import traceback
 from pathlib import Path
 
 from doorlab.pset import sandbox
+from doorlab.pset.clock import EPISODE_TIME_LIMIT_S, UNIT_TIME_LIMIT_S
 
-UNIT_TIME_LIMIT_S = 60.0
-"""Time limit of a unit test [s] (a correct one takes 2-5 s)."""
-EPISODE_TIME_LIMIT_S = 150.0
-"""Time limit of an episode [s] (a correct one takes 5-15 s on a busy 2-core machine)."""
 JOB_MARGIN_S = 30.0
 """How much longer than its test's longest time (:data:`doorlab.pset.clock.HARD_FACTOR`
 times its limit, in wall time) a trusted job process may run before the supervisor kills it
