@@ -59,9 +59,11 @@ def pset(args: argparse.Namespace) -> int:
         )
         return 0
     if args.pset_command == "handout":
+        from doorlab.pset.grader import load_reference
         from doorlab.pset.handout import write_handout
 
-        out = write_handout(args.out, force=args.force, assignment=assignment)
+        reference = None if args.reference is None else load_reference(args.reference)
+        out = write_handout(args.out, force=args.force, assignment=assignment, reference=reference)
         print(
             f"doorlab pset: wrote {out} ({out.stat().st_size / 1e3:.0f} kB): the student "
             "folder and doorlab's wheel; its README says how to install and submit"

@@ -146,7 +146,18 @@ def _environment() -> jinja2.Environment:
 
 def render_folder(solutions: bool, assignment=None) -> dict[str, str]:
     """Every file of the folder: relative path -> text (the README's points and margins are
-    ``assignment``'s, default: the grader's defaults)."""
+    ``assignment``'s, default: the grader's defaults). In the students' doorlab
+    (:mod:`doorlab.pset.edition`), the handout's stub folder.
+
+    Raises:
+        OutputError: ``solutions`` in the students' doorlab (the key is the instructor's).
+    """
+    from doorlab.pset import edition
+
+    if edition.students():
+        if solutions:
+            raise OutputError(edition.KEY_IS_THE_INSTRUCTORS)
+        return edition.stub_files()
     env = _environment()
     context = _context(solutions, assignment)
     out = {dest: env.get_template(src).render(context) for src, dest in TEMPLATES}

@@ -114,7 +114,7 @@ def run_job(
     kind, _, name = job.partition(":")
     try:
         if kind == "reference":
-            from doorlab.pset.episodes import reference_episode
+            from doorlab.pset.expectations import reference_episode
 
             return {"figures": reference_episode(name)}
         # The student's process starts first (no thread may exist at its fork), then the
@@ -127,12 +127,16 @@ def run_job(
                 if kind == "unit":
                     from doorlab.pset.checks import UNIT_CHECKS
 
-                    result = UNIT_CHECKS[name](student, options.get("seed"))
+                    expect = options.get("expect")
+                    result = UNIT_CHECKS[name](student, options.get("seed"), expect)
                 else:
                     from doorlab.pset.episodes import student_episode
 
                     helpers = options.get("helpers", "reference")
-                    result = {"figures": student_episode(student, name, helpers=helpers)}
+                    table = options.get("table")
+                    result = {
+                        "figures": student_episode(student, name, helpers=helpers, table=table)
+                    }
             except StudentFailure as e:
                 result = {"passed": False, "error": str(e), "output": e.detail}
             except ProtocolError as e:  # an answer that does not hold what was asked
@@ -456,6 +460,29 @@ def _seed(request: dict, folder: Path, assignment) -> dict:
     }
 
 
+def _practice(drawn: dict, options: dict[str, dict], reference: dict) -> tuple[dict, dict]:
+    """The students' doorlab grades against the handout's practice table
+    (:mod:`doorlab.pset.edition`): each unit test's expectations and draws, the reference
+    helpers' table, the reference figures (unless given); returns (the seed's record, the
+    reference)."""
+    from doorlab.pset import edition
+
+    table = edition.practice()
+    for job, settings in options.items():
+        kind, _, name = job.partition(":")
+        settings["seed"] = table["seed"]
+        if kind == "unit":
+            settings["expect"] = table["units"][name]
+        elif kind == "student" and settings.get("helpers", "reference") == "reference":
+            settings["table"] = table["helpers"]
+    source = (
+        "the handout's practice draws (this doorlab holds no answer key: the course's "
+        "grading draws its own from your files)"
+    )
+    drawn = {**drawn, "grading": table["seed"], "source": source}
+    return drawn, reference or table["reference"]
+
+
 def _job_options(specs, assignment, seed: int) -> dict[str, dict]:
     """Each job's options (:func:`run_job`): the grading seed; an episode's helpers."""
     from doorlab.pset.verdicts import test_settings
@@ -507,6 +534,10 @@ def supervise(request: dict, prepared: dict | None = None) -> dict:
     needed = {j for t in specs for j in t.needed_jobs(test_settings(assignment, t))}
     results: dict[str, dict] = {}
     reference = request.get("reference") or {}
+    from doorlab.pset import edition
+
+    if edition.students():  # no answer key here: the handout's practice table
+        drawn, reference = _practice(drawn, options, reference)
     results.update({k: v for k, v in reference.items() if k in needed})
     todo = _order(needed - set(results))
     start = time.perf_counter()
@@ -629,8 +660,11 @@ def _warm(todo: list[str], options: dict[str, dict]) -> None:
     plans = [j for j in todo if j in ("student:velocity", "student:impedance")]
     if plans:
         episodes.grasp_configuration()
-    if any(options.get(j, {}).get("helpers", "reference") == "reference" for j in plans):
-        episodes.reference_helper_table()
+    helpers = [options.get(j, {}) for j in plans]
+    if any(o.get("helpers", "reference") == "reference" and "table" not in o for o in helpers):
+        from doorlab.pset.expectations import reference_helper_table
+
+        reference_helper_table()
 
 
 def _isolation(request: dict, workdir: Path, prepared: dict | None = None):

@@ -344,6 +344,7 @@ GRADER_MODULES = {
     "doorlab.pset.folder": "the problem set's solution files (doorlab pset init --solutions)",
     "doorlab.pset.notebook": "the problem set's notebook writer",
     "doorlab.pset.autograder": "the grader's Gradescope autograder (its wheel)",
+    "doorlab.pset.expectations": "the grader's answer key (the unit tests' expected answers)",
     **{
         f"doorlab.pset.{name}": _GRADER
         for name in (
@@ -361,6 +362,7 @@ GRADER_MODULES = {
             "cgroups",
             "clock",
             "syscalls",
+            "cluster",
         )
     },
 }
