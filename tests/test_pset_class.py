@@ -16,8 +16,10 @@ import asyncio
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pset_fixtures
@@ -260,3 +262,150 @@ def test_an_honest_submission_beside_50_busy_children_in_half_a_cpu_keeps_full_m
     results = json.loads((out / "attacker" / RESULTS_JSON).read_text())
     assert evidence(results)["busy"] == {"children": 50}
     print(f"the class used {used:.1f} CPU-s in the 0.5-CPU group")
+
+
+CLOCK = r"""
+import json, sys, time
+from doorlab.pset.clock import Clock
+clock = Clock(LIMIT)
+if MODE == "busy":  # the trusted side computing, starved by the quota
+    while clock.remaining() > 0:
+        pass
+else:  # the trusted side waiting for a student that sleeps
+    while clock.remaining() > 0:
+        time.sleep(0.01)
+print(json.dumps({"wall": clock.wall(), "waited": clock.waited(), "starved": clock.starved()}))
+"""
+
+
+@needs_cgroups
+@pytest.mark.parametrize("mode", ["busy", "sleep"])
+def test_a_test_s_time_is_what_it_had_and_starvation_is_the_grader_s_error(tmp_path, mode):
+    """Issue 31: a test's clock counts wall time less the time its process waited for a
+    CPU: in a group of 2% of a CPU, a 1-s budget lasts several seconds of wall time, and when
+    it is spent with the student's processes starved, that is the grader's error (a message
+    saying so), not a verdict; a test whose student sleeps spends its budget in wall time,
+    and that is the student's."""
+    group = cgroups.Group(SETUP, {k: Path(v) for k, v in SETUP.bases.items()}).child(
+        f"doorlab-test-clock-{os.getpid()}-{mode}"
+    )
+    if SETUP.version == 2:
+        (group.folders["unified"] / "cpu.max").write_text("2000 100000")
+    else:
+        (group.folders["cpu"] / "cpu.cfs_period_us").write_text("100000")
+        (group.folders["cpu"] / "cpu.cfs_quota_us").write_text("2000")
+    fds = group.join_descriptors()
+    code = f"LIMIT = 1.0\nMODE = {mode!r}\n" + CLOCK
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-c", code],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            pass_fds=fds,
+            preexec_fn=lambda: cgroups.join_by_descriptors(fds),
+        )
+    finally:
+        for fd in fds:
+            os.close(fd)
+        group.remove()
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    facts = json.loads(proc.stdout)
+    if mode == "busy":
+        # 2% of a CPU: the budget's second of CPU-run time took far more wall time.
+        assert facts["wall"] > 3.0 and facts["waited"] > 2.0, facts
+        assert facts["starved"] is not None and "too loaded" in facts["starved"], facts
+    else:
+        assert 0.95 <= facts["wall"] < 2.0 and facts["waited"] < 0.3, facts
+        assert facts["starved"] is None, facts
+
+
+SLEEPER = r"""
+import time
+time.sleep(60)
+raise NotImplementedError("calc_p_Q: slept")
+"""
+
+
+def test_a_supervisor_ended_by_sigterm_leaves_no_folder_behind(tmp_path, monkeypatch):
+    """A batch worker's supervisor ends with its worker (SIGTERM, as a Dask worker's end or
+    Ctrl-C of grade-all brings): the grading is the grader's error, and nothing of it is left
+    in its TMPDIR: not its own folder, not the grading's, not the submission's copy (the
+    student's files)."""
+    from doorlab.pset.grader import GradingError, Supervisor, grade_taken, take_files
+
+    folder = init_folder(tmp_path / "sleeper")
+    _insert(folder, "calc_p_Q", SLEEPER, {})
+    files, intake = take_files(folder)
+    tmp = tmp_path / "tmp"
+    tmp.mkdir(mode=0o755)
+    monkeypatch.setenv("TMPDIR", str(tmp))
+    supervisor = Supervisor()
+    outcome = {}
+
+    def run() -> None:
+        try:
+            grade_taken(files, intake, reference={}, jobs=1, supervisor=supervisor)
+        except GradingError as e:
+            outcome["error"] = str(e)
+
+    import threading
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not any(
+        p.name.startswith("doorlab_submission_") for p in tmp.iterdir()
+    ):
+        time.sleep(0.05)
+    time.sleep(2)  # the grading under way: its student process sleeping
+    made = sorted(p.name.split("_")[1] for p in tmp.iterdir())
+    os.kill(supervisor._proc.pid, signal.SIGTERM)
+    thread.join(60)
+    supervisor.close()
+    assert {"supervisor", "submission", "grade"} <= set(made), made
+    assert "error" in outcome, outcome
+    left = sorted(p.name for p in tmp.iterdir())
+    assert left == [], left
+
+
+@needs_cgroups
+def test_a_trusted_process_killed_as_by_the_oom_killer_is_the_grader_s_error(tmp_path):
+    """A trusted job process killed by SIGKILL from outside (what the kernel's OOM killer
+    does) while its student sleeps: the grading is the grader's error, naming the signal,
+    never a failed test the student did not fail."""
+    from doorlab.pset.grader import GradingError, Supervisor, grade
+
+    folder = init_folder(tmp_path / "sleeper")
+    _insert(folder, "calc_p_Q", SLEEPER, {})
+    subprocess.run(["chmod", "-R", "a+rX", str(tmp_path)], check=True)
+    only = [t.name for t in TESTS if t.key == "calc_p_Q_unit"]
+    supervisor = Supervisor()
+    outcome = {}
+
+    def run() -> None:
+        try:
+            outcome["results"] = grade(folder, only=only, supervisor=supervisor)
+        except GradingError as e:
+            outcome["error"] = str(e)
+
+    import threading
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    try:
+        deadline, killed = time.monotonic() + 120, []
+        while time.monotonic() < deadline and not killed:
+            time.sleep(0.2)
+            pid = supervisor._proc.pid if supervisor._proc is not None else 0
+            base = Path(SETUP.bases["unified" if SETUP.version == 2 else "pids"])
+            for procs in base.glob(f"{cgroups.PREFIX}{pid}-*/trusted/cgroup.procs"):
+                for job in procs.read_text().split():
+                    os.kill(int(job), signal.SIGKILL)
+                    killed.append(int(job))
+        thread.join(120)
+    finally:
+        supervisor.close()
+    assert killed, "no trusted job process was found"
+    assert "error" in outcome, outcome.get("results", {}).get("score")
+    assert "ended without a result (killed by signal 9" in outcome["error"], outcome["error"]
