@@ -15,9 +15,13 @@ submission there is) is graded, per repeat, side by side:
   --reference EARLIER.json``: its own supervisor, 2 tests at a time);
 - ``reference``: the reference episodes once (:func:`doorlab.pset.grader.grade_reference`);
 - with ``--baseline-src DIR`` (another version's ``src``, e.g. ``git archive main src | tar -x
-  -C /tmp/main``): ``baseline_alone``, each submission graded by that version's
-  ``grade_submission`` with the reference given, in a fresh interpreter (a venv whose path
-  file puts DIR first; see pset_grading.py).
+  -C /tmp/main``, or a worktree's ``src``): ``baseline_alone``, each submission graded by that
+  version's ``grade_submission`` with the reference given, and ``baseline_batch_2``, the class
+  graded by that version's ``grade-all`` on 2 workers, each in a fresh interpreter (a venv
+  whose path file puts DIR first; see pset_grading.py).
+
+``--variants a,b`` runs only those (e.g. ``batch_2,baseline_batch_2``: a class on 2 workers
+against another version's, side by side, one after the other in each repeat).
 
 CPU time is counted in a cgroup holding this process and everything it starts (root; the
 student's processes included, which getrusage misses). Printed: the medians of the CPU
@@ -114,12 +118,38 @@ def _baseline(python: Path, export: Path, reference_file: Path) -> None:
         raise RuntimeError(f"the baseline scored {scores}")
 
 
+_BASELINE_BATCH = """
+import json, sys
+from doorlab.pset.batch import grade_class
+reference = json.loads(open(sys.argv[1]).read())
+outcome = grade_class(sys.argv[2], sys.argv[3], jobs=2, reference=reference)
+print(json.dumps([[r.get("status"), r.get("total")] for r in outcome.rows]))
+"""
+
+
+def _baseline_batch(python: Path, export: Path, out: Path, reference_file: Path) -> None:
+    shutil.rmtree(out, ignore_errors=True)
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    proc = subprocess.run(
+        [str(python), "-c", _BASELINE_BATCH, str(reference_file), str(export), str(out)],
+        env=env,
+        cwd="/",
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    rows = json.loads(proc.stdout.strip().splitlines()[-1])
+    if any(row != ["graded", 14.0] for row in rows):
+        raise RuntimeError(f"the baseline's batch: {rows}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--submissions", type=int, default=4, help="class size K (default 4)")
     parser.add_argument("--repeats", type=int, default=3, help="repeats (default 3)")
     parser.add_argument("--baseline-src", type=Path, default=None, help="also grade with DIR")
     parser.add_argument("--out", type=Path, default=None, help="write the figures as JSON")
+    parser.add_argument("--variants", default=None, help="only these variants (comma list)")
     args = parser.parse_args(argv)
 
     from doorlab.pset.grader import grade_reference
@@ -148,6 +178,12 @@ def main(argv: list[str] | None = None) -> int:
             if args.baseline_src is not None:
                 python = _baseline_python(args.baseline_src, root / "baseline-venv")
                 variants["baseline_alone"] = lambda: _baseline(python, export, reference_file)
+                variants["baseline_batch_2"] = lambda: _baseline_batch(
+                    python, export, root / "out", reference_file
+                )
+            if args.variants:
+                wanted = args.variants.split(",")
+                variants = {k: v for k, v in variants.items() if k in wanted}
             for _ in range(args.repeats):
                 for name, call in variants.items():
                     samples.setdefault(name, []).append(_measure(meter, call))
@@ -163,11 +199,13 @@ def main(argv: list[str] | None = None) -> int:
             "wall_s_per_submission": statistics.median(w / per for _, w in values),
             "samples": values,
         }
-    one = figures["batch_1"]["wall_s_per_submission"]
-    two = figures["batch_2"]["wall_s_per_submission"]
-    efficiency = min(1.0, one / (2 * two))  # above 1 is noise (other work on the cores)
-    ref_wall = figures["reference"]["wall_s_per_submission"]
-    derived = {n: ref_wall + CLASS_SIZE * one / (n * efficiency) for n in CLUSTER_CORES}
+    derived, efficiency = {}, None
+    if "batch_1" in figures and "batch_2" in figures:
+        one = figures["batch_1"]["wall_s_per_submission"]
+        two = figures["batch_2"]["wall_s_per_submission"]
+        efficiency = min(1.0, one / (2 * two))  # above 1 is noise (other work on the cores)
+        ref_wall = figures["reference"]["wall_s_per_submission"]
+        derived = {n: ref_wall + CLASS_SIZE * one / (n * efficiency) for n in CLUSTER_CORES}
     print(
         f"a class of {k} correct submissions, medians of {args.repeats}; CPU from "
         f"{meter.source}; load average {load0:.2f} -> {load1:.2f} on {os.cpu_count()} cores"
@@ -179,22 +217,32 @@ def main(argv: list[str] | None = None) -> int:
             f"  {name:16s} {f['cpu_s_per_submission']:13.2f} s {f['wall_s_per_submission']:14.2f} s"
             f" {unit}"
         )
-    base = figures["alone"]["cpu_s_per_submission"]
-    print(f"  batch / alone CPU {figures['batch_1']['cpu_s_per_submission'] / base:.2f}")
-    if "baseline_alone" in figures:
-        old = figures["baseline_alone"]["cpu_s_per_submission"]
+    cpu = {name: f["cpu_s_per_submission"] for name, f in figures.items()}
+    if "alone" in cpu and "batch_1" in cpu:
+        print(f"  batch / alone CPU {cpu['batch_1'] / cpu['alone']:.2f}")
+    if "baseline_alone" in cpu and "batch_1" in cpu and "alone" in cpu:
+        old = cpu["baseline_alone"]
         print(
-            f"  batch / baseline alone CPU {figures['batch_1']['cpu_s_per_submission'] / old:.2f}"
-            f", alone / baseline alone CPU {base / old:.2f}"
+            f"  batch / baseline alone CPU {cpu['batch_1'] / old:.2f}"
+            f", alone / baseline alone CPU {cpu['alone'] / old:.2f}"
         )
-    print(
-        f"  throughput: {60 / one:.1f} submissions/min on 1 worker, {60 / two:.1f} on 2 "
-        f"(scaling efficiency {efficiency:.2f})"
-    )
-    print(
-        f"  a class of {CLASS_SIZE} (correct submissions), reference once, N cores: "
-        + ", ".join(f"N={n}: {t / 60:.1f} min" for n, t in derived.items())
-    )
+    if "baseline_batch_2" in cpu and "batch_2" in cpu:
+        pairs = zip(samples["batch_2"], samples["baseline_batch_2"], strict=True)
+        ratios = [a[0] / b[0] for a, b in pairs]
+        ratio = cpu["batch_2"] / cpu["baseline_batch_2"]
+        print(
+            f"  batch_2 / baseline_batch_2 CPU per submission {ratio:.3f}"
+            f" (each repeat's ratio: {', '.join(f'{r:.3f}' for r in ratios)})"
+        )
+    if efficiency is not None:
+        print(
+            f"  throughput: {60 / one:.1f} submissions/min on 1 worker, {60 / two:.1f} on 2 "
+            f"(scaling efficiency {efficiency:.2f})"
+        )
+        print(
+            f"  a class of {CLASS_SIZE} (correct submissions), reference once, N cores: "
+            + ", ".join(f"N={n}: {t / 60:.1f} min" for n, t in derived.items())
+        )
     if args.out:
         data = {
             "submissions": k,

@@ -57,7 +57,7 @@ def test_the_handout_holds_the_stub_folder_and_the_students_wheel(
         assert names == {f"{handout.FOLDER}/{rel}" for rel in stubs} | {f"pset5/{WHEEL}"}
         for rel, text in stubs.items():
             assert archive.read(f"{handout.FOLDER}/{rel}").decode() == text, rel
-        practice = practice_table(reference=pset_fixtures.reference())
+        practice = practice_table(None, pset_fixtures.reference())
         students = student_wheel_bytes(practice, stubs)
         assert archive.read(f"{handout.FOLDER}/{WHEEL}") == students[1]
         assert students[1] != wheel_bytes()[1]  # not the instructor's (test_pset_student_wheel)

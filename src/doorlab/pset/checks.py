@@ -83,21 +83,9 @@ def _values(answer: dict, count: int) -> list:
     return values
 
 
-def _expect(name: str, seed: int | None, expect: dict | None) -> dict:
-    """What unit test ``name`` expects: ``expect`` (the handout's practice table), else the
-    grader's answer key for the grading seed (:mod:`doorlab.pset.expectations`)."""
-    if expect is not None:
-        return expect
-    from doorlab.pset.expectations import EXPECTATIONS
-
-    return EXPECTATIONS[name](seed)
-
-
-def check_calc_p_Q(
-    student: StudentProcess, seed: int | None = None, expect: dict | None = None
-) -> dict:
+def check_calc_p_Q(student: StudentProcess, expect: dict) -> dict:
     """calc_p_Q(tau) = arc(tau) - handle at random tau in [0, 1] (and 0 at tau = 0)."""
-    e = _expect("calc_p_Q", seed, expect)
+    e = expect
     taus = e["taus"]
     values = _values(student.call("p_Q", taus=list(taus)), len(taus))
     lines = [f"grading seed {e['seed']}; tolerance {POSITION_ATOL:g} m"]
@@ -127,11 +115,9 @@ def _rotation(value: dict) -> np.ndarray | str:
     return R
 
 
-def check_calc_R_WL7_ref(
-    student: StudentProcess, seed: int | None = None, expect: dict | None = None
-) -> dict:
+def check_calc_R_WL7_ref(student: StudentProcess, expect: dict) -> dict:
     """calc_R_WL7_ref(tau) = RollPitchYaw(0, 3 pi/4, -sweep tau) at random tau."""
-    e = _expect("calc_R_WL7_ref", seed, expect)
+    e = expect
     taus = e["taus"]
     values = _values(student.call("R_WL7_ref", taus=list(taus)), len(taus))
     lines = [f"grading seed {e['seed']}; tolerance {ROTATION_ATOL:g} rad"]
@@ -177,12 +163,12 @@ def ignored_arguments(kind: str) -> list[str]:
     return ["q_cmd", "v", "tau_ext"] + ([] if kind == "velocity" else ["dt"])
 
 
-def _check_law(student: StudentProcess, kind: str, seed: int | None, expect=None) -> dict:
+def _check_law(student: StudentProcess, kind: str, expect: dict) -> dict:
     method = "CalcPositionCommand" if kind == "velocity" else "CalcTorqueCommand"
     cls = "IiwaTaskSpaceVelocityPlan" if kind == "velocity" else "IiwaTaskSpaceImpedancePlan"
     unit = "rad" if kind == "velocity" else "N m"
     ignored = ignored_arguments(kind)
-    e = _expect(kind, seed, expect)
+    e = expect
     # For each draw: its inputs, then the same with one argument the law must not read
     # drawn anew (one request: one round trip for the whole test).
     requests, base, probes = e["requests"], e["base"], e["probes"]
@@ -229,18 +215,14 @@ def _check_law(student: StudentProcess, kind: str, seed: int | None, expect=None
     return _result(ok, lines)
 
 
-def check_velocity(
-    student: StudentProcess, seed: int | None = None, expect: dict | None = None
-) -> dict:
+def check_velocity(student: StudentProcess, expect: dict) -> dict:
     """IiwaTaskSpaceVelocityPlan.CalcPositionCommand = q + J^+ V_des dt at random states."""
-    return _check_law(student, "velocity", seed, expect)
+    return _check_law(student, "velocity", expect)
 
 
-def check_impedance(
-    student: StudentProcess, seed: int | None = None, expect: dict | None = None
-) -> dict:
+def check_impedance(student: StudentProcess, expect: dict) -> dict:
     """IiwaTaskSpaceImpedancePlan.CalcTorqueCommand = J^T F at random states."""
-    return _check_law(student, "impedance", seed, expect)
+    return _check_law(student, "impedance", expect)
 
 
 # Task 1 ------------------------------------------------------------------------------------
@@ -288,12 +270,12 @@ def _knot_problems(case: dict, q_knots: np.ndarray, kin: ArmKinematics) -> list[
     return problems
 
 
-def check_ik(student: StudentProcess, seed: int | None = None, expect: dict | None = None) -> dict:
+def check_ik(student: StudentProcess, expect: dict) -> dict:
     """InverseKinPointwise on a path, knot count, duration, grasp point, guess and tolerances
     drawn at random: FK of every knot within the tolerances, the trajectory through the
     knots over [0, duration], zero end velocities, no branch flips."""
     kin = ArmKinematics()
-    e = _expect("ik", seed, expect)
+    e = expect
     case = e["case"]
     n, duration = case["num_knot_points"], case["duration"]
     lines = [
@@ -341,4 +323,5 @@ UNIT_CHECKS = {
     "velocity": check_velocity,
     "impedance": check_impedance,
 }
-"""The unit tests by job name (``unit:<name>``)."""
+"""The unit tests by job name (``unit:<name>``): each takes the student's process and what
+the test expects (:data:`doorlab.pset.expectations.EXPECTATIONS`, or the practice table's)."""

@@ -188,8 +188,9 @@ def student_episode(
 
     ``helpers`` (the velocity and impedance plans): ``reference`` runs the plan on doorlab's
     calc_p_Q and calc_R_WL7_ref (:func:`reference_helper_table`), so the episode grades the
-    plan alone; ``student`` on the student's. ``table``: the reference helpers' table (the
-    handout's practice table's; None: :func:`doorlab.pset.expectations.reference_helper_table`)."""
+    plan alone; ``student`` on the student's. ``table``: the reference helpers' table
+    (:func:`doorlab.pset.expectations.reference_helper_table`, or the handout's practice
+    table's), needed with ``reference``."""
     from dataclasses import replace
 
     from doorlab.control.plan_base import JointSpacePlan
@@ -226,12 +227,10 @@ def student_episode(
         arc = JointSpacePlan(qtraj, name="student_ik")
     else:
         q_start = grasp_configuration()
-        if helpers == "reference" and table is None:
-            from doorlab.pset.expectations import reference_helper_table
-
-            table = reference_helper_table()
-        elif helpers != "reference":
+        if helpers != "reference":
             table = None
+        elif table is None:
+            raise ValueError("an episode on the reference helpers needs their table")
         student.call(
             "plan",
             kind=controller,

@@ -353,21 +353,14 @@ def practice_seed(assignment_seed: int) -> int:
     return int(job_seed(int(assignment_seed), PRACTICE_JOB))
 
 
-def practice_table(assignment=None, reference: dict | None = None) -> dict:
+def practice_table(assignment, reference: dict) -> dict:
     """What the students' doorlab grades with, since it holds none of this module: each unit
-    test's expectations on the practice draws, the reference episodes' figures (``reference``,
-    else simulated here; their wall times left out), the reference helpers' table.
-
-    Raises:
-        GradingError: The reference episodes could not be simulated.
-    """
+    test's expectations on the practice draws, the reference episodes' figures
+    (``reference``: :func:`doorlab.pset.grader.grade_reference`'s; their wall times left
+    out), the reference helpers' table."""
     from doorlab.pset.assignment import Assignment
 
     seed = practice_seed((assignment or Assignment()).seed)
-    if reference is None:
-        from doorlab.pset.grader import grade_reference
-
-        reference = grade_reference()
     figures = {}
     for job, result in sorted(reference.items()):
         data = dict(result.get("figures") or {})

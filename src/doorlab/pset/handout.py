@@ -68,6 +68,10 @@ def write_handout(
     out = Path(out)
     check_zip_destination(out, force=force, ours=_is_ours, what="a handout")
     files = render_folder(solutions=False, assignment=assignment)
+    if reference is None:
+        from doorlab.pset.grader import grade_reference
+
+        reference = grade_reference()
     wheel_name, wheel = student_wheel_bytes(practice_table(assignment, reference), files)
 
     def write(archive: zipfile.ZipFile) -> None:
