@@ -127,7 +127,9 @@ print(json.dumps([[r.get("status"), r.get("total")] for r in outcome.rows]))
 """
 
 
-def _baseline_batch(python: Path, export: Path, out: Path, reference_file: Path) -> None:
+def _baseline_batch(
+    python: Path, export: Path, out: Path, reference_file: Path, score: float = 14.0
+) -> None:
     shutil.rmtree(out, ignore_errors=True)
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     proc = subprocess.run(
@@ -139,7 +141,7 @@ def _baseline_batch(python: Path, export: Path, out: Path, reference_file: Path)
         check=True,
     )
     rows = json.loads(proc.stdout.strip().splitlines()[-1])
-    if any(row != ["graded", 14.0] for row in rows):
+    if any(row != ["graded", score] for row in rows):
         raise RuntimeError(f"the baseline's batch: {rows}")
 
 
@@ -174,12 +176,16 @@ def main(argv: list[str] | None = None) -> int:
                 "batch_2": lambda: _batch(export, root / "out", reference, 2),
                 "alone": lambda: _alone(export, reference),
                 "batch_1_stubs": lambda: _batch(stubs, root / "out", reference, 1, 0.0),
+                "batch_2_stubs": lambda: _batch(stubs, root / "out", reference, 2, 0.0),
             }
             if args.baseline_src is not None:
                 python = _baseline_python(args.baseline_src, root / "baseline-venv")
                 variants["baseline_alone"] = lambda: _baseline(python, export, reference_file)
                 variants["baseline_batch_2"] = lambda: _baseline_batch(
                     python, export, root / "out", reference_file
+                )
+                variants["baseline_batch_2_stubs"] = lambda: _baseline_batch(
+                    python, stubs, root / "out", reference_file, 0.0
                 )
             if args.variants:
                 wanted = args.variants.split(",")
@@ -226,14 +232,15 @@ def main(argv: list[str] | None = None) -> int:
             f"  batch / baseline alone CPU {cpu['batch_1'] / old:.2f}"
             f", alone / baseline alone CPU {cpu['alone'] / old:.2f}"
         )
-    if "baseline_batch_2" in cpu and "batch_2" in cpu:
-        pairs = zip(samples["batch_2"], samples["baseline_batch_2"], strict=True)
-        ratios = [a[0] / b[0] for a, b in pairs]
-        ratio = cpu["batch_2"] / cpu["baseline_batch_2"]
-        print(
-            f"  batch_2 / baseline_batch_2 CPU per submission {ratio:.3f}"
-            f" (each repeat's ratio: {', '.join(f'{r:.3f}' for r in ratios)})"
-        )
+    for mine in ("batch_2", "batch_2_stubs"):
+        theirs = "baseline_" + mine
+        if theirs in cpu and mine in cpu:
+            pairs = zip(samples[mine], samples[theirs], strict=True)
+            ratios = [a[0] / b[0] for a, b in pairs]
+            print(
+                f"  {mine} / {theirs} CPU per submission {cpu[mine] / cpu[theirs]:.3f}"
+                f" (each repeat's ratio: {', '.join(f'{r:.3f}' for r in ratios)})"
+            )
     if efficiency is not None:
         print(
             f"  throughput: {60 / one:.1f} submissions/min on 1 worker, {60 / two:.1f} on 2 "

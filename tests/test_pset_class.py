@@ -128,6 +128,7 @@ def test_six_honest_submissions_beside_a_fork_cycler_keep_full_marks(tmp_path, r
     assert 50 <= forks["most"] <= cgroups.VIEW_TASKS, forks
     assert results["extra_data"]["sandbox"]["cgroup"]["version"] == SETUP.version
     assert outcome.errors == 0
+    print(f"the fork cycler: {forks}")
 
 
 DASK_PATCH = r"""

@@ -547,8 +547,9 @@ def results_from_jobs(
 
 
 def results_not_graded(specs: Sequence[TestSpec], reason: str, assignment: object = None) -> dict:
-    """Results for a submission that could not be taken (over an intake bound): every test
-    0 with the reason, in the same format as :func:`results_from_jobs`."""
+    """Results for a submission that is not graded (over an intake bound; none of the
+    student files): every test 0 with the reason, in the same format as
+    :func:`results_from_jobs`."""
     text = f"Not graded: {reason}"
     tests = [_gradescope_test(s, test_settings(assignment, s), False, text) for s in specs]
     out = _gradescope_results(assignment, tests, text)
