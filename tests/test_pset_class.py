@@ -261,7 +261,12 @@ def test_an_honest_submission_beside_50_busy_children_in_half_a_cpu_keeps_full_m
     assert (rows["honest_0"]["status"], float(rows["honest_0"]["total"])) == ("graded", FULL)
     assert rows["attacker"]["status"] == "graded", rows["attacker"]
     results = json.loads((out / "attacker" / RESULTS_JSON).read_text())
-    assert evidence(results)["busy"] == {"children": 50}
+    impedance = next(t for t in results["tests"] if t["name"].startswith("Task 3 episode"))
+    # Its own failure: it ends by itself, or its test's time runs out (its 50 children took
+    # its view's share of the CPU from its own main process, which they starve).
+    assert impedance["score"] == 0 and (
+        "busy children" in impedance["output"] or "time limit" in impedance["output"]
+    ), impedance["output"]
     print(f"the class used {used:.1f} CPU-s in the 0.5-CPU group")
 
 
