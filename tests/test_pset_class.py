@@ -170,9 +170,10 @@ def test_the_student_s_code_cannot_reach_a_tls_cluster_and_nothing_connects_with
         export = _class(tmp_path, 0, (DASK_PATCH, {"ADDRESS": address}))
         out = tmp_path / "out"
         grade_class(export, out, reference=reference, scheduler=address, security=cluster.security)
-        # Outside the view, without the key: no plain client, no TLS client of another key.
+        # Outside the view, without the key: no plain client, no TLS client of another key
+        # (connections, not Clients: a Client that failed to start may hang in its __del__).
         with pytest.raises(TypeError, match="TLS expects"):
-            distributed.Client(address, timeout=5, set_as_default=False)
+            asyncio.run(connect(address, timeout=5))
         other = distributed.Security.temporary().get_connection_args("client")
         with pytest.raises((OSError, TimeoutError)):
             asyncio.run(connect(address, timeout=5, **other))

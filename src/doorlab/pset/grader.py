@@ -145,7 +145,7 @@ def grade(
     if supervisor is not None:
         return supervisor.run(request)
     proc = subprocess.Popen(
-        [sys.executable, "-I", "-m", "doorlab.pset.jobs", "supervise"],
+        [sys.executable, "-I", "-m", "doorlab.pset.supervisor", "supervise"],
         cwd="/",
         env=trusted_environment(),
         stdin=subprocess.PIPE,
@@ -184,7 +184,7 @@ def _answer(out: bytes, code: int | None) -> dict:
 
 class Supervisor:
     """A grading supervisor that serves many gradings, one after the other
-    (``python -I -m doorlab.pset.jobs serve``): its imports, the grader's caches and the
+    (``python -I -m doorlab.pset.supervisor serve``): its imports, the grader's caches and the
     preparation of the student's view once, not per submission. Each grading is otherwise
     what :func:`grade` starts: its own folder, its own student's view, and every process it
     started dead before its results are returned. Thread-safe (one grading at a time); use
@@ -206,7 +206,7 @@ class Supervisor:
         with self._lock:
             if self._proc is None or self._proc.poll() is not None:
                 self._proc = subprocess.Popen(
-                    [sys.executable, "-I", "-m", "doorlab.pset.jobs", "serve"],
+                    [sys.executable, "-I", "-m", "doorlab.pset.supervisor", "serve"],
                     cwd="/",
                     env=trusted_environment(),
                     stdin=subprocess.PIPE,
@@ -256,7 +256,7 @@ def grade_reference(*, jobs: int = 2) -> dict[str, dict]:
     """
     request = {"reference_only": True, "jobs": int(jobs)}
     proc = subprocess.Popen(
-        [sys.executable, "-I", "-m", "doorlab.pset.jobs", "supervise"],
+        [sys.executable, "-I", "-m", "doorlab.pset.supervisor", "supervise"],
         cwd="/",
         env=trusted_environment(),
         stdin=subprocess.PIPE,

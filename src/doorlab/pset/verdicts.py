@@ -353,6 +353,7 @@ GRADER_MODULES = {
             "checks",
             "episodes",
             "jobs",
+            "supervisor",
             "student",
             "sandbox",
             "view",
