@@ -291,16 +291,17 @@ def test_a_test_s_time_is_what_it_had_and_starvation_is_the_grader_s_error(tmp_p
     """Issue 31: a test's clock counts wall time less the time its process waited for a
     CPU: in a group of 2% of a CPU, a 1-s budget lasts several seconds of wall time, and when
     it is spent with the student's processes starved, that is the grader's error (a message
-    saying so), not a verdict; a test whose student sleeps spends its budget in wall time,
-    and that is the student's."""
+    saying so), not a verdict; a test whose student sleeps (no quota) spends its budget in
+    wall time, and that is the student's."""
     group = cgroups.Group(SETUP, {k: Path(v) for k, v in SETUP.bases.items()}).child(
         f"doorlab-test-clock-{os.getpid()}-{mode}"
     )
-    if SETUP.version == 2:
-        (group.folders["unified"] / "cpu.max").write_text("2000 100000")
-    else:
-        (group.folders["cpu"] / "cpu.cfs_period_us").write_text("100000")
-        (group.folders["cpu"] / "cpu.cfs_quota_us").write_text("2000")
+    if mode == "busy":  # the quota would throttle the sleeper's wake-ups too: not for it
+        if SETUP.version == 2:
+            (group.folders["unified"] / "cpu.max").write_text("2000 100000")
+        else:
+            (group.folders["cpu"] / "cpu.cfs_period_us").write_text("100000")
+            (group.folders["cpu"] / "cpu.cfs_quota_us").write_text("2000")
     fds = group.join_descriptors()
     code = f"LIMIT = 1.0\nMODE = {mode!r}\n" + CLOCK
     try:
@@ -323,7 +324,7 @@ def test_a_test_s_time_is_what_it_had_and_starvation_is_the_grader_s_error(tmp_p
         assert facts["wall"] > 3.0 and facts["waited"] > 2.0, facts
         assert facts["starved"] is not None and "too loaded" in facts["starved"], facts
     else:
-        assert 0.95 <= facts["wall"] < 2.0 and facts["waited"] < 0.3, facts
+        assert 0.95 <= facts["wall"] < 2.0 and facts["waited"] < 0.5 * facts["wall"], facts
         assert facts["starved"] is None, facts
 
 
