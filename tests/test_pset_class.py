@@ -417,3 +417,36 @@ def test_a_trusted_process_killed_as_by_the_oom_killer_is_the_grader_s_error(tmp
     assert killed, "no trusted job process was found"
     assert "error" in outcome, outcome.get("results", {}).get("score")
     assert "ended without a result (killed by signal 9" in outcome["error"], outcome["error"]
+
+
+@needs_cgroups
+def test_a_fork_the_view_cannot_make_refuses_that_test_and_the_view_serves_on(tmp_path):
+    """The view's first process cannot fork a test's process (its group's pids.max leaves no
+    room): that test is refused with a message (the grader's error), and the view is still
+    there for the next test once there is room."""
+    from doorlab.pset.isolation import prepare
+    from doorlab.pset.student import SandboxError
+    from doorlab.pset.views import ForkedStudent, StudentView
+
+    work = tmp_path / "work"
+    work.mkdir(mode=0o711)
+    os.chmod(tmp_path, 0o755)
+    folder = init_folder(tmp_path / "stubs")
+    subprocess.run(["chmod", "-R", "a+rX", str(tmp_path)], check=True)
+    isolation = prepare(work)
+    groups = cgroups.GradingGroups(SETUP)
+    try:
+        group = groups.student("view0")
+        view = StudentView(isolation, work, "view0", 60.0, group)
+        try:
+            group.set_tasks(len(group.pids()))  # bwrap and the first process: no more
+            with pytest.raises(SandboxError, match="refused this test: it could not fork"):
+                ForkedStudent(view, folder, "unit:calc_p_Q", 30.0)
+            assert view.alive()
+            group.set_tasks(cgroups.VIEW_TASKS)
+            with ForkedStudent(view, folder, "unit:calc_R_WL7_ref", 30.0) as student:
+                assert student.facts.get("pid_namespace") is True
+        finally:
+            view.close()
+    finally:
+        groups.close()
