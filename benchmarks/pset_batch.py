@@ -17,11 +17,15 @@ have identical files, which grade-all grades once) is graded, per repeat, side b
 - ``reference``: the reference episodes once (:func:`doorlab.pset.grader.grade_reference`);
 - with ``--baseline-src DIR`` (another version's ``src``, e.g. ``git archive main src | tar -x
   -C /tmp/main``): ``baseline_alone``, each submission graded by that version's
-  ``grade_submission`` with the reference given, and ``baseline_batch_1``, the class graded
-  by that version's ``grade_class`` on 1 worker, each in a fresh interpreter (a venv whose
-  path file puts DIR first; see pset_grading.py). ``batch_1`` against ``baseline_batch_1``
-  is a submission's cost in a batch against that version's, everything a run writes
-  included (this version's feedback pages, class page and statistics too).
+  ``grade_submission`` with the reference given, and ``baseline_batch_1`` /
+  ``baseline_batch_2`` (``_stubs``: the stubs' class), the class graded by that version's
+  ``grade_class`` on 1 / 2 workers, each in a fresh interpreter (a venv whose path file puts
+  DIR first; see pset_grading.py). ``batch_1`` against ``baseline_batch_1`` is a
+  submission's cost in a batch against that version's, everything a run writes included
+  (this version's feedback pages, class page and statistics too).
+
+``--variants a,b`` runs only those (e.g. ``batch_2,baseline_batch_2``: a class on 2 workers
+against another version's, side by side, one after the other in each repeat).
 
 CPU time is counted in a cgroup holding this process and everything it starts (root; the
 student's processes included, which getrusage misses). Printed: the medians of the CPU
@@ -68,8 +72,8 @@ import json, shutil, sys
 from doorlab.pset.batch import grade_class
 reference = json.loads(open(sys.argv[1]).read())
 shutil.rmtree(sys.argv[3], ignore_errors=True)
-outcome = grade_class(sys.argv[2], sys.argv[3], jobs=1, reference=reference)
-print(json.dumps([r.get("total") for r in outcome.rows]))
+outcome = grade_class(sys.argv[2], sys.argv[3], jobs=int(sys.argv[4]), reference=reference)
+print(json.dumps([[r.get("status"), r.get("total")] for r in outcome.rows]))
 """
 
 
@@ -129,19 +133,22 @@ def _baseline(python: Path, export: Path, reference_file: Path) -> None:
         raise RuntimeError(f"the baseline scored {scores}")
 
 
-def _baseline_batch(python: Path, export: Path, out: Path, reference_file: Path) -> None:
+def _baseline_batch(
+    python: Path, export: Path, out: Path, reference_file: Path, jobs: int, score: float = 14.0
+) -> None:
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    argv = [str(python), "-c", _BASELINE_BATCH, str(reference_file), str(export), str(out)]
     proc = subprocess.run(
-        [str(python), "-c", _BASELINE_BATCH, str(reference_file), str(export), str(out)],
+        [*argv, str(jobs)],
         env=env,
         cwd="/",
         capture_output=True,
         text=True,
         check=True,
     )
-    totals = json.loads(proc.stdout.strip().splitlines()[-1])
-    if totals != [14.0] * len(totals):
-        raise RuntimeError(f"the baseline's batch scored {totals}")
+    rows = json.loads(proc.stdout.strip().splitlines()[-1])
+    if any(row != ["graded", score] for row in rows):
+        raise RuntimeError(f"the baseline's batch: {rows}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -179,12 +186,17 @@ def main(argv: list[str] | None = None) -> int:
                 "batch_2": lambda: _batch(export, root / "out", reference, 2),
                 "alone": lambda: _alone(export, reference),
                 "batch_1_stubs": lambda: _batch(stubs, root / "out", reference, 1, 0.0),
+                "batch_2_stubs": lambda: _batch(stubs, root / "out", reference, 2, 0.0),
             }
             if args.baseline_src is not None:
                 python = _baseline_python(args.baseline_src, root / "baseline-venv")
                 variants["baseline_alone"] = lambda: _baseline(python, export, reference_file)
-                variants["baseline_batch_1"] = lambda: _baseline_batch(
-                    python, export, root / "out_baseline", reference_file
+                for jobs in (1, 2):
+                    variants[f"baseline_batch_{jobs}"] = lambda jobs=jobs: _baseline_batch(
+                        python, export, root / "out_baseline", reference_file, jobs
+                    )
+                variants["baseline_batch_2_stubs"] = lambda: _baseline_batch(
+                    python, stubs, root / "out_baseline", reference_file, 2, 0.0
                 )
             if args.variants:
                 wanted = args.variants.split(",")
@@ -232,18 +244,17 @@ def main(argv: list[str] | None = None) -> int:
             f"  batch / baseline alone CPU {figures['batch_1']['cpu_s_per_submission'] / old:.2f}"
             f", alone / baseline alone CPU {base / old:.2f}"
         )
-    if "baseline_batch_1" in figures:
-        old = figures["baseline_batch_1"]["cpu_s_per_submission"]
-        ratio = figures["batch_1"]["cpu_s_per_submission"] / old
-        ratios = [
-            a / b
-            for (a, _), (b, _) in zip(samples["batch_1"], samples["baseline_batch_1"], strict=True)
-        ]
-        print(
-            f"  batch_1 / baseline batch_1 CPU {ratio:.3f} (per repeat: "
-            + ", ".join(f"{r:.3f}" for r in ratios)
-            + ")"
-        )
+    for mine in ("batch_1", "batch_2", "batch_2_stubs"):
+        theirs = "baseline_" + mine
+        if theirs in figures and mine in figures:
+            ratio = figures[mine]["cpu_s_per_submission"] / figures[theirs]["cpu_s_per_submission"]
+            pairs = zip(samples[mine], samples[theirs], strict=True)
+            ratios = [a / b for (a, _), (b, _) in pairs]
+            print(
+                f"  {mine} / {theirs} CPU per submission {ratio:.3f} (per repeat: "
+                + ", ".join(f"{r:.3f}" for r in ratios)
+                + ")"
+            )
     print(
         f"  throughput: {60 / one:.1f} submissions/min on 1 worker, {60 / two:.1f} on 2 "
         f"(scaling efficiency {efficiency:.2f})"

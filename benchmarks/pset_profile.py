@@ -160,10 +160,13 @@ def one_round(samples: Samples, folder: Path, work: Path, jobs: list[str]) -> No
     """Every figure once (see the module docstring)."""
     from doorlab.pset.grader import Supervisor, grade_submission
     from doorlab.pset.isolation import prepare
-    from doorlab.pset.jobs import _warm
+    from doorlab.pset.supervisor import _warm
     from doorlab.pset.views import StudentView
 
-    samples.timed("start/supervisor_imports", lambda: _python("import doorlab.pset.jobs"))
+    samples.timed(
+        "start/supervisor_imports",
+        lambda: _python("import doorlab.pset.jobs, doorlab.pset.supervisor"),
+    )
     samples.timed(
         "start/trusted_job_imports",
         lambda: _python("import doorlab.pset.jobs, doorlab.pset.checks, doorlab.pset.episodes"),

@@ -148,7 +148,8 @@ for pid in ev["pids"]:
         cmdline = open(f"/proc/{pid}/cmdline", "rb").read()
     except OSError:
         continue
-    if b"doorlab.pset.jobs\x00" in cmdline:  # the grader's processes: -m doorlab.pset.jobs
+    # the grader's processes: python -I -m doorlab.pset.supervisor (or .jobs, before)
+    if {b"doorlab.pset.supervisor", b"doorlab.pset.jobs"} & set(cmdline.split(b"\x00")):
         ev["grader_seen"].append(pid)
 try:
     s = socket.socket(socket.AF_UNIX)

@@ -132,7 +132,7 @@ def test_init_refuses_a_bad_destination(tmp_path, capsys):
     empty.mkdir()
     for target, needle in [
         (tmp_path / "nowhere", "does not exist"),
-        (a_file, "is not a folder or a .zip"),
+        (a_file, "holds none of"),  # a flat file: taken only if it is a student file
         (empty, "holds none of"),  # a mistyped folder is not graded as the stubs
     ]:
         assert main(["pset", "grade", str(target)]) == 2

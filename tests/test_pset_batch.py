@@ -173,7 +173,7 @@ def build_class(root: Path) -> dict[str, int]:
         archive.writestr("../open_left_door.py", solved["open_left_door.py"])
         archive.writestr("ik_utils.py", stub["ik_utils.py"])
     add(115, {"open_left_door.py": solved["open_left_door.py"]}, 2)  # two files missing
-    add(116, {"README.txt": "I ran out of time."}, 0)  # none of the files
+    add(116, {"README.txt": "I ran out of time."}, 0)  # none of the files: not graded
     deep = add(117, None, 0)  # nested past the intake's bound: not graded
     _put(deep / "/".join(f"d{i}" for i in range(40)), {"open_left_door.py": "x = 1\n"})
     extras = {**helpers_only, "notes.pdf": "%PDF-1.4\n", "pset.ipynb": "{}"}
@@ -228,6 +228,8 @@ def resumed(klass, tmp_path_factory) -> dict:
     sends it) once 12 submissions are in the sheet, then --resume."""
     export, _, reference = klass
     out = tmp_path_factory.mktemp("resumed") / "class"
+    tmp = tmp_path_factory.mktemp("resumed_tmp")  # its TMPDIR: what it leaves there is seen
+    os.chmod(tmp, 0o755)
     argv = ["pset", "grade-all", str(export), "--out", str(out), "--reference", str(reference)]
     process = subprocess.Popen(
         [sys.executable, "-m", "doorlab.cli", *argv, "--jobs", "2"],
@@ -235,6 +237,7 @@ def resumed(klass, tmp_path_factory) -> dict:
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,
+        env={**os.environ, "TMPDIR": str(tmp)},
     )
     deadline = time.monotonic() + 300
     while time.monotonic() < deadline:
@@ -248,6 +251,9 @@ def resumed(klass, tmp_path_factory) -> dict:
         pytest.fail("12 submissions were not graded in time")
     os.killpg(process.pid, signal.SIGINT)
     _, err = process.communicate(timeout=120)
+    deadline = time.monotonic() + 20  # the supervisors end with their workers, a moment later
+    while time.monotonic() < deadline and (_alive_in(process.pid) or any(tmp.iterdir())):
+        time.sleep(0.1)
     first = {
         "code": process.returncode,
         "err": err,
@@ -256,9 +262,21 @@ def resumed(klass, tmp_path_factory) -> dict:
         "left": sorted(
             p.name for p in out.iterdir() if p.name.startswith(".") and "partial" in p.name
         ),
+        "tmp_left": sorted(p.name for p in tmp.iterdir()),
     }
     code = main([*argv, "--resume", "--jobs", "2"])
     return {"out": out, "first": first, "code": code, "rows": read_sheet(out / GRADES_CSV)}
+
+
+def _alive_in(session: int) -> bool:
+    """Whether a process of session ``session`` (the interrupted command's) is still there."""
+    for entry in Path("/proc").iterdir():
+        try:
+            if entry.name.isdigit() and os.getsid(int(entry.name)) == session:
+                return True
+        except OSError:
+            continue
+    return False
 
 
 def test_ctrl_c_leaves_a_consistent_sheet_and_resume_grades_each_submission_once(resumed):
@@ -266,6 +284,9 @@ def test_ctrl_c_leaves_a_consistent_sheet_and_resume_grades_each_submission_once
     assert first["code"] == 130, first["err"][-2000:]
     assert "interrupted;" in first["err"] and "Traceback" not in first["err"], first["err"][-2000:]
     assert first["left"] == []  # no staging folder left behind
+    # Issue 31: nothing in its TMPDIR either (no supervisor's, grading's or submission's
+    # folder: the last held the students' files).
+    assert first["tmp_left"] == []
     done = {row["submission"] for row in first["rows"]}
     # The sheet after Ctrl-C: the finished submissions, each with its whole results file; a
     # grading the grader failed (an "error" row, the grader's, not the student's; seen once, on
@@ -305,11 +326,12 @@ def test_the_sheet_holds_the_expected_scores_names_and_statuses(klass, resumed):
     assert rows["submission_119"]["names"] == "'=cmd|' /C calc'!A0; Grace One"  # no formula
     assert rows["submission_119"]["sids"] == "2; 00119"
     assert rows["submission_117"]["status"] == "not_graded"
+    assert rows["submission_116"]["status"] == "not_graded"  # a README alone: nothing to grade
     assert (
         rows["submission_115"]["missing_files"] == "ik_utils.py, manip_station_sim/robot_plans.py"
     )
     for sid, row in rows.items():
-        if sid != "submission_117":
+        if sid not in ("submission_116", "submission_117"):
             assert row["status"] == "graded" and row["sandbox"] == "bwrap", row
             assert row["seed"].isdigit()
             # A copy of identical files (graded once) took no time of its own.
@@ -358,20 +380,35 @@ def test_the_class_graded_again_on_a_dask_cluster_gives_the_identical_sheet(
     klass, resumed, tmp_path
 ):
     """A LocalCluster of 2 worker processes through --scheduler: the identical sheet (times
-    aside), and the identical results files."""
-    distributed = pytest.importorskip("distributed")
+    aside), and the identical results files. The cluster is doorlab's (TLS, a key made for
+    it); the command connects with the certificates in Dask's configuration, as the docs
+    tell a course to."""
+    pytest.importorskip("distributed")
+    import dask
+
+    from doorlab.pset.cluster import local_cluster
+
     export, _, reference = klass
     out = tmp_path / "dask"
-    with distributed.LocalCluster(
-        n_workers=2,
-        threads_per_worker=1,
-        processes=True,
-        host="127.0.0.1",
-        dashboard_address=None,
-        silence_logs=40,
-    ) as cluster:
+    with local_cluster(2) as cluster:
+        files = {}
+        for name, key in (
+            ("ca.pem", "tls_ca_file"),
+            ("client.pem", "tls_client_cert"),
+            ("client.key", "tls_client_key"),
+        ):
+            files[key] = tmp_path / name
+            files[key].write_text(getattr(cluster.security, key))
+        config = {
+            "distributed.comm.tls.ca-file": str(files["tls_ca_file"]),
+            "distributed.comm.tls.client.cert": str(files["tls_client_cert"]),
+            "distributed.comm.tls.client.key": str(files["tls_client_key"]),
+            "distributed.comm.require-encryption": True,
+        }
         argv = ["pset", "grade-all", str(export), "--out", str(out), "--reference", str(reference)]
-        assert main([*argv, "--scheduler", cluster.scheduler_address]) == 0
+        assert cluster.address.startswith("tls://")
+        with dask.config.set(config):
+            assert main([*argv, "--scheduler", cluster.address]) == 0
     assert without_times(read_sheet(out / GRADES_CSV)) == without_times(resumed["rows"])
     for row in resumed["rows"]:
         sid = row["submission"]
@@ -413,13 +450,30 @@ def test_submissions_are_folders_and_zips_by_name(tmp_path):
     (tmp_path / "b.zip").write_bytes(b"PK")  # a folder has that name: the zip keeps .zip
     (tmp_path / ".hidden").mkdir()
     (tmp_path / "__MACOSX").mkdir()
-    (tmp_path / "notes.txt").write_text("not a submission")
+    (tmp_path / "notes.txt").write_text("a flat upload")
+    (tmp_path / "b.zip.zip").write_bytes(b"PK")  # its stem is b.zip's whole name
+    (tmp_path / "submission_metadata.yml.zip").write_bytes(b"PK")
     found = find_submissions(tmp_path)
-    assert [(s.id, s.path.name) for s in found] == [("a", "a.zip"), ("b", "b"), ("b.zip", "b.zip")]
+    assert [(s.id, s.path.name) for s in found] == [
+        ("a", "a.zip"),
+        ("b", "b"),
+        ("b.zip", "b.zip"),
+        ("b.zip.zip", "b.zip.zip"),
+        ("notes.txt", "notes.txt"),
+        ("submission_metadata.yml", "submission_metadata.yml.zip"),
+    ]
+    # The class's own files' names are never a submission's (its folder would replace them).
+    (tmp_path / "grades.csv").mkdir()
+    (tmp_path / "class.json.zip").write_bytes(b"PK")
+    found = find_submissions(tmp_path, reserved=("grades.csv", "class.json"))
+    assert {s.id: s.path.name for s in found if s.id.startswith(("grades", "class"))} == {
+        "grades.csv~2": "grades.csv",
+        "class.json.zip": "class.json.zip",
+    }
     (tmp_path / "submission_metadata.yml").write_text("c:\n  :submitters: [{':name': Cy}]\n")
-    found = find_submissions(tmp_path)
-    assert found[-1] == Submission("c", None, ({"name": "Cy", "sid": "", "email": ""},))
-    row = sheet_row(found[-1], None)
+    found = {s.id: s for s in find_submissions(tmp_path)}
+    assert found["c"] == Submission("c", None, ({"name": "Cy", "sid": "", "email": ""},))
+    row = sheet_row(found["c"], None)
     assert row["status"] == "absent" and row["names"] == "Cy"
     assert sheet_text([row], ["k"]).splitlines()[0].split(",") == columns(["k"])
 
@@ -502,7 +556,7 @@ def test_a_grading_the_grader_fails_is_a_row_and_resume_grades_it_again(klass, t
     reference = json.loads(reference_file.read_text())["extra_data"]["reference"]
     small = tmp_path / "small"
     small.mkdir()
-    shutil.copytree(export / "submission_116", small / "only")  # a README: graded as stubs
+    shutil.copytree(export / "submission_102", small / "only")  # the stubs
     out = tmp_path / "out"
     failed = grade_class(small, out, reference=reference, isolation="no-such-policy")
     [row] = failed.rows
@@ -513,3 +567,38 @@ def test_a_grading_the_grader_fails_is_a_row_and_resume_grades_it_again(klass, t
     assert again.graded == ["only"] and again.errors == 0
     assert again.rows[0]["status"] == "graded" and again.rows[0]["total"] == 0
     assert (out / "only" / RESULTS_JSON).is_file()
+
+
+def test_every_upload_is_one_row_and_names_cannot_forge_summary_lines(tmp_path):
+    """Issue 31: uploads ``hw0/``, ``hw0.zip`` and a classmate's ``hw0.zip.zip`` are 3 rows,
+    each with its own files; file names holding every character str.splitlines breaks on
+    (U+2028 and U+2029 among them) print no line of their own: one "Total score" line. None of
+    these holds a student file, so nothing is graded (and no worker is started)."""
+    from doorlab.pset.batch import grade_class
+    from doorlab.pset.grader import pretty_format_json_results
+
+    uploads = tmp_path / "uploads"
+    (uploads / "hw0").mkdir(parents=True)
+    (uploads / "hw0" / "mine_folder.txt").write_text("folder")
+    breaks = "\u2028\u2029\x85\x0b\x0c\x1c\x1d\x1e"
+    # "\u2215" (a division slash) looks like "/" but is no folder separator in a zip.
+    forged = "".join(f"{c}[PASS] forged {i}: 2 \u2215 2" for i, c in enumerate(breaks))
+    forged += "\u2028Total score: 14 \u2215 14"
+    for name, member in (("hw0.zip", "mine_zip.txt"), ("hw0.zip.zip", "x" + forged)):
+        with zipfile.ZipFile(uploads / name, "w") as archive:
+            archive.writestr(member, "zip")
+    out = tmp_path / "out"
+    outcome = grade_class(uploads, out, reference=pset_fixtures.reference())
+    rows = {row["submission"]: row for row in outcome.rows}
+    assert sorted(rows) == ["hw0", "hw0.zip", "hw0.zip.zip"]
+    assert len(read_sheet(out / GRADES_CSV)) == 3
+    assert {r["status"] for r in rows.values()} == {"not_graded"}
+    held = {sid: json.loads((out / sid / RESULTS_JSON).read_text())["output"] for sid in rows}
+    assert "mine_folder.txt" in held["hw0"] and "mine_zip.txt" in held["hw0.zip"]
+    assert "forged" in held["hw0.zip.zip"] and "mine" not in held["hw0.zip.zip"]
+    summary = pretty_format_json_results(out / "hw0.zip.zip" / RESULTS_JSON)
+    lines = summary.splitlines()
+    assert [line for line in lines if line.startswith("Total score")] == [lines[-1]], summary
+    assert lines[-1] == "Total score: 0 / 14"
+    assert not [line for line in lines if line.lstrip().startswith("[PASS]")], summary
+    assert "forged 7" in summary  # the name is shown, on its line

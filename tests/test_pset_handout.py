@@ -15,16 +15,18 @@ import subprocess
 import zipfile
 from pathlib import Path
 
+import pset_fixtures
 import pytest
 from package_index import clean_environment, fresh_venv, pip_install, require_index
 
 import doorlab
 from doorlab.cli.parser import main
 from doorlab.pset import handout
+from doorlab.pset.expectations import practice_table
 from doorlab.pset.folder import STUDENT_FILES, render_folder
 from doorlab.pset.grader import TESTS
 from doorlab.pset.notebook import NOTEBOOK_NAME
-from doorlab.pset.wheel import wheel_bytes
+from doorlab.pset.wheel import student_wheel_bytes, wheel_bytes
 
 WHEEL = f"doorlab-{doorlab.__version__}-py3-none-any.whl"
 NOTEBOOK_TIMEOUT_S = 1800
@@ -32,31 +34,44 @@ NOTEBOOK_TIMEOUT_S = 1800
 
 
 @pytest.fixture(scope="module")
-def handout_zip(tmp_path_factory) -> Path:
+def reference_args(tmp_path_factory) -> list[str]:
+    """--reference with the session's reference episodes (the practice table's figures)."""
+    path = tmp_path_factory.mktemp("reference") / "reference.json"
+    path.write_text(json.dumps({"extra_data": {"reference": pset_fixtures.reference()}}))
+    return ["--reference", str(path)]
+
+
+@pytest.fixture(scope="module")
+def handout_zip(tmp_path_factory, reference_args) -> Path:
     out = tmp_path_factory.mktemp("handout") / "pset5_handout.zip"
-    assert main(["pset", "handout", str(out)]) == 0
+    assert main(["pset", "handout", str(out), *reference_args]) == 0
     return out
 
 
-def test_the_handout_holds_the_stub_folder_and_this_doorlab_s_wheel(handout_zip, tmp_path):
+def test_the_handout_holds_the_stub_folder_and_the_students_wheel(
+    handout_zip, tmp_path, reference_args
+):
     stubs = render_folder(solutions=False, course=True)  # with the course's course.yaml
     with zipfile.ZipFile(handout_zip) as archive:
         names = set(archive.namelist())
         assert names == {f"{handout.FOLDER}/{rel}" for rel in stubs} | {f"pset5/{WHEEL}"}
         for rel, text in stubs.items():
             assert archive.read(f"{handout.FOLDER}/{rel}").decode() == text, rel
-        assert archive.read(f"{handout.FOLDER}/{WHEEL}") == wheel_bytes()[1]
+        practice = practice_table(None, pset_fixtures.reference())
+        students = student_wheel_bytes(practice, stubs)
+        assert archive.read(f"{handout.FOLDER}/{WHEEL}") == students[1]
+        assert students[1] != wheel_bytes()[1]  # not the instructor's (test_pset_student_wheel)
         readme = archive.read(f"{handout.FOLDER}/README.md").decode()
     assert f'pip install "./{WHEEL}[pset]"' in readme
     assert "doorlab report" not in readme
     # The same doorlab writes the same bytes; --force replaces a handout, never a user's zip.
     again = tmp_path / "again.zip"
-    assert main(["pset", "handout", str(again)]) == 0
+    assert main(["pset", "handout", str(again), *reference_args]) == 0
     assert again.read_bytes() == handout_zip.read_bytes()
-    assert main(["pset", "handout", str(again), "--force"]) == 0
+    assert main(["pset", "handout", str(again), "--force", *reference_args]) == 0
     mine = tmp_path / "mine.zip"
     mine.write_bytes(b"a teacher's zip")
-    assert main(["pset", "handout", str(mine), "--force"]) == 2
+    assert main(["pset", "handout", str(mine), "--force", *reference_args]) == 2
     assert mine.read_bytes() == b"a teacher's zip"
 
 

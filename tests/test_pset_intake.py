@@ -226,11 +226,17 @@ def _remove_deep(top: Path) -> None:
 
 @pytest.fixture
 def recorded_grade(monkeypatch):
-    """``doorlab.pset.grader.grade`` replaced by a recorder of the folder it is given."""
+    """``doorlab.pset.grader.grade`` replaced by a recorder of the student files it would
+    grade (a folder, or the taken files over the stubs)."""
     calls = []
 
-    def fake_grade(folder, **kwargs):
-        calls.append(_graded(Path(folder)))
+    def fake_grade(folder, *, files=None, **kwargs):
+        if files is not None:
+            calls.append(
+                {rel: files.get(rel, STUBS[rel].encode()).decode() for rel in STUDENT_FILES}
+            )
+        else:
+            calls.append(_graded(Path(folder)))
         return {"score": 0.0, "tests": [], "output": "", "execution_time": 0.0, "extra_data": {}}
 
     monkeypatch.setattr(grader, "grade", fake_grade)
@@ -305,3 +311,31 @@ def test_pset_grade_takes_a_zip_and_writes_its_results_beside_it(tmp_path, capsy
     assert results["extra_data"]["submission"]["taken"] == {
         rel: f"hw5/{rel}" for rel in STUDENT_FILES
     }
+
+
+def test_a_notebook_alone_is_not_graded_on_any_path(tmp_path, capsys):
+    """Issue 31: one rule for a submission that holds none of the student files (here the
+    notebook alone): ``doorlab pset grade`` refuses it in one line (exit 2, no results);
+    what ``grade-all``'s workers and ``run_autograder`` call (``grade_submission`` without
+    ``require_files``) gives every test 0 and the reason, no student process started; a flat
+    upload of one student file is taken."""
+    folder = tmp_path / "upload"
+    folder.mkdir()
+    (folder / "pset5_open_cabinet_door.ipynb").write_text(
+        render_folder(solutions=True)["pset5_open_cabinet_door.ipynb"]
+    )
+    assert main(["pset", "grade", str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "holds none of" in err, err
+    assert "pset5_open_cabinet_door.ipynb" in err
+    assert not (folder / "test_results.json").exists()
+    results = grader.grade_submission(folder, isolation="autograder")
+    assert results["score"] == 0 and results["extra_data"]["not_graded"]
+    assert results["extra_data"]["submission"]["nothing"] is True
+    assert all("holds none of" in t["output"] for t in results["tests"])
+    assert "sandbox" not in results["extra_data"]  # no student process ran
+    flat = tmp_path / "open_left_door.py"
+    flat.write_text(SOLUTIONS["open_left_door.py"])
+    files, taken = grader.take_files(flat)
+    assert taken.refused is None and list(files) == ["open_left_door.py"]
+    assert files["open_left_door.py"].decode() == SOLUTIONS["open_left_door.py"]

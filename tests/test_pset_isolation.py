@@ -30,7 +30,7 @@ from pset_attacks import _insert, attack_folder, evidence
 
 import doorlab
 from doorlab.cli.parser import main
-from doorlab.pset import isolation, view
+from doorlab.pset import isolation, syscalls, view
 from doorlab.pset.autograder import wheel_bytes
 from doorlab.pset.folder import STUDENT_FUNCTIONS, init_folder
 from doorlab.pset.grader import TESTS, grade
@@ -132,11 +132,20 @@ def _in_view(tmp: Path, code: str, *args: str) -> subprocess.CompletedProcess:
     scratch.mkdir()
     if drop is not None:
         os.chown(scratch, *drop)
-    argv = view.bwrap_argv(plan, scratch, None, as_root=drop is not None)
-    argv += [plan.python, "-I", "-S", "-B", "-c", view.boot_code(plan, drop) + "\n" + code]
-    return subprocess.run(
-        [*argv, *args], capture_output=True, text=True, timeout=120, env={"PATH": "/usr/bin"}
-    )
+    seccomp = syscalls.filter_descriptor()
+    try:
+        argv = view.bwrap_argv(plan, scratch, None, as_root=drop is not None, seccomp_fd=seccomp)
+        argv += [plan.python, "-I", "-S", "-B", "-c", view.boot_code(plan, drop) + "\n" + code]
+        return subprocess.run(
+            [*argv, *args],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            env={"PATH": "/usr/bin"},
+            pass_fds=(seccomp,),
+        )
+    finally:
+        os.close(seccomp)
 
 
 @pytest.fixture
@@ -189,6 +198,34 @@ print("VIEW " + json.dumps(out))
     assert len(facts["pids"]) <= 2  # bwrap's init and this process
     if AS_ROOT:
         assert facts["uid"] == isolation.sandbox.sandbox_identity().uid != 0
+
+
+NAMESPACES = r"""
+import ctypes, errno, json, os
+libc = ctypes.CDLL(None, use_errno=True)
+out = {}
+for name, flag in FLAGS.items():
+    pid = os.fork()
+    if pid == 0:  # each try in a child of its own: a namespace made would stay with it
+        ok = libc.unshare(flag) == 0
+        os._exit(0 if ok else 100 + ctypes.get_errno())
+    code = os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])
+    out[name] = "made" if code == 0 else errno.errorcode.get(code - 100, code)
+out["keyctl"] = libc.syscall(250, 0, -4, 0, 0, 0) if os.uname().machine == "x86_64" else -1
+print("VIEW " + json.dumps(out))
+"""
+
+
+def test_inside_the_view_no_namespace_nor_keyring_can_be_made(work):
+    """Issue 31: the view's system-call filter refuses unshare(CLONE_NEWUSER) (and every other
+    namespace) and the kernel's keyrings (shared by every process of the sandbox user, so by
+    two gradings at once); fork and threads still work."""
+    code = f"FLAGS = {syscalls.NAMESPACE_FLAGS!r}\n" + NAMESPACES
+    proc = _in_view(work, code + "import threading; threading.Thread(target=print).start()")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    facts = json.loads(proc.stdout.split("VIEW ", 1)[1].splitlines()[0])
+    assert facts.pop("keyctl") == -1  # KEYCTL_GET_KEYRING_ID of the user's keyring: EPERM
+    assert facts == dict.fromkeys(syscalls.NAMESPACE_FLAGS, "EPERM"), facts
 
 
 # No isolation, no grade -------------------------------------------------------------------
@@ -482,9 +519,9 @@ def test_each_test_gets_a_fresh_view_whose_first_process_is_out_of_reach(
 ):
     """Two unit tests of one grading share a view, one after the other. The first cannot
     read, trace or signal the view's first process (it forks the next test all the same), and
-    leaves a detached process, notes in /tmp, /dev/shm and /pset, a System V segment and a
-    key in the sandbox user's keyring; the second sees none of it: only the first process and
-    itself."""
+    leaves a detached process, notes in /tmp, /dev/shm and /pset and a System V segment (a
+    key in the sandbox user's keyring is refused: the view's filter); the second sees none of
+    it: only the first process and itself."""
     folder = init_folder(public / "leave_behind")
     mark = f"doorlab-{os.getpid()}-{time.time_ns()}"
     _insert(folder, "calc_R_WL7_ref", LEAVE_BEHIND, {"MARK": mark})
@@ -508,8 +545,8 @@ def test_each_test_gets_a_fresh_view_whose_first_process_is_out_of_reach(
     plan = view.plan_view(view.build_site(tmp_path / "site"), view.find_bwrap())
     assert look["files"] == sorted(Path(top).name for top in plan.private_tops), look
     assert look["shm"] == [], look
-    if "key" in leave:  # the keyring is the user's, kept by the kernel: cleared all the same
-        assert leave["key"] > 0 and look["key"] == -1, (leave, look)
+    if "key" in leave:  # the keyring is the user's, kept by the kernel: the filter refuses it
+        assert leave["key"] == -1 and look["key"] == -1, (leave, look)
     assert look["pset"] == ("PermissionError" if AS_ROOT else ["unit_calc_p_Q"]), look
     for t in results["tests"]:
         assert "NotImplementedError" in t["output"], t

@@ -743,3 +743,38 @@ def test_a_grader_environment_the_student_user_cannot_read_is_named_as_such():
     assert "could not import doorlab" in _import_failure(no_doorlab)
     assert _import_failure("ModuleNotFoundError: No module named 'my_helpers'") is None
     assert _import_failure("Killed\n") is None
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="as root: another user's IPC objects")
+def test_the_separate_user_fallback_removes_its_ipc_objects(tmp_path):
+    """Issue 31: where the separate-user fallback gets no IPC namespace of its own (a
+    container that refuses unshare), what the student's user left in System V IPC (a shared
+    memory segment, a semaphore set, a message queue) is removed after the test; another
+    user's objects and older ones stay."""
+    import ctypes
+
+    from doorlab.pset.student import remove_ipc_leftovers
+
+    uid = 64123
+    code = (
+        "import ctypes, os\n"
+        f"os.setgid({uid}); os.setuid({uid})\n"
+        "libc = ctypes.CDLL(None, use_errno=True)\n"
+        "print(libc.shmget(0, 4096, 0o1600), libc.semget(0, 1, 0o1600), libc.msgget(0, 0o1600))"
+    )
+    since = time.time()
+    made = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    ids = [int(x) for x in made.stdout.split()]
+    assert all(i >= 0 for i in ids), made.stdout
+    libc = ctypes.CDLL(None, use_errno=True)
+    mine = libc.shmget(0, 4096, 0o1600)  # root's, made now: not the student's user's
+    try:
+        removed = remove_ipc_leftovers(uid, since)
+        assert sorted(removed) == sorted(
+            [f"System V shm {ids[0]}", f"System V sem {ids[1]}", f"System V msg {ids[2]}"]
+        ), removed
+        listed = {k: Path(f"/proc/sysvipc/{k}").read_text() for k in ("shm", "sem", "msg")}
+        assert f" {mine} " in listed["shm"]
+        assert remove_ipc_leftovers(uid, since) == []
+    finally:
+        libc.shmctl(mine, 0, None)

@@ -59,9 +59,11 @@ def pset(args: argparse.Namespace) -> int:
         )
         return 0
     if args.pset_command == "handout":
+        from doorlab.pset.grader import load_reference
         from doorlab.pset.handout import write_handout
 
-        out = write_handout(args.out, force=args.force, assignment=assignment)
+        reference = None if args.reference is None else load_reference(args.reference)
+        out = write_handout(args.out, force=args.force, assignment=assignment, reference=reference)
         print(
             f"doorlab pset: wrote {out} ({out.stat().st_size / 1e3:.0f} kB): the student "
             "folder and doorlab's wheel; its README says how to install and submit"
@@ -88,12 +90,12 @@ def _pset_grade(args: argparse.Namespace, assignment) -> int:
         raise OutputError(f"{source} does not exist; grade a folder or a .zip")
     if source.is_dir():
         out = args.out or source / "test_results.json"
-    elif source.suffix.lower() == ".zip":
+    elif source.is_file():  # a zip, or one flat file (taken if it is a student file)
         out = args.out or source.with_name(f"{source.stem}_results.json")
     else:
         raise OutputError(
-            f"{source} is not a folder or a .zip: grade the submission's folder (the problem "
-            "set's, or one holding its files) or its zip"
+            f"{source} is not a folder or a file: grade the submission's folder (the problem "
+            "set's, or one holding its files), its zip or one of its files"
         )
     _check_writable(out)  # before grading: the grading takes minutes
     reference = None if args.reference is None else grader.load_reference(args.reference)

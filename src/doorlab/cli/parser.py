@@ -304,6 +304,14 @@ def add_pset_parser(sub) -> None:
     hand.add_argument(
         "--force", action="store_true", help="replace an existing OUT.zip written by doorlab"
     )
+    hand.add_argument(
+        "--reference",
+        type=Path,
+        default=None,
+        metavar="EARLIER.json",
+        help="the practice table's reference episodes from an earlier results file (default: "
+        "simulated now)",
+    )
     assignment = actions.add_parser(
         "assignment", help="write the default assignment file (points, margins, random seed, ...)"
     )
@@ -557,9 +565,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ImportError as e:  # a signal while a C extension initialized ("initialization
         interrupt = _interruption(e)  # failed", caused by the KeyboardInterrupt)
         if interrupt is None:
+            name = getattr(e, "name", None) or ""
+            if name.startswith("doorlab.") and _students():  # what the handout left out
+                from doorlab.pset.edition import left_out
+
+                print(f"doorlab {args.command}: error: {left_out(name)}", file=sys.stderr)
+                return USAGE_ERROR
             raise
         print("doorlab: interrupted", file=sys.stderr)
         return interrupt_exit_code(interrupt)
+
+
+def _students() -> bool:
+    """Whether this is the students' doorlab (:mod:`doorlab.pset.edition`)."""
+    from doorlab.pset.edition import students
+
+    return students()
 
 
 def _interruption(error: BaseException) -> KeyboardInterrupt | None:

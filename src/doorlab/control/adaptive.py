@@ -32,7 +32,7 @@ from doorlab.config import AdaptivePlanConfig, InnerLoopConfig
 from doorlab.constants import NUM_JOINTS
 from doorlab.control.hinge_estimation import HingeEstimator, estimate_contact_wrench, signed_angle
 from doorlab.control.laws import adaptive_law, orientation_error
-from doorlab.control.plans import ArmState, Command
+from doorlab.control.plan_base import ArmState, Command
 
 LOG_CHANNELS = (
     "t",  # [s] time since the plan started (the episode's time in EpisodeResult.plan_log)

@@ -1,101 +1,30 @@
 """Plans: what the plan runner executes, one control tick at a time.
 
-A plan maps (time since the plan started, measured arm state) to a command (q_ref, tau_ff).
-:class:`JointSpacePlan` replays a joint trajectory (task 1); :class:`TaskSpaceVelocityPlan`
+A plan maps (time since the plan started, measured arm state) to a command (q_ref, tau_ff)
+(:mod:`doorlab.control.plan_base`: the protocol, the state, the command and
+:class:`JointSpacePlan`, task 1's, re-exported here). :class:`TaskSpaceVelocityPlan`
 (task 2) and :class:`TaskSpaceImpedancePlan` (task 3) close a loop on the pose of L7 and Q
 through their own controller plant, never the simulation plant.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple, Protocol
-
 import numpy as np
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import JacobianWrtVariable
-from pydrake.trajectories import PiecewisePolynomial
 
 from doorlab.cell.frames import L7_FRAME, p_L7Q
 from doorlab.cell.geometry import DoorGeometry
 from doorlab.config import ImpedancePlanConfig, VelocityPlanConfig
-from doorlab.constants import NUM_JOINTS
 from doorlab.control.laws import PoseError, impedance_law, pose_error, velocity_law
-from doorlab.errors import ConfigError
-
-
-class ArmState(NamedTuple):
-    """Measured arm state at a control tick.
-
-    Attributes:
-        q: Joint positions (7,) [rad]. v: Joint velocities (7,) [rad/s].
-        tau_external: Generalized contact torques on the joints (7,) [N m].
-    """
-
-    q: np.ndarray
-    v: np.ndarray
-    tau_external: np.ndarray
-
-
-class Command(NamedTuple):
-    """What a plan sends to the inner loop: q_ref (7,) [rad] and tau_ff (7,) [N m]."""
-
-    q_ref: np.ndarray
-    tau_ff: np.ndarray
-
-
-class Plan(Protocol):
-    """Anything the plan runner can execute."""
-
-    name: str
-    duration: float  # [s]
-
-    def command(self, t: float, state: ArmState) -> Command:
-        """Command at time t [s] since the plan started (t may exceed duration: hold)."""
-        ...
-
-
-_ZERO_TORQUE = np.zeros(NUM_JOINTS)
-
-
-class JointSpacePlan:
-    """Sends q_ref = q_traj(t) (clamped to the trajectory's time span) and tau_ff = 0."""
-
-    def __init__(self, trajectory: PiecewisePolynomial, *, name: str = "joint_space"):
-        if trajectory.rows() != NUM_JOINTS or trajectory.cols() != 1:
-            raise ConfigError(
-                f"a JointSpacePlan needs a ({NUM_JOINTS}, 1) trajectory, got "
-                f"({trajectory.rows()}, {trajectory.cols()})"
-            )
-        self.name = name
-        self.trajectory = trajectory
-        self.duration = trajectory.end_time() - trajectory.start_time()
-
-    def command(self, t: float, state: ArmState) -> Command:
-        """q_ref from the trajectory; the measured state is not used."""
-        t_traj = min(
-            max(t + self.trajectory.start_time(), self.trajectory.start_time()),
-            self.trajectory.end_time(),
-        )
-        return Command(self.trajectory.value(t_traj).ravel(), _ZERO_TORQUE)
-
-    @classmethod
-    def hold(cls, q: np.ndarray, duration: float, *, name: str = "hold") -> JointSpacePlan:
-        """Holds q (7,) [rad] for duration [s]."""
-        knots = np.column_stack([q, q])
-        return cls(PiecewisePolynomial.ZeroOrderHold([0.0, duration], knots), name=name)
-
-    @classmethod
-    def cubic(
-        cls, times: np.ndarray, q_knots: np.ndarray, *, name: str = "joint_space"
-    ) -> JointSpacePlan:
-        """Cubic spline through q_knots (n, 7) at times (n,) [s], zero end velocities."""
-        q_knots = np.asarray(q_knots, dtype=float)
-        zero = np.zeros((NUM_JOINTS, 1))
-        trajectory = PiecewisePolynomial.CubicWithContinuousSecondDerivatives(
-            np.asarray(times, dtype=float), q_knots.T, zero, zero
-        )
-        return cls(trajectory, name=name)
+from doorlab.control.plan_base import (  # noqa: F401 - re-exported: doorlab.control.plans.*
+    _ZERO_TORQUE,
+    ArmState,
+    Command,
+    JointSpacePlan,
+    Plan,
+)
 
 
 class _TaskSpacePlan:

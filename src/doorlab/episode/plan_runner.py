@@ -13,7 +13,7 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from doorlab.constants import NUM_JOINTS
-from doorlab.control.plans import ArmState
+from doorlab.control.plan_base import ArmState
 from doorlab.episode.schedule import ScheduledPlan
 
 

@@ -16,7 +16,7 @@ import numpy as np
 from pydrake.trajectories import PiecewisePolynomial
 
 from doorlab.config import Scenario
-from doorlab.control.plans import JointSpacePlan, Plan
+from doorlab.control.plan_base import JointSpacePlan, Plan
 from doorlab.errors import ConfigError
 
 PLAN_SETTLE_TIME = 1.0

@@ -42,7 +42,7 @@ from doorlab.cell.safety import SafetyLimits, SafetyMonitor
 from doorlab.cell.station import Station, build_station
 from doorlab.config import Scenario
 from doorlab.constants import Q_HOME
-from doorlab.control.plans import Plan
+from doorlab.control.plan_base import Plan
 from doorlab.episode.result import EpisodeResult, schedule_fields
 from doorlab.episode.schedule import ScheduledPlan, make_schedule, tick_lag
 from doorlab.episode.wiring import EpisodeLogger, wire_commands

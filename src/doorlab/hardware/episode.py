@@ -39,7 +39,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 
 from doorlab.cell.safety import SafetyLimits, Violation, check_command
 from doorlab.config import Scenario
-from doorlab.control.plans import Plan
+from doorlab.control.plan_base import Plan
 from doorlab.episode.result import EpisodeResult, schedule_fields
 from doorlab.episode.schedule import ScheduledPlan, make_schedule
 from doorlab.episode.wiring import EpisodeLogger, wire_commands

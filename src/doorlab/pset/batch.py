@@ -111,6 +111,7 @@ def grade_task(payload: dict) -> dict:
             assignment=None if data is None else assignment_from_dict(data),
             isolation=payload["isolation"],
             supervisor=_worker_supervisor(),
+            network_isolated=payload.get("network_isolated", False),
         )
     except Exception as e:  # noqa: BLE001 - a grader's failure is a row, never a lost class
         text = str(e) if isinstance(e, DoorlabError) else f"{type(e).__name__}: {e}"
@@ -120,6 +121,13 @@ def grade_task(payload: dict) -> dict:
 
 
 # The class's folder ------------------------------------------------------------------------
+
+
+def _reserved_names() -> tuple[str, ...]:
+    """What no submission's id may be: the class folder's own files."""
+    from doorlab.runtime.folders import MANIFEST_NAME
+
+    return (*CLASS_FILES, MANIFEST_NAME)
 
 
 def assignment_digest(assignment) -> str:
@@ -288,6 +296,7 @@ def grade_class(
     progress: bool = False,
     only: Sequence[str] = (),
     outputs: object = None,
+    security: object = None,
 ) -> ClassOutcome:
     """Grades every submission in ``source`` into ``out`` (see the module docstring).
 
@@ -313,16 +322,23 @@ def grade_class(
         outputs: What to write at the end besides the sheet
             (:class:`doorlab.pset.class_outputs.Outputs`: exports, PDFs; None: the defaults).
 
+        security: With ``scheduler``: a ``distributed.Security`` (a ``tls://`` cluster's
+            certificates; default: Dask's configuration's). With a scheduler, a cluster whose
+            workers would run the student's code without a network namespace is refused
+            (:func:`doorlab.pset.cluster.check_workers`).
+
+
     Raises:
         ConfigError: No submissions; bad metadata; bad ``jobs``, ``scheduler`` or ``only``;
-            ``only`` with another assignment. OutputError: ``out`` may not be written.
+            ``only`` with another assignment; a cluster whose workers would let the
+            student's code reach it. OutputError: ``out`` may not be written.
         GradingError: The reference episodes could not be simulated (nothing written).
         KeyboardInterrupt: After writing the sheet of the submissions finished so far.
     """
     from doorlab.runtime.executor import CONNECT_TIMEOUT_S, check_scheduler
 
     source, out = Path(source), Path(out)
-    submissions = find_submissions(source)
+    submissions = find_submissions(source, reserved=_reserved_names())
     if not submissions:
         raise ConfigError(f"{source} holds no submission (folders or .zip files)")
     if scheduler is not None:
@@ -336,7 +352,14 @@ def grade_class(
     if resumed:
         reference_changed = reference is not None and reference != previous.reference
         reference = reference if reference is not None else previous.reference
-    elif reference is None:
+    timeout_s = scheduler_timeout_s or CONNECT_TIMEOUT_S
+    if scheduler is not None:  # before anything is written: the workers isolate the network
+        from doorlab.pset.cluster import check_workers
+        from doorlab.runtime.executor import open_executor
+
+        with open_executor(scheduler=scheduler, timeout_s=timeout_s, security=security) as ex:
+            check_workers(ex, isolation)
+    if reference is None:
         from doorlab.pset.grader import grade_reference
 
         reference = grade_reference(jobs=min(3, max(1, jobs)) if scheduler is None else 3)
@@ -350,6 +373,7 @@ def grade_class(
         run.ledger.old = dict(previous.results)
         why = Step("grade", "--force: the class graded again from scratch")
         run.ledger.steps = {s.id: why for s in submissions if s.path is not None}
+    run.network_isolated = scheduler is not None
     for submission in submissions:
         if submission.id not in run.rows and submission.path is None:
             run.rows[submission.id] = sheet_row(submission, None)
@@ -370,7 +394,8 @@ def grade_class(
             with open_executor(
                 jobs=min(jobs, len(todo)),
                 scheduler=scheduler,
-                timeout_s=scheduler_timeout_s or CONNECT_TIMEOUT_S,
+                timeout_s=timeout_s,
+                security=security,
             ) as executor:
                 run.executor = executor.description
                 run.grade(executor, todo)
@@ -406,6 +431,7 @@ class _ClassRun:
         self.executor = "none (every submission was in the folder)"
         self.started = False
         self.bar = None
+        self.network_isolated = False  # a cluster's gradings: no network for the student
         from doorlab.pset.regrade import Ledger
 
         self.ledger = Ledger(assignment, reference)
@@ -486,6 +512,7 @@ class _ClassRun:
             "reference": self.reference,
             "assignment": None if self.assignment is None else self.assignment.to_dict(),
             "isolation": self.isolation,
+            "network_isolated": self.network_isolated,
         }
 
     def grade(self, executor, todo: list[Submission]) -> None:

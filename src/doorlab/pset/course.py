@@ -6,13 +6,15 @@ is there with its points, visibility and margins, and the course's random seed, 
 late policy; a hidden test's settings stay with the instructor (its entry is left out, and
 the self-check neither runs nor names it). The folder's ``test_pset_5a.py`` (the notebook's
 last cell) grades with this file (:func:`load_course`): the course's points and total, the
-course's margins and random seed (so it draws the unit tests' inputs Gradescope draws for the same
-files), the tests the course lets students run (``self_check``), and it says which tests
-Gradescope shows only after the due date or once grades are published.
+course's margins, the tests the course lets students run (``self_check``), and it says which
+tests Gradescope shows only after the due date or once grades are published. The students'
+doorlab holds no answer key: it judges against the handout's practice table, whose draws come
+from the course's random seed (:mod:`doorlab.pset.edition`); the course's grading draws its
+own from each submission's files.
 
-The random seed is no secret worth keeping: it draws the unit tests' inputs from the SHA-256 of the
-student's own files, and those inputs are handed to the student's code anyway; a change to a
-file changes them all.
+The random seed is no secret worth keeping: the course's grading draws the unit tests' inputs
+from it and the SHA-256 of the student's own files, and those inputs are handed to the
+student's code anyway; a change to a file changes them all.
 """
 
 from __future__ import annotations

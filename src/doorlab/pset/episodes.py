@@ -5,13 +5,14 @@ here: for task 1 the student's process only returns its IK (knots and trajectory
 numbers); for tasks 2 and 3 the student's plan lives in the student's process and is asked
 for its command at every control tick (:class:`RemotePlan`, one round trip of
 :mod:`doorlab.pset.channel` per tick), so the logs and the figures the verdict rests on
-come from this process only. Reference episodes run doorlab's own controllers.
+come from this process only. Reference episodes run doorlab's own controllers
+(:mod:`doorlab.pset.expectations`, with everything else that computes an answer: this module
+holds none).
 """
 
 from __future__ import annotations
 
 import functools
-import json
 import math
 
 import numpy as np
@@ -42,7 +43,8 @@ SERIES_DECIMALS = 3
 resolution)."""
 HELPER_KNOTS = 1001
 """Values of tau at which the reference calc_p_Q and calc_R_WL7_ref are sent to the
-student's process, which interpolates between them (:func:`reference_helper_table`)."""
+student's process, which interpolates between them
+(:func:`doorlab.pset.expectations.reference_helper_table`)."""
 
 
 def trajectory_from_answer(
@@ -97,29 +99,6 @@ def trajectory_from_answer(
     return qtraj, knots
 
 
-def reference_helper_table(knots: int = HELPER_KNOTS) -> dict:
-    """A fresh copy of :func:`_reference_helper_table` (computed once per process)."""
-    return json.loads(_reference_helper_table(knots))
-
-
-@functools.cache
-def _reference_helper_table(knots: int) -> str:
-    """doorlab's calc_p_Q and calc_R_WL7_ref at ``knots`` values of tau in [0, 1], for an
-    episode that runs the reference helpers (:data:`doorlab.pset.verdicts.TESTS`' helpers):
-    the student's process interpolates them (positions linearly: the arc's chord error at
-    1,001 knots is r (sweep / 1000)^2 / 8 < 0.1 um; orientations by slerp, exact for a yaw
-    that is linear in tau), so no reference code runs there.
-
-    Returns:
-        ``{"taus": [...], "p_Q": [[x, y, z], ...] [m], "quaternions": [[w, x, y, z], ...]}``.
-    """
-    g = default_door_geometry()
-    taus = np.linspace(0.0, 1.0, knots)
-    p_Q = [(g.p_WQ_ref(tau) - g.p_W_handle).tolist() for tau in taus]
-    quaternions = [g.R_WL7_ref(tau).ToQuaternion().wxyz().tolist() for tau in taus]
-    return json.dumps({"taus": taus.tolist(), "p_Q": p_Q, "quaternions": quaternions})
-
-
 class RemotePlan:
     """A doorlab plan whose commands come from the student's plan, in the student's process,
     one round trip per control tick.
@@ -139,7 +118,7 @@ class RemotePlan:
 
     def command(self, t: float, state):
         """The student's q_ref (7,) [rad] and tau_ff (7,) [N m] at t [s]."""
-        from doorlab.control.plans import Command
+        from doorlab.control.plan_base import Command
         from doorlab.pset.station_api import StudentCodeError
 
         q_cmd = state.q if self._q_cmd is None else self._q_cmd
@@ -177,7 +156,9 @@ def episode_series(result, tracking) -> dict:
     }
 
 
-def _episode_figures(result, scenario: Scenario) -> dict:
+def episode_figures(result, scenario: Scenario) -> dict:
+    """The figures a verdict rests on, of one simulated episode (the student's or the
+    reference's)."""
     from doorlab.episode.metrics import compute_metrics, compute_tracking
 
     g = default_door_geometry()
@@ -198,17 +179,6 @@ def _episode_figures(result, scenario: Scenario) -> dict:
         "wall_time_s": m.wall_time_s,
         "series": episode_series(result, tracking),
     }
-
-
-def reference_episode(controller: str) -> dict:
-    """doorlab's reference solution: IK 10 knots and velocity with the doors open, impedance
-    with them closed."""
-    from doorlab.episode.controllers import run_controller
-
-    doors = "closed" if controller == "impedance" else "open"
-    scenario = Scenario(controller=controller, doors=doors)
-    result, _ = run_controller(scenario)
-    return _episode_figures(result, scenario)
 
 
 def grasp_configuration() -> np.ndarray:
@@ -234,17 +204,23 @@ def _grasp_configuration() -> np.ndarray:
 
 
 def student_episode(
-    student: StudentProcess, controller: str, *, helpers: str = "reference"
+    student: StudentProcess,
+    controller: str,
+    *,
+    helpers: str = "reference",
+    table: dict | None = None,
 ) -> dict:
     """The problem set's task cell for one controller with the student's functions, simulated here:
     hold 2 s, move 7 s to the start, hold 1 (+1) s, the arc plan (10 + 1 s), 2 s more.
 
     ``helpers`` (the velocity and impedance plans): ``reference`` runs the plan on doorlab's
     calc_p_Q and calc_R_WL7_ref (:func:`reference_helper_table`), so the episode grades the
-    plan alone; ``student`` on the student's."""
+    plan alone; ``student`` on the student's. ``table``: the reference helpers' table
+    (:func:`doorlab.pset.expectations.reference_helper_table`, or the handout's practice
+    table's), needed with ``reference``."""
     from dataclasses import replace
 
-    from doorlab.control.plans import JointSpacePlan
+    from doorlab.control.plan_base import JointSpacePlan
     from doorlab.episode.simulation import run_episode
     from doorlab.pset.station_api import problem_set_scenario
 
@@ -278,7 +254,10 @@ def student_episode(
         arc = JointSpacePlan(qtraj, name="student_ik")
     else:
         q_start = grasp_configuration()
-        table = reference_helper_table() if helpers == "reference" else None
+        if helpers != "reference":
+            table = None
+        elif table is None:
+            raise ValueError("an episode on the reference helpers needs their table")
         student.call(
             "plan",
             kind=controller,
@@ -299,4 +278,4 @@ def student_episode(
         q_start=q_start,
         q_initial=Q_HOME,
     )
-    return _episode_figures(result, replace(scenario, controller=controller, doors=doors))
+    return episode_figures(result, replace(scenario, controller=controller, doors=doors))

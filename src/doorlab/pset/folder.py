@@ -14,7 +14,7 @@ from pathlib import Path
 import jinja2
 
 from doorlab.errors import OutputError
-from doorlab.pset.jobs import EPISODE_TIME_LIMIT_S, UNIT_TIME_LIMIT_S
+from doorlab.pset.clock import EPISODE_TIME_LIMIT_S, UNIT_TIME_LIMIT_S
 from doorlab.pset.notebook import NOTEBOOK_NAME, notebook_json
 from doorlab.pset.verdicts import STUDENT_FILES, TESTS
 
@@ -168,14 +168,25 @@ def _environment() -> jinja2.Environment:
 
 def render_folder(solutions: bool, assignment=None, *, course: bool = False) -> dict[str, str]:
     """Every file of the folder: relative path -> text (the README's points and margins are
-    ``assignment``'s, default: the grader's defaults; a hidden test's are left out).
+    ``assignment``'s, default: the grader's defaults; a hidden test's are left out). In the
+    students' doorlab (:mod:`doorlab.pset.edition`), the handout's stub folder (with its
+    ``course.yaml``).
 
     Args:
         solutions: The reference implementations instead of the stubs.
         assignment: The course's settings (:class:`doorlab.pset.assignment.Assignment`).
         course: Add ``course.yaml``, the settings students may see, which the folder's
             self-check grades with (:mod:`doorlab.pset.course`; the handout's).
+
+    Raises:
+        OutputError: ``solutions`` in the students' doorlab (the key is the instructor's).
     """
+    from doorlab.pset import edition
+
+    if edition.students():
+        if solutions:
+            raise OutputError(edition.KEY_IS_THE_INSTRUCTORS)
+        return edition.stub_files()
     env = _environment()
     context = _context(solutions, assignment)
     context["course_file"] = course

@@ -13,6 +13,7 @@ doorlab's reference solution, simulated in the same grading (or passed in, ``ref
 
 from __future__ import annotations
 
+import base64
 import json
 import os
 import subprocess
@@ -64,8 +65,9 @@ class GradingError(DoorlabError):
 
 
 def grade(
-    folder: str | Path,
+    folder: str | Path | None,
     *,
+    files: dict[str, bytes] | None = None,
     jobs: int = 2,
     reference: dict[str, dict] | None = None,
     only: Sequence[str] | None = None,
@@ -75,6 +77,7 @@ def grade(
     isolation: str = "require",
     harden: Sequence[str | Path] = (),
     supervisor: Supervisor | None = None,
+    network_isolated: bool = False,
 ) -> dict:
     """Grades a problem-set folder; returns the Gradescope results (write them with
     :func:`write_results`).
@@ -83,7 +86,11 @@ def grade(
     detached) is dead. The folder is not written to.
 
     Args:
-        folder: The folder written by ``doorlab pset init`` (the submission).
+        folder: The folder written by ``doorlab pset init`` (the submission); None with
+            ``files``.
+        files: The student files' bytes by their place in the folder (what
+            :func:`take_files` took): graded over a fresh stub folder, which the supervisor
+            writes in its own private folder.
         jobs: Tests run at a time.
         reference: Results of the ``reference:*`` jobs to reuse (e.g. an earlier grading's
             ``extra_data["reference"]``); None simulates them in this grading.
@@ -102,6 +109,9 @@ def grade(
         harden: Paths the autograder's fallback makes unreadable to the student's user.
         supervisor: A :class:`Supervisor` that serves several gradings, one at a time (a
             batch's worker); None starts one for this grading.
+        network_isolated: Refuse (GradingError) unless the student's code gets a network
+            namespace of its own (a grading on a Dask cluster's worker: else its code could
+            reach the cluster).
 
     Returns:
         Gradescope's results: ``{"score", "visibility", "output", "output_format",
@@ -119,7 +129,10 @@ def grade(
             rather than zeros the submission did not earn.
     """
     request = {
-        "folder": str(Path(folder).resolve()),
+        "folder": None if folder is None else str(Path(folder).resolve()),
+        "files": None
+        if files is None
+        else {k: base64.b64encode(v).decode() for k, v in files.items()},
         "jobs": int(jobs),
         "reference": reference,
         "only": None if only is None else list(only),
@@ -128,11 +141,12 @@ def grade(
         "seed": None if seed is None else int(seed),
         "isolation": isolation,
         "harden": [str(p) for p in harden],
+        "network_isolated": bool(network_isolated),
     }
     if supervisor is not None:
         return supervisor.run(request)
     proc = subprocess.Popen(
-        [sys.executable, "-I", "-m", "doorlab.pset.jobs", "supervise"],
+        [sys.executable, "-I", "-m", "doorlab.pset.supervisor", "supervise"],
         cwd="/",
         env=trusted_environment(),
         stdin=subprocess.PIPE,
@@ -171,7 +185,7 @@ def _answer(out: bytes, code: int | None) -> dict:
 
 class Supervisor:
     """A grading supervisor that serves many gradings, one after the other
-    (``python -I -m doorlab.pset.jobs serve``): its imports, the grader's caches and the
+    (``python -I -m doorlab.pset.supervisor serve``): its imports, the grader's caches and the
     preparation of the student's view once, not per submission. Each grading is otherwise
     what :func:`grade` starts: its own folder, its own student's view, and every process it
     started dead before its results are returned. Thread-safe (one grading at a time); use
@@ -193,7 +207,7 @@ class Supervisor:
         with self._lock:
             if self._proc is None or self._proc.poll() is not None:
                 self._proc = subprocess.Popen(
-                    [sys.executable, "-I", "-m", "doorlab.pset.jobs", "serve"],
+                    [sys.executable, "-I", "-m", "doorlab.pset.supervisor", "serve"],
                     cwd="/",
                     env=trusted_environment(),
                     stdin=subprocess.PIPE,
@@ -243,7 +257,7 @@ def grade_reference(*, jobs: int = 2) -> dict[str, dict]:
     """
     request = {"reference_only": True, "jobs": int(jobs)}
     proc = subprocess.Popen(
-        [sys.executable, "-I", "-m", "doorlab.pset.jobs", "supervise"],
+        [sys.executable, "-I", "-m", "doorlab.pset.supervisor", "supervise"],
         cwd="/",
         env=trusted_environment(),
         stdin=subprocess.PIPE,
@@ -292,27 +306,22 @@ def grade_submission(
             :func:`grade`.
         seed: The grading's random seed, as for :func:`grade`.
         require_files: Refuse (OutputError) a submission that holds none of the student
-            files, rather than grade the stubs (``doorlab pset grade``: a mistyped folder;
-            Gradescope grades it: every test 0, as it should).
+            files (``doorlab pset grade``: a mistyped folder, a notebook alone); without it
+            such a submission is not graded either (the one intake's rule): every test 0,
+            the reason in the results (Gradescope, ``grade-all``).
 
     Returns:
         :func:`grade`'s results; their top-level ``output`` says which doorlab graded, what was
         taken from the submission and the grading seed; ``extra_data["submission"]`` lists it.
 
     Raises:
-        OutputError: ``source`` is neither a folder nor a zip file; with ``require_files``,
-            it holds none of the student files.
+        OutputError: ``source`` is neither a folder, a zip nor a file; with
+            ``require_files``, it holds none of the student files.
         GradingError: As for :func:`grade`.
     """
-    from doorlab.pset.verdicts import STUDENT_FILES
-
     files, intake = take_files(source)
-    if require_files and intake.refused is None and not intake.taken:
-        raise OutputError(
-            f"{source} holds none of {', '.join(STUDENT_FILES)} (nothing to grade; "
-            f"{len(intake.rejected)} refused): give the problem-set folder, its files "
-            "or a zip of them"
-        )
+    if require_files and intake.nothing:
+        raise OutputError(f"{source} is not graded: {intake.refused}")
     return grade_taken(
         files,
         intake,
@@ -354,6 +363,7 @@ def grade_taken(
     harden: Sequence[str | Path] = (),
     supervisor: Supervisor | None = None,
     only: Sequence[str] | None = None,
+    network_isolated: bool = False,
 ) -> dict:
     """Grades what :func:`take_files` took: a fresh stub folder with ``files`` over its stubs
     (:func:`grade`), or, for a submission the intake refused, every test 0 with the reason.
@@ -361,7 +371,6 @@ def grade_taken(
     from importlib.metadata import version
 
     from doorlab import __version__
-    from doorlab.pset.folder import init_folder
     from doorlab.pset.verdicts import TESTS, results_not_graded
 
     if intake.refused is not None:
@@ -370,28 +379,25 @@ def grade_taken(
         specs = [t for t in TESTS if only is None or t.name in only]
         results = results_not_graded(specs, intake.refused, assignment or Assignment())
     else:
-        try:
-            tmp = tempfile.TemporaryDirectory(prefix="doorlab_submission_")
-        except OSError as e:
-            raise OutputError(f"cannot make a temporary folder: {e.strerror or e}") from None
-        with tmp:
-            folder = init_folder(Path(tmp.name) / "pset")
-            for rel, data in files.items():
-                (folder / rel).write_bytes(data)
-            results = grade(
-                folder,
-                jobs=jobs,
-                reference=reference,
-                assignment=assignment,
-                seed=seed,
-                isolation=isolation,
-                harden=harden,
-                supervisor=supervisor,
-                only=only,
-            )
+        # The supervisor writes the fresh folder in its own private folder (it removes it
+        # however it ends, a signal included): nothing of the student's is left in /tmp.
+        results = grade(
+            None,
+            files=files,
+            jobs=jobs,
+            reference=reference,
+            assignment=assignment,
+            seed=seed,
+            isolation=isolation,
+            harden=harden,
+            supervisor=supervisor,
+            only=only,
+            network_isolated=network_isolated,
+        )
     header = f"Graded by doorlab {__version__} (Drake {version('drake')})."
     grading = str(results.get("output") or "")
-    results["output"] = "\n".join(filter(None, [header, intake.summary(), grading]))
+    taken = intake.summary() if intake.refused is None else ""  # else the output says why
+    results["output"] = "\n".join(filter(None, [header, taken, grading]))
     results["extra_data"]["submission"] = intake.to_dict()
     results["extra_data"]["grading_output"] = grading
     return results
@@ -406,7 +412,8 @@ def with_intake(results: dict, intake) -> dict:
     out = copy.deepcopy(results)
     header = str(out.get("output") or "").split("\n", 1)[0]
     grading = str(out["extra_data"].get("grading_output") or "")
-    out["output"] = "\n".join(filter(None, [header, intake.summary(), grading]))
+    taken = intake.summary() if intake.refused is None else ""  # as grade_taken writes it
+    out["output"] = "\n".join(filter(None, [header, taken, grading]))
     out["extra_data"]["submission"] = intake.to_dict()
     return out
 

@@ -1,8 +1,10 @@
 """``doorlab pset handout OUT.zip``: what students get, in one zip that installs on its own.
 
 The zip holds one folder, ``pset5/``: the problem-set folder with the stubs (``doorlab pset
-init``'s files) and the wheel of this doorlab (:func:`doorlab.pset.wheel.wheel_bytes`, the
-same the autograder zip carries, so the doorlab students run is the one that grades them).
+init``'s files) and the students' wheel of this doorlab
+(:func:`doorlab.pset.wheel.student_wheel_bytes`: the doorlab that grades them, built from the
+same files without the answer key, with the stub folder and the practice table its
+self-check grades against: :mod:`doorlab.pset.edition`).
 The folder's README installs it with ``pip install "./doorlab-<version>-py3-none-any.whl[pset]"``
 (the other packages from the package index) and says what to submit; its points and margins
 are the assignment's (``--assignment``), and ``course.yaml`` carries what students may see of
@@ -19,7 +21,7 @@ from pathlib import Path
 from doorlab.pset.folder import render_folder
 from doorlab.pset.wheel import (
     check_zip_destination,
-    wheel_bytes,
+    student_wheel_bytes,
     write_entry,
     write_stored,
     write_zip,
@@ -39,25 +41,40 @@ def _is_ours(path: Path) -> bool:
         return False
 
 
-def write_handout(out: str | Path, *, force: bool = False, assignment: object = None) -> Path:
+def write_handout(
+    out: str | Path,
+    *,
+    force: bool = False,
+    assignment: object = None,
+    reference: dict | None = None,
+) -> Path:
     """Writes the students' zip ``out``: ``pset5/`` with the stubs, the notebook, the README
-    and this doorlab's wheel.
+    and the students' wheel of this doorlab (no answer key).
 
     Args:
         out: The zip to write (its name must end in ``.zip``).
         force: Replace a handout zip doorlab wrote.
-        assignment: The course's settings (the README's points and margins); None: defaults.
+        assignment: The course's settings (the README's points and margins, the practice
+            draws' seed); None: defaults.
+        reference: The reference episodes' figures of an earlier grading (for the practice
+            table); None: simulated now (a few seconds).
 
     Raises:
         OutputError: ``out`` exists (without ``force``, or is not doorlab's handout), is a
             folder, is under a file or does not end in ``.zip``; doorlab is not installed.
+        GradingError: The reference episodes could not be simulated.
     """
     from doorlab import __version__
+    from doorlab.pset.expectations import practice_table
 
     out = Path(out)
     check_zip_destination(out, force=force, ours=_is_ours, what="a handout")
-    wheel_name, wheel = wheel_bytes()
     files = render_folder(solutions=False, assignment=assignment, course=True)
+    if reference is None:
+        from doorlab.pset.grader import grade_reference
+
+        reference = grade_reference()
+    wheel_name, wheel = student_wheel_bytes(practice_table(assignment, reference), files)
 
     def write(archive: zipfile.ZipFile) -> None:
         archive.comment = COMMENT + f" (doorlab {__version__})".encode()

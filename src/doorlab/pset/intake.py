@@ -12,7 +12,12 @@ the submission:
   :data:`SUBMISSION_FILE_LIMIT` bytes each, however large their headers say they are); a
   member is never written under its own name, so none can land outside the folder; members
   with an absolute path or ``..`` are refused; zips inside zips are not opened;
-- a missing file: its stub is graded (0 points for its tests), and the summary says so.
+- a single file (a flat upload): taken if it is named like a student file;
+- a missing file: its stub is graded (0 points for its tests), and the summary says so;
+- none of the student files at all (a notebook alone, a README, a mistyped folder): the
+  submission is not graded (:attr:`Intake.refused` says what it holds and what is graded),
+  on every path alike: ``doorlab pset grade`` refuses it, ``grade-all`` gives its row the
+  status ``not_graded`` and ``run_autograder`` every test 0 with the reason.
 
 If several files match, the one at its place in the folder (``manip_station_sim/robot_plans.py``)
 wins, then the shallowest, then the first by name. Symbolic links, special files and files
@@ -63,8 +68,14 @@ SKIPPED_DIRS = frozenset({"__MACOSX", "__pycache__", ".git", ".ipynb_checkpoints
 """Folders never looked into (macOS resource forks, bytecode, version control)."""
 
 
+_NOT_SHOWN = ("Cc", "Cf", "Cs", "Co", "Zl", "Zp")
+"""Unicode categories a shown name never holds: controls, format characters, surrogates,
+private use, line and paragraph separators."""
+
+
 def shown_name(name: str) -> str:
-    """A file name as the student sees it: control and format characters and lone
+    """A file name as the student sees it: control and format characters, the line and
+    paragraph separators (U+2028, U+2029: :meth:`str.splitlines` breaks on them) and lone
     surrogates (undecodable bytes) replaced by ``?``, cut to :data:`NAME_CHARS`.
 
     (One line, so stricter than :func:`~doorlab.pset.safe_text.clean_text`, which every text
@@ -72,7 +83,7 @@ def shown_name(name: str) -> str:
     """
     out = []
     for ch in name[: NAME_CHARS + 1]:
-        if 0xD800 <= ord(ch) <= 0xDFFF or unicodedata.category(ch) in ("Cc", "Cf", "Cs", "Co"):
+        if 0xD800 <= ord(ch) <= 0xDFFF or unicodedata.category(ch) in _NOT_SHOWN:
             out.append("?")
         else:
             out.append(ch)
@@ -90,7 +101,9 @@ class Intake:
         rejected: One line per file not taken although named like a student file.
         ignored: The first :data:`SHOWN_IGNORED` other files (by name).
         ignored_count: How many other files there were.
-        refused: Why the submission was not graded at all (a bound), or None.
+        refused: Why the submission was not graded at all (a bound; none of the student
+            files), or None.
+        nothing: It held none of the student files (``refused`` says so).
     """
 
     taken: dict[str, str] = field(default_factory=dict)
@@ -99,6 +112,7 @@ class Intake:
     ignored: list[str] = field(default_factory=list)
     ignored_count: int = 0
     refused: str | None = None
+    nothing: bool = False
 
     def summary(self) -> str:
         """A few lines for the student (the results' top-level ``output``)."""
@@ -135,6 +149,7 @@ class Intake:
             "ignored": list(self.ignored),
             "ignored_count": self.ignored_count,
             "refused": self.refused,
+            "nothing": self.nothing,
         }
 
 
@@ -334,6 +349,15 @@ def take_submission(source: str | Path, folder: str | Path) -> Intake:
             _walk_folder(source, walk)
         elif source.is_file() and zipfile.is_zipfile(source):
             _walk_zip(source, PurePosixPath(), walk)
+        elif source.is_file() and not source.is_symlink():  # a flat upload: one file
+            size = source.stat().st_size
+            walk.count(size)
+            shown = PurePosixPath(shown_name(source.name))
+            too_big = size > SUBMISSION_FILE_LIMIT and shown.name in walk.names
+            walk.add(
+                shown,
+                f"is over {SUBMISSION_FILE_LIMIT // 1000} kB" if too_big else _read_file(source),
+            )
         else:
             raise OutputError(
                 f"{source} is not a folder or a zip file: give the submission's folder (or "
@@ -369,7 +393,27 @@ def take_submission(source: str | Path, folder: str | Path) -> Intake:
     ignored = sorted(walk.ignored)
     intake.ignored = ignored[:SHOWN_IGNORED]
     intake.ignored_count = len(ignored)
+    if not intake.taken:
+        intake.refused = _nothing_to_grade(ignored, intake.rejected)
+        intake.nothing = True
     return intake
+
+
+NOTHING_SHOWN = 5
+"""Names of a submission with none of the student files listed in its refusal."""
+
+
+def _nothing_to_grade(ignored: list[str], rejected: list[str]) -> str:
+    """Why a submission holding none of the student files is not graded (one line)."""
+    held = ", ".join(ignored[:NOTHING_SHOWN]) if ignored else "no file"
+    if len(ignored) > NOTHING_SHOWN:
+        held += f" and {len(ignored) - NOTHING_SHOWN} more"
+    why = f"; {' '.join(rejected)}" if rejected else ""
+    return (
+        f"your submission holds none of {', '.join(STUDENT_FILES)}, the files graded (it "
+        f"holds {held}{why}); the notebook and other files are not graded: submit those "
+        "files, or the problem-set folder"
+    )
 
 
 @contextmanager

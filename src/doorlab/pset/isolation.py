@@ -7,10 +7,11 @@
 - ``"require"`` (``doorlab pset grade``): no isolation, no grade: :class:`IsolationError`
   with one line saying what is missing and how to get it;
 - ``"insecure"`` (``--insecure``): grade anyway, every result marked. As root, student code
-  runs as the sandbox user (mode ``"uid"``): it cannot write the grader's files but can read
-  whatever that user may; as an ordinary user it runs as that user (mode ``"none"``), which is
-  refused when that user could change doorlab's installation (a student's code could then
-  change the grader: :func:`writable_installation`);
+  runs as the sandbox user (mode ``"uid"``) in network and IPC namespaces of its own
+  (:data:`OWN_NAMESPACES`, where the machine allows them): it cannot write the grader's files
+  nor reach the network, but can read whatever that user may; as an ordinary user it runs
+  as that user (mode ``"none"``), which is refused when that user could change doorlab's
+  installation (a student's code could then change the grader: :func:`writable_installation`);
 - ``"autograder"`` (``run_autograder`` on Gradescope, whose containers may refuse
   namespaces): as root only, the separate user, after :func:`harden` made doorlab's
   reference and grader files, the autograder's source (its wheel) and the other given paths
@@ -28,7 +29,7 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from doorlab.pset import sandbox, view
+from doorlab.pset import cgroups, sandbox, view
 from doorlab.pset.verdicts import TEMPLATES, hidden_modules
 
 POLICIES = ("require", "insecure", "autograder", "self-check")
@@ -56,6 +57,10 @@ class Isolation:
         guard: What the worker's honesty guard refuses: ``{"modules": {...}, "paths": [...]}``.
         reason: Why there is no view (empty in mode ``"bwrap"``).
         hardened: What :func:`harden` made unreadable (the autograder's fallback).
+        namespaces: :func:`~doorlab.pset.sandbox.unshare` flags each student process gets
+            without the view (as root: its own network and IPC namespaces, where the machine
+            allows them; else 0).
+        cgroups: Where the grading's cgroups go (:meth:`doorlab.pset.cgroups.Cgroups.to_json`).
     """
 
     mode: str
@@ -65,6 +70,19 @@ class Isolation:
     guard: dict
     reason: str = ""
     hardened: list = field(default_factory=list)
+    namespaces: int = 0
+    cgroups: str | None = None
+
+    @property
+    def network_isolated(self) -> bool:
+        """The student's code gets a network namespace of its own (loopback only): the view,
+        or the separate user's own namespace; else it reaches the network (a cluster too)."""
+        return self.mode == "bwrap" or bool(self.namespaces & sandbox.CLONE_NEWNET)
+
+    def cgroup_setup(self):
+        from doorlab.pset.cgroups import Cgroups
+
+        return None if self.cgroups is None else Cgroups.from_json(self.cgroups)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self))
@@ -125,6 +143,7 @@ def prepare(workdir: Path, policy: str = "require", harden_paths: Sequence[str] 
     user = None if identity is None else (identity.name, identity.uid, identity.gid)
     drop = None if identity is None else (identity.uid, identity.gid)
     guard = guard_config()
+    groups = cgroups.probe().to_json()
     bwrap = view.find_bwrap()
     if bwrap is None:
         reason = "bubblewrap (bwrap) is not installed"
@@ -133,7 +152,7 @@ def prepare(workdir: Path, policy: str = "require", harden_paths: Sequence[str] 
         forbidden = [*guard["paths"], str(Path(view.__file__).resolve().parent.parent)]
         reason = view.probe(plan, drop, workdir, forbidden) or ""
         if not reason:
-            return Isolation("bwrap", policy, user, plan.to_json(), guard)
+            return Isolation("bwrap", policy, user, plan.to_json(), guard, cgroups=groups)
     if policy == "require":
         raise IsolationError(
             f"cannot isolate the student's code: {reason}. To grade, {HOW_TO_ISOLATE}; "
@@ -152,9 +171,31 @@ def prepare(workdir: Path, policy: str = "require", harden_paths: Sequence[str] 
                 f"as {_user_name()}, who can change doorlab's installation ({writable[0]} "
                 f"is writable): {HOW_TO_ISOLATE}, or install doorlab where you cannot write"
             )
-        return Isolation("none", policy, None, None, guard, reason)
+        return Isolation("none", policy, None, None, guard, reason, cgroups=groups)
     hardened = harden(harden_paths) if policy == "autograder" else []
-    return Isolation("uid", policy, user, None, guard, reason, hardened)
+    flags = own_namespaces()
+    return Isolation("uid", policy, user, None, guard, reason, hardened, flags, groups)
+
+
+OWN_NAMESPACES = sandbox.CLONE_NEWNET | sandbox.CLONE_NEWIPC
+"""What the separate-user fallback (root, no view) gives each student process: a network
+namespace (loopback only, down: no cluster, no grader's port reachable) and an IPC namespace
+(its System V objects and POSIX message queues are gone with it)."""
+
+
+def own_namespaces() -> int:
+    """:data:`OWN_NAMESPACES` where a child of this (root) process may make them (a
+    container's seccomp profile may refuse ``unshare``: then 0, and the results say so)."""
+    pid = os.fork()
+    if pid == 0:  # a throwaway child: the namespaces are its own
+        code = 1
+        try:
+            sandbox.unshare(OWN_NAMESPACES)
+            code = 0
+        finally:
+            os._exit(code)
+    _, status = os.waitpid(pid, 0)
+    return OWN_NAMESPACES if os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0 else 0
 
 
 def _user_name() -> str:

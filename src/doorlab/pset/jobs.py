@@ -1,17 +1,12 @@
-"""The grader's processes: the supervisor and one trusted process per job, forked from it.
+"""The grader's trusted processes: one per job, forked from the supervisor.
 
-``python -I -m doorlab.pset.jobs supervise`` (started by :func:`doorlab.pset.grader.grade`)
-reads the grading request as JSON on stdin, decides how the student's code is isolated
-(:func:`doorlab.pset.isolation.prepare`: the student's view, or the request's policy where
-it cannot be built; before any student code runs), imports what the jobs need (pydrake, the
-checks, the episodes) and computes what does not depend on the submission (the controller's
-plant, the grasp configuration, the reference helpers' table) once, then runs the jobs
-``parallel`` at a time, each in a trusted process *forked* from it (:func:`run_job`): a
-reference episode, or a test that asks the student's process for numbers and judges them.
+The supervisor (:mod:`doorlab.pset.supervisor`: ``python -I -m doorlab.pset.supervisor supervise``,
+started by :func:`doorlab.pset.grader.grade`) runs a grading's jobs ``parallel`` at a time
+(:class:`_Jobs`), each in a trusted process *forked* from it (:func:`run_job`): a reference
+episode, or a test that asks the student's process for numbers and judges them.
 In the student's view the student processes are forked too, each from the first process of
 a view (:mod:`doorlab.pset.views`); without the view each job starts its own
-(:class:`~doorlab.pset.student.StudentProcess`). Then it judges the jobs and writes the
-results as JSON on stdout.
+(:class:`~doorlab.pset.student.StudentProcess`).
 
 The supervisor and its jobs are *trusted*: Python's isolated mode (no working directory, no
 ``PYTHON*`` variables, no user site on ``sys.path``), a working directory in the grading's
@@ -34,14 +29,12 @@ import traceback
 from pathlib import Path
 
 from doorlab.pset import sandbox
+from doorlab.pset.clock import EPISODE_TIME_LIMIT_S, UNIT_TIME_LIMIT_S
 
-UNIT_TIME_LIMIT_S = 60.0
-"""Time limit of a unit test [s] (a correct one takes 2-5 s)."""
-EPISODE_TIME_LIMIT_S = 150.0
-"""Time limit of an episode [s] (a correct one takes 5-15 s on a busy 2-core machine)."""
 JOB_MARGIN_S = 30.0
-"""How much longer than its test's limit a trusted job process may run before the
-supervisor kills it [s] (it enforces the limit itself; this catches a hung grader)."""
+"""How much longer than its test's longest time (:data:`doorlab.pset.clock.HARD_FACTOR`
+times its limit, in wall time) a trusted job process may run before the supervisor kills it
+[s] (it enforces the limit itself; this catches a hung or starved grader: the grader's error)."""
 STDERR_KEPT_CHARS = 2000
 """Characters of a trusted job's own stderr kept for a failure's message."""
 
@@ -69,11 +62,11 @@ def _first_line(e: BaseException) -> str:
     return f"{type(e).__name__}: {line}".rstrip(": ")
 
 
-def _student(job, folder, workdir, limit, isolation, student_view, on_start):
+def _student(job, folder, workdir, limit, isolation, student_view, on_start, group=None):
     from doorlab.pset.student import StudentProcess
 
     if student_view is None:
-        return StudentProcess(folder, workdir, job, limit, isolation)
+        return StudentProcess(folder, workdir, job, limit, isolation, group)
     from doorlab.pset.views import ForkedStudent
 
     return ForkedStudent(student_view, folder, job, limit, on_start=on_start)
@@ -89,6 +82,7 @@ def run_job(
     *,
     student_view: object = None,
     on_start=None,
+    student_group: object = None,
 ) -> dict:
     """Runs one job in this process and returns its JSON-ready result.
 
@@ -103,6 +97,8 @@ def run_job(
         student_view: The :class:`~doorlab.pset.views.StudentView` whose first process
             forks the student's process (None: start one, as without the view).
         on_start: Called with the student's process (pid, start time) once it said hello.
+        student_group: The cgroup of a student process started without the view (None:
+            none, or the view's).
     """
     from doorlab.pset.channel import ProtocolError
     from doorlab.pset.student import SandboxError, StudentFailure
@@ -112,22 +108,37 @@ def run_job(
     kind, _, name = job.partition(":")
     try:
         if kind == "reference":
-            from doorlab.pset.episodes import reference_episode
+            from doorlab.pset.expectations import reference_episode
 
             return {"figures": reference_episode(name)}
         # The student's process starts first (no thread may exist at its fork), then the
         # grader's side imports Drake while it starts.
-        with _student(job, folder, workdir, limit, isolation, student_view, on_start) as student:
+        student = _student(
+            job, folder, workdir, limit, isolation, student_view, on_start, student_group
+        )
+        with student:
             try:
                 if kind == "unit":
                     from doorlab.pset.checks import UNIT_CHECKS
 
-                    result = UNIT_CHECKS[name](student, options.get("seed"))
+                    expect = options.get("expect")
+                    if expect is None:  # the answer key (the students' doorlab has none)
+                        from doorlab.pset.expectations import EXPECTATIONS
+
+                        expect = EXPECTATIONS[name](options.get("seed"))
+                    result = UNIT_CHECKS[name](student, expect)
                 else:
                     from doorlab.pset.episodes import student_episode
 
                     helpers = options.get("helpers", "reference")
-                    result = {"figures": student_episode(student, name, helpers=helpers)}
+                    table = options.get("table")
+                    if helpers == "reference" and table is None:
+                        from doorlab.pset.expectations import reference_helper_table
+
+                        table = reference_helper_table()
+                    result = {
+                        "figures": student_episode(student, name, helpers=helpers, table=table)
+                    }
             except StudentFailure as e:
                 result = {"passed": False, "error": str(e), "output": e.detail}
             except ProtocolError as e:  # an answer that does not hold what was asked
@@ -160,8 +171,10 @@ class _Running:
 
     def __init__(self, job: str, pid: int, fd: int, err, limit: float):
         self.job, self.pid, self.fd, self.err = job, pid, fd, err
+        from doorlab.pset.clock import HARD_FACTOR
+
         self.start = time.perf_counter()
-        self.deadline = time.monotonic() + limit + JOB_MARGIN_S
+        self.deadline = time.monotonic() + HARD_FACTOR * limit + JOB_MARGIN_S
         self.limit = limit
         self.data = bytearray()
         self.students: list[tuple[int, int | None]] = []
@@ -174,10 +187,13 @@ class _Jobs:
     at a time; the first is started for the first student job, a second (up to ``parallel``)
     only when a slot would otherwise stay idle (the reference episodes all started)."""
 
-    def __init__(self, folder: Path, workdir: Path, scale: float, isolation, options: dict):
+    def __init__(
+        self, folder: Path, workdir: Path, scale: float, isolation, options: dict, groups=None
+    ):
         self.folder, self.workdir, self.scale = folder, workdir, scale
         self.isolation = isolation
         self.options = options  # job -> its options (run_job)
+        self.groups = groups  # the grading's cgroups (doorlab.pset.cgroups), or None
         self.views: dict = {}
         self.running: dict[int, _Running] = {}
         self.selector = selectors.DefaultSelector()
@@ -192,7 +208,8 @@ class _Jobs:
 
         if key not in self.views:
             limit = max(UNIT_TIME_LIMIT_S, EPISODE_TIME_LIMIT_S) * self.scale
-            self.views[key] = StudentView(self.isolation, self.workdir, key, limit)
+            group = None if self.groups is None else self.groups.student(key)
+            self.views[key] = StudentView(self.isolation, self.workdir, key, limit, group)
         return self.views[key]
 
     def _next(self, pending: list[str], parallel: int) -> tuple[str, str | None] | None:
@@ -249,6 +266,10 @@ class _Jobs:
         err = tempfile.TemporaryFile(dir=self.workdir)
         others = [r.fd for r in self.running.values()]
         parent = os.getpid()
+        student_group = None  # a student process without the view: a group of its own
+        if self.groups is not None and student_view is None and not job.startswith("reference:"):
+            student_group = self.groups.student("student_" + job.replace(":", "_"))
+        oom_before = self.groups.trusted.oom_kills() if self.groups is not None else 0
         sys.stdout.flush()
         sys.stderr.flush()
         pid = os.fork()
@@ -258,14 +279,25 @@ class _Jobs:
                 os.close(result_r)
                 for fd in others:
                     os.close(fd)
+                if self.groups is not None:
+                    self.groups.trusted.join()
                 code = _job_process(
-                    job, self, jobdir, limit, student_view, result_w, err.fileno(), parent
+                    job,
+                    self,
+                    jobdir,
+                    limit,
+                    student_view,
+                    result_w,
+                    err.fileno(),
+                    parent,
+                    student_group,
                 )
             finally:
                 os._exit(code)
         os.close(result_w)
         running = _Running(job, pid, result_r, err, limit)
         running.view = key
+        running.oom_before = oom_before
         self.running[pid] = running
         self.selector.register(result_r, selectors.EVENT_READ, running)
 
@@ -297,11 +329,16 @@ class _Jobs:
         if result is None:
             for pid, start in running.students:  # a job that died: its student's process
                 kill_process(pid, start)
-            if timed_out:
-                message = f"time limit: still running after {running.limit:.0f} s"
-                result = {"passed": False, "error": message}
+            if timed_out:  # it enforces the test's time itself: the grader hung or starved
+                seconds = time.perf_counter() - running.start
+                message = (
+                    f"the grader's process for this test was still running after {seconds:.0f} "
+                    f"s of wall time (its test's limit: {running.limit:.0f} s; a loaded "
+                    "machine, or the grader hung)"
+                )
+                result = {"grader_error": message}
             else:
-                result = self._failure(running, status)
+                result = self._failure(running, status, self._oom_killed(running))
         running.err.close()
         # Orphans of a job that died come here (we are their subreaper): kill them.
         keep = {*self.running, *(v.proc.pid for v in self.views.values())}
@@ -321,21 +358,32 @@ class _Jobs:
                 return message["result"]
         return None
 
+    def _oom_killed(self, running: _Running) -> bool:
+        """Whether the kernel killed a trusted process of the grading for want of memory
+        while ``running`` ran."""
+        if self.groups is None:
+            return False
+        return self.groups.trusted.oom_kills() > getattr(running, "oom_before", 0)
+
     @staticmethod
-    def _failure(running: _Running, status: int) -> dict:
+    def _failure(running: _Running, status: int, oom: bool = False) -> dict:
+        """A trusted process that ended without a result: the grader's failure (out of
+        memory, a crash, a signal from outside), never the student's verdict."""
+        from doorlab.pset.safe_text import clean_text
+
         running.err.seek(0, os.SEEK_END)
         size = running.err.tell()
         running.err.seek(max(0, size - STDERR_KEPT_CHARS))
         tail = running.err.read().decode("utf-8", "replace")
         if os.WIFSIGNALED(status):
             how = f"killed by signal {os.WTERMSIG(status)}"
+            if oom or os.WTERMSIG(status) == signal.SIGKILL:
+                how += " (out of memory?)" if not oom else ": the machine ran out of memory"
         else:
             how = f"exit code {os.WEXITSTATUS(status)}"
-        return {
-            "passed": False,
-            "error": f"the grader's process for this test ended without a result ({how})",
-            "output": tail,
-        }
+        last = clean_text(tail.strip().splitlines()[-1], 300) if tail.strip() else ""
+        message = f"the grader's process for this test ended without a result ({how})"
+        return {"grader_error": message + (f": {last}" if last else "")}
 
     def close(self) -> None:
         """Ends the views (every process in them dies with them)."""
@@ -345,7 +393,9 @@ class _Jobs:
         self.selector.close()
 
 
-def _job_process(job, jobs: _Jobs, jobdir, limit, student_view, result_w, err_fd, parent) -> int:
+def _job_process(
+    job, jobs: _Jobs, jobdir, limit, student_view, result_w, err_fd, parent, student_group=None
+) -> int:
     """The forked job: its trusted process's settings, the job, its result on ``result_w``.
     (Its signals are the supervisor's: a signal kills what it started, then ends it.)"""
     os.dup2(err_fd, 1)  # anything printed (Drake's warnings) goes to the job's stderr file
@@ -368,225 +418,10 @@ def _job_process(job, jobs: _Jobs, jobdir, limit, student_view, result_w, err_fd
             jobs.options.get(job, {}),
             student_view=student_view,
             on_start=started,
+            student_group=student_group,
         )
     except BaseException:  # noqa: BLE001 - the grader's own failure: its stderr says why
         traceback.print_exc()
         return 1
     _write_all(result_w, json.dumps({"result": result}, default=str).encode() + b"\n")
     return 0
-
-
-_EPISODE_ORDER = ("impedance", "velocity", "ik")
-"""The episodes, longest first (closed doors: contact; open doors; the IK's joint-space plan)."""
-
-
-def _order(jobs: set[str]) -> list[str]:
-    """Longest first (episodes), so the processes finish together: the student's episodes
-    (one at a time in the view) alternate with the reference's, then the unit tests."""
-
-    def key(job: str) -> tuple:
-        kind, _, name = job.partition(":")
-        rank = _EPISODE_ORDER.index(name) if name in _EPISODE_ORDER else len(_EPISODE_ORDER)
-        return (kind == "unit", rank, kind != "student", job)
-
-    return sorted(jobs, key=key)
-
-
-def _seed(request: dict, folder: Path, assignment) -> dict:
-    """The grading's seed: ``--seed``'s, or from the assignment's and the graded files'."""
-    from doorlab.pset.assignment import files_digest, grading_seed
-    from doorlab.pset.verdicts import STUDENT_FILES
-
-    digest = files_digest(folder, STUDENT_FILES)
-    if request.get("seed") is not None:
-        return {
-            "grading": int(request["seed"]),
-            "source": "given with --seed",
-            "files_sha256": digest,
-        }
-    return {
-        "grading": grading_seed(assignment.seed, digest),
-        "source": "from the assignment's random seed and your files' SHA-256",
-        "files_sha256": digest,
-    }
-
-
-def _job_options(specs, assignment, seed: int) -> dict[str, dict]:
-    """Each job's options (:func:`run_job`): the grading seed; an episode's helpers."""
-    from doorlab.pset.verdicts import test_settings
-
-    options: dict[str, dict] = {}
-    for spec in specs:
-        settings = test_settings(assignment, spec)
-        for job in spec.needed_jobs(settings):
-            options.setdefault(job, {"seed": seed})
-            if job.startswith("student:") and spec.helpers:
-                student = spec.uses_student_helpers(settings)
-                options[job]["helpers"] = "student" if student else "reference"
-    return options
-
-
-def supervise(request: dict, prepared: dict | None = None) -> dict:
-    """Runs the request's jobs and returns the Gradescope results (or ``{"grader_error"}``;
-    ``{"reference"}`` for a ``reference_only`` request: the reference episodes' results).
-
-    ``prepared``: a long-lived supervisor's cache of the student's view (prepared once).
-    """
-    from doorlab.errors import ConfigError
-    from doorlab.pset.assignment import Assignment, assignment_from_dict
-    from doorlab.pset.verdicts import TESTS, results_from_jobs, test_settings
-
-    if request.get("reference_only"):
-        todo = _order({j for t in TESTS for j in t.jobs if j.startswith("reference:")})
-        parallel = max(1, int(request.get("jobs", 2)))
-        return {"reference": _run(None, todo, {}, request, parallel, prepared)[0]}
-    folder = Path(request["folder"])
-    try:
-        data = request.get("assignment")
-        assignment = assignment_from_dict(data) if data is not None else Assignment()
-    except ConfigError as e:
-        return {"grader_error": f"the assignment: {e}"}
-    only = request.get("only")
-    specs = [t for t in TESTS if only is None or t.name in only]
-    drawn = _seed(request, folder, assignment)
-    options = _job_options(specs, assignment, drawn["grading"])
-    needed = {j for t in specs for j in t.needed_jobs(test_settings(assignment, t))}
-    results: dict[str, dict] = {}
-    reference = request.get("reference") or {}
-    results.update({k: v for k, v in reference.items() if k in needed})
-    todo = _order(needed - set(results))
-    start = time.perf_counter()
-    parallel = max(1, int(request.get("jobs", 2)))
-    ran, isolation = _run(folder, todo, options, request, parallel, prepared)
-    if isinstance(isolation, str):
-        return {"grader_error": isolation}
-    results.update(ran)
-    errors = [r["grader_error"] for r in results.values() if "grader_error" in r]
-    if errors:
-        return {"grader_error": errors[0]}
-    elapsed = time.perf_counter() - start
-    return results_from_jobs(specs, results, elapsed, assignment, drawn, isolation)
-
-
-def _run(folder, todo: list[str], options: dict, request: dict, parallel: int, prepared):
-    """Runs ``todo`` in a private folder: (results by job, the isolation or why there is
-    none)."""
-    _warm(todo, options)
-    with tempfile.TemporaryDirectory(prefix="doorlab_grade_") as tmp:
-        workdir = Path(tmp)
-        os.chmod(workdir, 0o711)
-        os.chdir(workdir)
-        runner = None
-        try:
-            student_jobs = [j for j in todo if not j.startswith("reference:")]
-            isolation = _isolation(request, workdir, prepared) if student_jobs else None
-            if isinstance(isolation, str):
-                return {}, isolation
-            scale = float(request.get("time_limit_scale", 1.0))
-            runner = _Jobs(folder, workdir, scale, isolation, options)
-            return runner.run(todo, parallel), isolation
-        finally:
-            if runner is not None:
-                runner.close()
-            sandbox.kill_descendants()
-            os.chdir("/")
-
-
-def _warm(todo: list[str], options: dict[str, dict]) -> None:
-    """Imports what the jobs need and computes what does not depend on the submission, once,
-    before the jobs are forked (each would otherwise do it again)."""
-    from doorlab.cell.station import make_controller_plant
-    from doorlab.pset import checks, episodes  # noqa: F401 - pydrake, the checks
-
-    make_controller_plant()
-    plans = [j for j in todo if j in ("student:velocity", "student:impedance")]
-    if plans:
-        episodes.grasp_configuration()
-    if any(options.get(j, {}).get("helpers", "reference") == "reference" for j in plans):
-        episodes.reference_helper_table()
-
-
-def _isolation(request: dict, workdir: Path, prepared: dict | None = None):
-    """The grading's :class:`~doorlab.pset.isolation.Isolation`, or why there is none (str).
-
-    ``prepared``: a long-lived supervisor's cache (its ``"folder"``: where the student side
-    is built once; the isolation by policy and hardened paths)."""
-    from doorlab.pset.isolation import IsolationError, prepare
-
-    policy, harden = request.get("isolation", "require"), tuple(request.get("harden") or ())
-    if prepared is not None and (policy, harden) in prepared:
-        return prepared[(policy, harden)]
-    where = workdir
-    if prepared is not None:
-        where = Path(tempfile.mkdtemp(prefix="view_", dir=prepared["folder"]))
-        os.chmod(where, 0o711)
-    try:
-        isolation = prepare(where, policy, harden)
-    except (IsolationError, OSError) as e:
-        return str(e)
-    if prepared is not None:
-        prepared[(policy, harden)] = isolation
-    return isolation
-
-
-def _on_signal(signum, frame):
-    sandbox.kill_descendants()
-    os._exit(128 + signum)
-
-
-def _supervisor_setup(*, interrupt: bool = True):
-    """The supervisor's own settings; returns its answer stream (what it prints otherwise,
-    and what Drake prints, goes to stderr). ``interrupt``: Ctrl-C ends it (else its parent,
-    a batch's worker, ends it when the batch is interrupted)."""
-    parent = os.getppid()
-    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        signal.signal(signum, _on_signal)
-    if not interrupt:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-    sandbox.die_with_parent(parent, signal.SIGTERM)
-    sandbox.become_subreaper()
-    sandbox.make_undumpable()
-    answers = os.fdopen(os.dup(1), "w")
-    os.dup2(2, 1)
-    return answers
-
-
-def supervise_main() -> int:
-    """``supervise``: the request on stdin, the results on stdout."""
-    answers = _supervisor_setup()
-    request = json.loads(sys.stdin.read())
-    results = supervise(request)
-    answers.write(json.dumps(results, default=str))
-    answers.flush()
-    return 0
-
-
-def serve_main() -> int:
-    """``serve``: one request per line on stdin, one results line each on stdout, until
-    stdin closes (:class:`doorlab.pset.grader.Supervisor`)."""
-    import shutil
-
-    answers = _supervisor_setup(interrupt=False)
-    prepared = {"folder": tempfile.mkdtemp(prefix="doorlab_supervisor_")}
-    os.chmod(prepared["folder"], 0o711)
-    try:
-        for line in sys.stdin:
-            results = supervise(json.loads(line), prepared)
-            answers.write(json.dumps(results, default=str) + "\n")
-            answers.flush()
-    finally:
-        shutil.rmtree(prepared["folder"], ignore_errors=True)
-    return 0
-
-
-def main(argv: list[str]) -> int:
-    if argv[:1] == ["supervise"]:
-        return supervise_main()
-    if argv[:1] == ["serve"]:
-        return serve_main()
-    print("usage: python -I -m doorlab.pset.jobs {supervise | serve}", file=sys.stderr)
-    return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))

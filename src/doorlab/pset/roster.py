@@ -6,7 +6,12 @@
   ``submission_metadata.yml``, a YAML mapping keyed by those folder names whose entries name
   the students with Ruby-symbol keys: ``:submitters: [{":name": ..., ":sid": ...,
   ":email": ...}]``, besides ``:created_at:``, ``:score:``, ``:results:``, ``:history:``);
-- or any folder of submission folders and ``.zip`` files (no metadata: no names).
+- or any folder of submission folders, ``.zip`` files and flat files (no metadata: no names).
+
+Every upload is one submission and one row: a folder keeps its name, a zip its name without
+``.zip`` and a flat file its name, each unless an earlier one (folders first, then by name)
+has it: then its whole name, then that name with ``~2``, ``~3``... appended (``hw0/``,
+``hw0.zip`` and ``hw0.zip.zip`` are ``hw0``, ``hw0.zip`` and ``hw0.zip.zip``).
 
 Every submission then goes through the one intake (:func:`doorlab.pset.grader.take_files`).
 The metadata file is the course's, but its names are the students': it is read within
@@ -56,9 +61,10 @@ class Submission:
     """One submission of the class.
 
     Attributes:
-        id: Its name in the class: the folder's name, or the zip's without ``.zip``
-            (``DIR/<id>/results.json``, the sheet's first column).
-        path: The folder or zip; None when the metadata names it but the folder is missing.
+        id: Its name in the class: the folder's name, the zip's without ``.zip`` or the
+            file's, made unique (see the module docstring; ``DIR/<id>/results.json``, the
+            sheet's first column).
+        path: The folder, zip or file; None when the metadata names it but the folder is missing.
         submitters: The students, ``[{"name", "sid", "email"}]`` (empty without metadata).
         created_at: When it was submitted (the metadata's ``:created_at:``, ISO 8601; ""
             without one): the late policy's time (:mod:`doorlab.pset.late`).
@@ -140,8 +146,11 @@ def read_metadata_entries(path: Path) -> dict[str, tuple[tuple, str]]:
     return out
 
 
-def find_submissions(folder: Path) -> list[Submission]:
+def find_submissions(folder: Path, *, reserved=()) -> list[Submission]:
     """The submissions in ``folder`` (see the module docstring), sorted by id.
+
+    ``reserved``: names no submission's id may take (the class folder's own files: an
+    upload with such a name is renamed as a duplicate is).
 
     Raises:
         ConfigError: ``folder`` is not a folder; it holds more than :data:`MAX_SUBMISSIONS`
@@ -152,8 +161,8 @@ def find_submissions(folder: Path) -> list[Submission]:
         raise ConfigError(f"{folder} is not a folder of submissions")
     metadata_path = folder / METADATA_NAME
     metadata = read_metadata_entries(metadata_path) if metadata_path.exists() else {}
-    found: dict[str, Path] = {}
-    zips: list[tuple[str, Path]] = []
+    folders: list[tuple[str, Path]] = []
+    files: list[tuple[str, Path]] = []
     with os.scandir(folder) as entries:
         for count, entry in enumerate(entries):
             if count >= MAX_SUBMISSIONS + 1:
@@ -166,12 +175,21 @@ def find_submissions(folder: Path) -> list[Submission]:
             except OSError:
                 continue
             if stat.S_ISDIR(mode):
-                found[name] = Path(entry.path)
-            elif stat.S_ISREG(mode) and name.lower().endswith(".zip"):
-                zips.append((name, Path(entry.path)))
-    for name, path in zips:  # a zip's id is its name without .zip, unless a folder has it
-        stem = name[:-4]
-        found[stem if stem and stem not in found else name] = path
+                folders.append((name, Path(entry.path)))
+            elif stat.S_ISREG(mode):
+                files.append((name, Path(entry.path)))
+    # Every upload is one submission: each folder keeps its name, then each zip takes its
+    # name without .zip and each other file its name, unless an earlier upload has it (in
+    # name order, so the same folder gives the same ids): then its whole name, then the
+    # name with ~2, ~3... appended. Nothing is overwritten.
+    taken = set(reserved)
+    found: dict[str, Path] = {}
+    for name, path in [*sorted(folders), *sorted(files)]:
+        stem = name[:-4] if name.lower().endswith(".zip") and len(name) > 4 else name
+        candidates = [stem, name, *(f"{name}~{k}" for k in range(2, len(taken) + 3))]
+        chosen = next(c for c in candidates if c not in taken)
+        taken.add(chosen)
+        found[chosen] = path
     ids = sorted(set(found) | set(metadata))
     return [Submission(i, found.get(i), *metadata.get(i, ((), ""))) for i in ids]
 

@@ -3,10 +3,13 @@
 Everything a submission can put into words (what its code printed, an exception's message,
 a traceback, a file name) reaches ``results.json`` and the instructor's terminal only through
 :func:`clean_text`: terminal escape sequences (ANSI ``ESC [ ... m``, OSC titles, cursor moves),
-control characters (NUL, carriage return, backspace, C1 controls) and bidirectional overrides
-are removed, so no output can draw over the grader's own lines (a fake ``Total score: 14 /
-14``) or reorder them; lone surrogates become U+FFFD, so the text is valid UTF-8 (JSON
-parsers and Gradescope reject lone surrogates).
+control characters (NUL, carriage return, backspace, C1 controls), bidirectional overrides and
+every other character that ends a line for :meth:`str.splitlines` but the newline (vertical
+tab, form feed, the file, group and record separators, U+0085, the line and paragraph
+separators U+2028 and U+2029) are removed, so no output can draw over the grader's own lines
+(a fake ``Total score: 14 / 14``), start a line of its own or reorder them; lone surrogates
+become U+FFFD, so the text is valid UTF-8 (JSON parsers and Gradescope reject lone
+surrogates).
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ _ESCAPES = re.compile(
 _CONTROLS = re.compile(
     "[\x00-\x08\x0b-\x1f\x7f-\x9f"  # C0 but tab and newline, DEL, C1
     "\u061c\u200e\u200f\u202a-\u202e\u2066-\u2069"  # bidirectional marks and overrides
+    "\u2028\u2029"  # the line and paragraph separators (str.splitlines breaks on them)
     "\ud800-\udfff]"  # lone surrogates (a well-formed str holds none)
 )
 
@@ -39,8 +43,10 @@ def _replace(match: re.Match) -> str:
 
 
 def clean_text(text: str, limit: int | None = None) -> str:
-    """``text`` without escape sequences and control characters (newlines and tabs stay;
-    ``\\r\\n`` becomes ``\\n``), lone surrogates replaced by U+FFFD.
+    """``text`` without escape sequences, control characters and line separators but the
+    newline (newlines and tabs stay; ``\\r\\n`` becomes ``\\n``): its lines are exactly
+    ``text.split("\\n")``, and :meth:`str.splitlines` finds the same; lone surrogates
+    replaced by U+FFFD.
 
     Args:
         text: Any text (a non-str is converted with ``str``; bytes are decoded as UTF-8

@@ -73,6 +73,10 @@ PR_SET_PDEATHSIG = 1
 PR_SET_DUMPABLE = 4
 PR_SET_CHILD_SUBREAPER = 36
 PR_SET_NO_NEW_PRIVS = 38
+CLONE_NEWIPC = 0x08000000
+CLONE_NEWNET = 0x40000000
+CLONE_NEWUSER = 0x10000000
+"""``unshare`` flags (linux/sched.h; Python has ``os.unshare`` from 3.12 only)."""
 
 _libc = ctypes.CDLL(None, use_errno=True)
 
@@ -86,6 +90,11 @@ def _check(result: int, what: str) -> None:
 def prctl(option: int, value: int) -> None:
     """``prctl(option, value)``; raises OSError on failure."""
     _check(_libc.prctl(option, ctypes.c_ulong(value), 0, 0, 0), f"prctl({option})")
+
+
+def unshare(flags: int) -> None:
+    """``unshare(flags)``: new namespaces for this process; raises OSError."""
+    _check(_libc.unshare(ctypes.c_int(flags)), f"unshare({flags:#x})")
 
 
 def become_subreaper() -> None:
@@ -171,7 +180,13 @@ def count_tasks(uid: int) -> int:
 
 
 def _preexec(
-    limits: Limits, identity: Identity | None, switch_user: bool, nproc: int, parent_pid: int
+    limits: Limits,
+    identity: Identity | None,
+    switch_user: bool,
+    nproc: int,
+    parent_pid: int,
+    cgroup_fds: Sequence[int] = (),
+    new_namespaces: int = 0,
 ) -> Callable[[], None]:
     cpu = max(1, math.ceil(limits.cpu_seconds))
     settings = [
@@ -185,6 +200,12 @@ def _preexec(
 
     def preexec() -> None:
         # Runs in the child between fork and exec (after setsid): no threads, no imports.
+        if cgroup_fds:  # first: everything it starts is in the group (doorlab.pset.cgroups)
+            pid = str(os.getpid()).encode()
+            for fd in cgroup_fds:
+                os.write(fd, pid)
+        if new_namespaces:  # as root, before the switch of user (doorlab.pset.isolation)
+            unshare(new_namespaces)
         for which, value in settings:
             resource.setrlimit(which, value)
         if switch_user and identity is not None:
@@ -207,6 +228,8 @@ def spawn(
     switch_user: bool = True,
     pass_fds: Sequence[int] = (),
     output: int | None = None,
+    cgroup_fds: Sequence[int] = (),
+    new_namespaces: int = 0,
 ) -> subprocess.Popen:
     """Starts the untrusted process: stdin from /dev/null, stdout and stderr into one pipe
     (``proc.stdout``, binary), its own session, the limits above.
@@ -223,9 +246,19 @@ def spawn(
             the worker in the view does).
         pass_fds: Descriptors it inherits (the channel's).
         output: A descriptor for its stdout and stderr (None: a pipe, ``proc.stdout``).
+        cgroup_fds: A cgroup's ``cgroup.procs`` files open for writing
+            (:meth:`doorlab.pset.cgroups.Group.join_descriptors`): the process joins the
+            group before its first instruction, and its ``pids.max`` bounds its processes
+            instead of ``RLIMIT_NPROC`` (which counts the user's tasks on the whole machine,
+            those of every other grading too).
+        new_namespaces: :func:`unshare` flags (``CLONE_NEWNET | CLONE_NEWIPC``: the
+            separate-user fallback as root, which has no view): its own network and IPC.
     """
     uid = os.getuid() if identity is None else identity.uid
-    nproc = count_tasks(uid) + limits.processes
+    if cgroup_fds:
+        nproc = resource.getrlimit(resource.RLIMIT_NPROC)[1]  # the group's pids.max holds
+    else:
+        nproc = count_tasks(uid) + limits.processes
     return subprocess.Popen(
         list(argv),
         cwd=cwd,
@@ -235,7 +268,9 @@ def spawn(
         stderr=subprocess.STDOUT,
         pass_fds=tuple(pass_fds),
         start_new_session=True,
-        preexec_fn=_preexec(limits, identity, switch_user, nproc, os.getpid()),
+        preexec_fn=_preexec(
+            limits, identity, switch_user, nproc, os.getpid(), cgroup_fds, new_namespaces
+        ),
     )
 
 

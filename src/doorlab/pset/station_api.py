@@ -30,7 +30,7 @@ from doorlab.constants import NUM_JOINTS
 from doorlab.errors import ConfigError
 
 if TYPE_CHECKING:
-    from doorlab.control.plans import ArmState, Command
+    from doorlab.control.plan_base import ArmState, Command
     from doorlab.episode.result import EpisodeResult
 
 # doorlab.control.plans and doorlab.episode.simulation (which hold or load doorlab's reference
@@ -104,7 +104,7 @@ class ProblemSetPlanAdapter:
 
     def command(self, t: float, state: ArmState) -> Command:
         """Asks the plan for q_ref (7,) [rad] and tau_ff (7,) [N m] at t [s]."""
-        from doorlab.control.plans import Command
+        from doorlab.control.plan_base import Command
 
         q_cmd = state.q if self._q_cmd is None else self._q_cmd
         args = (state.q, q_cmd.copy(), state.v, state.tau_external, t, self.control_period)

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from doorlab.pset import sandbox, view
+from doorlab.pset.cgroups import VIEW_MEMORY_BYTES, CgroupError
 from doorlab.pset.channel import (
     KIND_ARRAY,
     Channel,
@@ -36,8 +37,10 @@ from doorlab.pset.channel import (
     parse_array,
     parse_json,
 )
+from doorlab.pset.clock import Clock
 from doorlab.pset.isolation import Isolation
 from doorlab.pset.safe_text import clean_text
+from doorlab.pset.syscalls import FilterError, filter_descriptor
 
 MAX_SUBMISSION_BYTES = 64 << 20
 """Largest submission copied to the scratch folder [bytes]."""
@@ -134,6 +137,58 @@ def remove_leftovers(uid: int, since: float) -> list[str]:
     return removed
 
 
+SYSV_IPC = {"shm": ("shmid", "shmctl"), "sem": ("semid", "semctl"), "msg": ("msqid", "msgctl")}
+"""System V IPC objects (``/proc/sysvipc/<kind>``): their id column and the call removing one."""
+POSIX_QUEUES = "/dev/mqueue"
+"""Where POSIX message queues are listed (when that file system is mounted)."""
+IPC_RMID = 0
+
+
+def remove_ipc_leftovers(uid: int, since: float) -> list[str]:
+    """Removes the System V shared memory, semaphores and message queues, and the POSIX
+    message queues, that user ``uid`` created since ``since`` (a time.time()); returns what
+    it removed. For the separate-user fallback where the machine refuses it an IPC namespace
+    of its own (:data:`doorlab.pset.isolation.OWN_NAMESPACES`)."""
+    import ctypes
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    removed = []
+    for kind, (id_column, call) in SYSV_IPC.items():
+        try:
+            header, *lines = Path(f"/proc/sysvipc/{kind}").read_text().splitlines()
+        except (OSError, ValueError):
+            continue
+        names = header.split()
+        for line in lines:
+            row = dict(zip(names, line.split(), strict=False))
+            try:
+                mine = int(row["cuid"]) == uid and int(row["ctime"]) >= since - 1.0
+                number = int(row[id_column])
+            except (KeyError, ValueError):
+                continue
+            if not mine:
+                continue
+            remove = getattr(libc, call)
+            result = (
+                remove(number, 0, IPC_RMID) if kind == "sem" else remove(number, IPC_RMID, None)
+            )
+            if result == 0:
+                removed.append(f"System V {kind} {number}")
+    try:
+        queues = list(os.scandir(POSIX_QUEUES))
+    except OSError:
+        queues = []
+    for entry in queues:
+        try:
+            st = entry.stat(follow_symlinks=False)
+            if st.st_uid == uid and st.st_ctime >= since - 1.0:
+                os.unlink(entry.path)
+                removed.append(entry.path)
+        except OSError:
+            continue
+    return removed
+
+
 _NO_MODULE = re.compile(r"ModuleNotFoundError: No module named '([A-Za-z_][\w.]*)'")
 
 
@@ -195,15 +250,25 @@ class StudentProcess:
     Args:
         folder: The submission. workdir: The grading's private folder (scratch copies go
             in it). name: The test's job name (the scratch folder's name).
-        time_limit: Wall and CPU time for the whole test [s].
-        identity: The user to run as (see :func:`doorlab.pset.sandbox.sandbox_identity`).
+        time_limit: The whole test's time (:class:`doorlab.pset.clock.Clock`: wall time
+            less the grader's wait for a CPU) and the student's CPU time [s].
+        isolation: How the grading isolates the student's code.
+        group: The cgroup its processes go in (:mod:`doorlab.pset.cgroups`; None: none).
     """
 
     def __init__(
-        self, folder: Path, workdir: Path, name: str, time_limit: float, isolation: Isolation
+        self,
+        folder: Path,
+        workdir: Path,
+        name: str,
+        time_limit: float,
+        isolation: Isolation,
+        group=None,
     ):
         self.limits = sandbox.Limits(cpu_seconds=time_limit)
-        self.deadline = time.monotonic() + time_limit
+        self.deadline = Clock(time_limit)
+        self.group = group
+        self._oom_kills = group.oom_kills() if group is not None else 0
         self.started = time.time()
         self.facts: dict = {}
         self.isolation = isolation
@@ -247,16 +312,26 @@ class StudentProcess:
         self._answer_r, answer_w = os.pipe()
         os.set_blocking(self._request_w, False)
         channel_args = [str(request_r), str(answer_w), json.dumps(self.isolation.guard)]
+        passed, seccomp = [request_r, answer_w], None
         if plan is None:
             argv = [sys.executable, "-I", "-B", "-m", "doorlab.pset.worker", *channel_args]
             env = student_environment(str(self.scratch), str(self.scratch))
         else:
             drop = None if identity is None else (identity.uid, identity.gid)
-            argv = view.bwrap_argv(plan, self.scratch, tmp_dirs, as_root=identity is not None)
+            try:
+                seccomp = filter_descriptor()
+            except FilterError as e:
+                raise SandboxError(f"cannot start the student's process: {e}") from None
+            passed.append(seccomp)
+            argv = view.bwrap_argv(
+                plan, self.scratch, tmp_dirs, as_root=identity is not None, seccomp_fd=seccomp
+            )
             argv += [plan.python, "-I", "-S", "-B", "-c", view.worker_code(plan, drop)]
             argv += channel_args
             env = student_environment(view.SCRATCH_MOUNT, "/tmp")
+        groups = []
         try:
+            groups = self.group.join_descriptors() if self.group is not None else []
             self.proc = sandbox.spawn(
                 argv,
                 cwd=self.scratch,
@@ -264,15 +339,19 @@ class StudentProcess:
                 limits=self.limits,
                 identity=identity,
                 switch_user=plan is None,
-                pass_fds=(request_r, answer_w),
+                pass_fds=tuple(passed),
+                cgroup_fds=groups,
+                new_namespaces=self.isolation.namespaces if plan is None else 0,
             )
-        except (OSError, subprocess.SubprocessError) as e:  # the latter: a limit refused
+        except (OSError, subprocess.SubprocessError, CgroupError) as e:  # a limit refused
             raise SandboxError(f"cannot start the student's process: {e}") from None
         finally:
-            os.close(request_r)
-            os.close(answer_w)
+            for fd in [*passed, *groups]:
+                os.close(fd)
         self.channel = Channel(self._answer_r, self._request_w)
         self._output_stream = self.proc.stdout
+        cpu = self.group.cpu_seconds if self.group is not None else None
+        self.deadline.watch_student(self.proc.pid, cpu)
 
     def _started(self) -> None:
         """After the hello, before any request (the student's code has not run yet)."""
@@ -306,6 +385,8 @@ class StudentProcess:
         user = self.isolation.user()
         if self.isolation.mode == "uid" and user is not None:
             remove_leftovers(user.uid, self.started)
+            if not self.isolation.namespaces & sandbox.CLONE_NEWIPC:  # no IPC namespace
+                remove_ipc_leftovers(user.uid, self.started)
 
     def _end(self) -> None:
         """Kills the process and every process it started; waits for them."""
@@ -342,6 +423,9 @@ class StudentProcess:
                 "(the output limit); the test was stopped"
             )
         if isinstance(error, ChannelTimeout):
+            starved = self.deadline.starved()
+            if starved is not None:  # not the student's: no verdict
+                raise SandboxError(starved)
             return (
                 f"time limit: your code did not answer within {self.limits.cpu_seconds:.0f} s "
                 "(an endless loop? a long sleep?)"
@@ -352,11 +436,20 @@ class StudentProcess:
                 return "your code closed the grader's channel"
             return f"your code's process sent something that is not an answer ({error})"
         if code < 0:
+            if code == -signal.SIGKILL and self._out_of_memory():
+                return (
+                    f"your code's processes used more than {VIEW_MEMORY_BYTES >> 30} GiB of "
+                    "memory together (the limit of its view): the kernel ended one"
+                )
             return _signal_message(-code, self.limits)
         return (
             f"your code ended its process (exit code {code}) before answering "
             "(sys.exit, os._exit or os.kill in your code?)"
         )
+
+    def _out_of_memory(self) -> bool:
+        """Whether the kernel killed a process of the test's group for want of memory."""
+        return self.group is not None and self.group.oom_kills() > self._oom_kills
 
     def _detail(self, traceback: str = "") -> str:
         parts = []

@@ -344,6 +344,7 @@ GRADER_MODULES = {
     "doorlab.pset.folder": "the problem set's solution files (doorlab pset init --solutions)",
     "doorlab.pset.notebook": "the problem set's notebook writer",
     "doorlab.pset.autograder": "the grader's Gradescope autograder (its wheel)",
+    "doorlab.pset.expectations": "the grader's answer key (the unit tests' expected answers)",
     **{
         f"doorlab.pset.{name}": _GRADER
         for name in (
@@ -352,12 +353,17 @@ GRADER_MODULES = {
             "checks",
             "episodes",
             "jobs",
+            "supervisor",
             "student",
             "sandbox",
             "view",
             "views",
             "isolation",
             "safe_text",
+            "cgroups",
+            "clock",
+            "syscalls",
+            "cluster",
         )
     },
 }
@@ -417,6 +423,7 @@ def _sandbox_facts(results: dict[str, dict], isolation) -> dict:
         "network_isolated": every("network_isolated"),
         "reference_hidden": every("reference_hidden"),
         "pid_namespace": every("pid_namespace"),
+        "user_namespaces_refused": every("user_namespaces_refused"),
         "python_path_read_only": bool(facts)
         and not any(f.get("python_path_writable") for f in facts),
         "seen": {
@@ -568,8 +575,9 @@ def _settings(assignment: object) -> dict | None:
 
 
 def results_not_graded(specs: Sequence[TestSpec], reason: str, assignment: object = None) -> dict:
-    """Results for a submission that could not be taken (over an intake bound): every test
-    0 with the reason, in the same format as :func:`results_from_jobs`."""
+    """Results for a submission that is not graded (over an intake bound; none of the
+    student files): every test 0 with the reason, in the same format as
+    :func:`results_from_jobs`."""
     text = f"Not graded: {reason}"
     tests = [_gradescope_test(s, test_settings(assignment, s), False, text) for s in specs]
     out = _gradescope_results(assignment, tests, text)

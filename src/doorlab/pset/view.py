@@ -21,7 +21,8 @@ all read-only but three places:
 Not there: ``/home``, ``/root``, ``/srv``, ``/autograder``, the clone and its ``.git``, the
 grader's working folders, other submissions, the grader's venv beyond those distributions.
 The process also gets its own IPC, UTS, network (loopback only) and PID namespaces, a new
-session, and dies with its parent. As root, bwrap runs without a user namespace (no
+session, a system-call filter (:mod:`doorlab.pset.syscalls`: no namespace, mount, keyring or
+BPF of its own), and dies with its parent. As root, bwrap runs without a user namespace (no
 capability but CAP_SETUID and CAP_SETGID) and the worker's first statement switches to the
 sandbox user (:func:`doorlab.pset.sandbox.sandbox_identity`) for good; as an ordinary user,
 bwrap maps that user into a user namespace in which no further one can be made.
@@ -383,6 +384,7 @@ def bwrap_argv(
     *,
     as_root: bool,
     as_pid_1: bool = False,
+    seccomp_fd: int | None = None,
 ) -> list[str]:
     """bwrap and its options up to (not including) the command.
 
@@ -393,8 +395,13 @@ def bwrap_argv(
             user itself).
         as_pid_1: The command is the PID namespace's init (no reaper of bwrap's; the
             command reaps, and signals from inside reach it only where it handles them).
+        seccomp_fd: A descriptor holding the system-call filter
+            (:func:`doorlab.pset.syscalls.filter_descriptor`), passed to the command: bwrap
+            applies it to the command and everything it starts.
     """
     argv = [view.bwrap, "--die-with-parent", "--new-session"]
+    if seccomp_fd is not None:
+        argv += ["--seccomp", str(seccomp_fd)]
     if as_pid_1:
         argv.append("--as-pid-1")
     if as_root:
@@ -437,8 +444,12 @@ def bwrap_argv(
 
 
 PROBE = """
-import json
+import ctypes, json
 facts = {"uid": os.getuid(), "visible": [p for p in sys.argv[1:] if os.path.exists(p)]}
+pid = os.fork()
+if pid == 0:  # a user namespace of its own: the filter (or --disable-userns) refuses it
+    os._exit(0 if ctypes.CDLL(None).unshare(0x10000000) == 0 else 1)
+facts["userns"] = os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]) == 0
 print("PROBE " + json.dumps(facts))
 """
 
@@ -456,7 +467,13 @@ def probe(view: View, drop: tuple[int, int] | None, work: Path, forbidden=()) ->
     if drop is not None:
         os.chown(scratch, drop[0], drop[1])
     tmp_dirs = None if view.sized_tmpfs else _tmp_dirs(work / "probe_tmp", drop)
-    argv = bwrap_argv(view, scratch, tmp_dirs, as_root=drop is not None)
+    from doorlab.pset.syscalls import FilterError, filter_descriptor
+
+    try:
+        seccomp = filter_descriptor()
+    except FilterError as e:
+        return str(e)
+    argv = bwrap_argv(view, scratch, tmp_dirs, as_root=drop is not None, seccomp_fd=seccomp)
     argv += [view.python, "-I", "-S", "-B", "-c", boot_code(view, drop) + "\n" + PROBE]
     argv += [str(p) for p in forbidden]
     try:
@@ -467,11 +484,13 @@ def probe(view: View, drop: tuple[int, int] | None, work: Path, forbidden=()) ->
             timeout=PROBE_TIMEOUT_S,
             stdin=subprocess.DEVNULL,
             env={"PATH": "/usr/bin:/bin", "LANG": "C.UTF-8"},
+            pass_fds=(seccomp,),
             check=False,
         )
     except (OSError, subprocess.SubprocessError) as e:
         return f"{view.bwrap}: {e}"
     finally:
+        os.close(seccomp)
         shutil.rmtree(scratch, ignore_errors=True)
     lines = [line for line in proc.stdout.splitlines() if line.startswith("PROBE ")]
     if proc.returncode != 0 or not lines:
@@ -483,6 +502,8 @@ def probe(view: View, drop: tuple[int, int] | None, work: Path, forbidden=()) ->
         return f"the probe ran as uid {facts.get('uid')}, not {drop[0]}"
     if facts.get("visible"):
         return f"the view shows what it must not: {facts['visible'][:3]}"
+    if facts.get("userns"):
+        return "the view lets the student's code make a user namespace (no filter held)"
     return None
 
 

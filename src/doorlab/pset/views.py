@@ -38,7 +38,9 @@ import time
 from pathlib import Path
 
 from doorlab.pset import sandbox, view
+from doorlab.pset.cgroups import CgroupError
 from doorlab.pset.channel import Channel
+from doorlab.pset.clock import remaining
 from doorlab.pset.isolation import Isolation
 from doorlab.pset.student import (
     SandboxError,
@@ -46,6 +48,7 @@ from doorlab.pset.student import (
     copy_submission,
     student_environment,
 )
+from doorlab.pset.syscalls import FilterError, filter_descriptor
 
 VIEW_START_TIMEOUT_S = 60.0
 """How long a view's first process may take to start and import [s] (about 1 s idle)."""
@@ -114,14 +117,19 @@ class StudentView:
         workdir: The grading's private folder (the view's scratch and log go in it).
         key: The view's name (its folder in ``workdir``).
         cpu_seconds: The first process's CPU limit [s] (each test lowers its own).
+        group: The view's cgroup (:meth:`doorlab.pset.cgroups.GradingGroups.student`: its
+            processes, memory and CPU counted together), or None.
 
     Raises:
         SandboxError: The view cannot be started (not the student's doing).
     """
 
-    def __init__(self, isolation: Isolation, workdir: Path, key: str, cpu_seconds: float):
+    def __init__(
+        self, isolation: Isolation, workdir: Path, key: str, cpu_seconds: float, group=None
+    ):
         self.isolation = isolation
         self.key = key
+        self.group = group
         self.root = workdir / f"view_{key}"
         self.root.mkdir(mode=0o711)
         os.chmod(self.root, 0o711)  # the student's user reaches its scratch, lists nothing
@@ -136,12 +144,20 @@ class StudentView:
         tmp_dirs = view.job_tmp_dirs(plan, self.root / "tmp", drop)
         self.control, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         self._log = open(self.root / "log", "w+b")  # noqa: SIM115 - closed in close()
-        argv = view.bwrap_argv(
-            plan, self.scratch, tmp_dirs, as_root=identity is not None, as_pid_1=True
-        )
-        argv += [plan.python, "-I", "-S", "-B", "-c", view.zygote_code(plan, drop)]
-        argv += [str(theirs.fileno()), json.dumps(isolation.guard)]
+        groups, seccomp = [], None
         try:
+            seccomp = filter_descriptor()
+            argv = view.bwrap_argv(
+                plan,
+                self.scratch,
+                tmp_dirs,
+                as_root=identity is not None,
+                as_pid_1=True,
+                seccomp_fd=seccomp,
+            )
+            argv += [plan.python, "-I", "-S", "-B", "-c", view.zygote_code(plan, drop)]
+            argv += [str(theirs.fileno()), json.dumps(isolation.guard)]
+            groups = group.join_descriptors() if group is not None else []
             self.proc = sandbox.spawn(
                 argv,
                 cwd=self.scratch,
@@ -149,15 +165,18 @@ class StudentView:
                 limits=sandbox.Limits(cpu_seconds=cpu_seconds),
                 identity=identity,
                 switch_user=False,
-                pass_fds=(theirs.fileno(),),
+                pass_fds=(theirs.fileno(), seccomp),
                 output=self._log.fileno(),
+                cgroup_fds=groups,
             )
-        except (OSError, subprocess.SubprocessError) as e:
+        except (OSError, subprocess.SubprocessError, CgroupError, FilterError) as e:
             self.control.close()
             self._log.close()
             raise SandboxError(f"cannot start the student's view: {e}") from None
         finally:
             theirs.close()
+            for fd in [*groups, *([] if seccomp is None else [seccomp])]:
+                os.close(fd)
         self.pid = None
         if self._ready(time.monotonic() + VIEW_START_TIMEOUT_S):
             self.pid = self.host_pid(1, parent=self.proc.pid)
@@ -245,7 +264,9 @@ class ForkedStudent(StudentProcess):
         self._code: int | None = None
         self._status: socket.socket | None = None
         self._inodes: set[int] = set()
-        super().__init__(folder, student_view.root, name, time_limit, student_view.isolation)
+        super().__init__(
+            folder, student_view.root, name, time_limit, student_view.isolation, student_view.group
+        )
 
     def _start(self, folder: Path, workdir: Path, stem: str) -> None:
         self.scratch = self.view.scratch / stem
@@ -277,15 +298,18 @@ class ForkedStudent(StudentProcess):
             os.close(self._answer_r)
             os.close(self._request_w)
             self._output_stream.close()
+            why = first.get("refused") if isinstance(first, dict) else None
+            if isinstance(why, str):
+                raise SandboxError(f"the student's view refused this test: {why}")
             raise SandboxError(f"the student's view did not fork a process ({first})")
         self._ns_pid = first["pid"]
 
-    def _next_status(self, deadline: float) -> dict | None:
+    def _next_status(self, deadline) -> dict | None:
         """The next message on the test's status socket (None: none before ``deadline``,
         or the socket closed)."""
         poller = select.poll()
         poller.register(self._status.fileno(), select.POLLIN)
-        timeout = max(0.0, deadline - time.monotonic())
+        timeout = max(0.0, remaining(deadline))
         if not poller.poll(int(math.ceil(timeout * 1e3))):
             return None
         try:
@@ -300,6 +324,8 @@ class ForkedStudent(StudentProcess):
         host = self.view.host_pid(self._ns_pid)
         if host is not None:
             self.host = (host, _start_time(host))
+            group = self.view.group
+            self.deadline.watch_student(host, group.cpu_seconds if group is not None else None)
             if self._on_start is not None:
                 self._on_start(*self.host)
 

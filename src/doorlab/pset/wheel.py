@@ -1,6 +1,11 @@
 """The doorlab that grades, packed: its wheel, the versions of what it runs on, and zips
 written atomically (the autograder zip and the students' handout carry them).
 
+Two wheels come from the one installed package: the instructor's (:func:`wheel_bytes`, the
+whole package: the autograder zip's) and the students' (:func:`student_wheel_bytes`, the
+handout's): the same files but the answer key (:data:`STUDENT_WHEEL_LEAVES_OUT`), with the
+handout's stub folder and practice table added (:mod:`doorlab.pset.edition`).
+
 The wheel is packed from the installed package's own files, not built from a source tree:
 a teacher who installed doorlab from a wheel has no source tree, and building one needs
 setuptools >= 68 and ``wheel`` in the environment (a fresh venv has neither offline: ``pip
@@ -18,6 +23,7 @@ from __future__ import annotations
 import base64
 import hashlib
 import io
+import json
 import os
 import platform
 import tempfile
@@ -97,21 +103,78 @@ def write_entry(archive: zipfile.ZipFile, name: str, data: bytes, *, executable=
 
 def wheel_bytes() -> tuple[str, bytes]:
     """The installed doorlab as a pure-Python wheel: (file name, contents)."""
-    dist = _distribution()
-    version = dist.version
     package_dir = _package_dir()
-    info_dir = f"doorlab-{version}.dist-info"
-    files: list[tuple[str, bytes]] = [
+    files = [
         (str(rel), (package_dir.parent / rel).read_bytes()) for rel in package_files(package_dir)
     ]
+    return _pack(files)
+
+
+# The students' doorlab ---------------------------------------------------------------------
+
+STUDENT_WHEEL_LEAVES_OUT = {
+    "doorlab/control/ik_pointwise.py": "doorlab's pointwise IK (task 1's reference solution)",
+    "doorlab/control/laws.py": "doorlab's control laws (tasks 2 and 3's reference solutions)",
+    "doorlab/control/plans.py": "doorlab's task-space plans (tasks 2 and 3's reference)",
+    "doorlab/control/adaptive.py": "doorlab's adaptive plan (built on the reference laws)",
+    "doorlab/episode/controllers.py": "doorlab's controllers (they run the references)",
+    "doorlab/studies/": "the studies (they run the reference controllers)",
+    "doorlab/report/": "the report (doorlab's answers to the notebook's questions)",
+    "doorlab/templates/": "the report's and the sweep's pages",
+    "doorlab/sweep/": "the sweeps (they run the reference controllers)",
+    "doorlab/pset/expectations.py": "the grader's answer key (its expected answers)",
+    "doorlab/pset/templates/": "the problem set's templates (the solutions' text)",
+    "doorlab/pset/autograder.py": "the Gradescope autograder (it packs the instructor's doorlab)",
+    "doorlab/pset/handout.py": "the handout's writer (it needs the answer key)",
+}
+"""What the students' doorlab (the handout's wheel) leaves out of the package, and why: every
+module that holds or runs a reference solution or an expected answer, and the solutions'
+text. What is left runs the notebook (the station, the plans' base, the episodes, the
+plots) and grades against the handout's practice table (:mod:`doorlab.pset.edition`)."""
+
+
+def _left_out(rel: str) -> bool:
+    return any(
+        rel == p or (p.endswith("/") and rel.startswith(p)) for p in STUDENT_WHEEL_LEAVES_OUT
+    )
+
+
+def student_wheel_bytes(practice: dict, stubs: dict[str, str]) -> tuple[str, bytes]:
+    """The students' doorlab as a wheel: the installed package's files but
+    :data:`STUDENT_WHEEL_LEAVES_OUT`, with ``doorlab/pset/students/`` added (the handout's
+    stub folder ``stubs``, the ``practice`` table: :mod:`doorlab.pset.edition`); (file name,
+    contents). The same name as the instructor's wheel: students install it as the handout's
+    README says."""
+    from doorlab.pset import edition
+
+    package_dir = _package_dir()
+    files = [
+        (str(rel), (package_dir.parent / rel).read_bytes())
+        for rel in package_files(package_dir)
+        if not _left_out(str(rel))
+    ]
+    folder = f"doorlab/pset/{edition.FOLDER}"
+    files.append((f"{folder}/{edition.PRACTICE}", json.dumps(practice, sort_keys=True).encode()))
+    for rel, text in sorted(stubs.items()):
+        files.append((f"{folder}/{edition.STUBS}/{rel}", text.encode()))
+    return _pack(sorted(files), students=True)
+
+
+def _pack(files: list[tuple[str, bytes]], *, students: bool = False) -> tuple[str, bytes]:
+    """A wheel of ``files`` (package paths, contents) and the installed doorlab's metadata."""
+    dist = _distribution()
+    version = dist.version
+    info_dir = f"doorlab-{version}.dist-info"
+    files = list(files)
     files.append((f"{info_dir}/METADATA", dist.read_text("METADATA").encode()))
     for extra in ("entry_points.txt", "top_level.txt"):
         text = dist.read_text(extra)
         if text:
             files.append((f"{info_dir}/{extra}", text.encode()))
+    edition = " (the students' build)" if students else ""
     wheel = (
         "Wheel-Version: 1.0\n"
-        f"Generator: doorlab {version} (doorlab.pset.wheel)\n"
+        f"Generator: doorlab {version} (doorlab.pset.wheel){edition}\n"
         "Root-Is-Purelib: true\n"
         "Tag: py3-none-any\n"
     )

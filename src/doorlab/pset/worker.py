@@ -339,6 +339,20 @@ def network_isolated() -> bool:
     return names == ["lo"] and not routes
 
 
+def _can_make_user_namespace() -> bool:
+    """Whether a child of this process can make a user namespace (the view's filter refuses)."""
+    import ctypes
+
+    pid = os.fork()
+    if pid == 0:
+        code = 1
+        try:
+            code = 0 if ctypes.CDLL(None).unshare(0x10000000) == 0 else 1  # CLONE_NEWUSER
+        finally:
+            os._exit(code)
+    return os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]) == 0
+
+
 def observe(config: dict) -> dict:
     """What this process can see and do, before any of the student's code runs (the grader
     reports it as ``extra_data.sandbox``, judged on its own side)."""
@@ -367,6 +381,7 @@ def observe(config: dict) -> dict:
     return {
         "uid": os.getuid(),
         "network_isolated": network_isolated(),
+        "user_namespaces_refused": not _can_make_user_namespace(),
         "reference_hidden": not readable,
         "reference_readable": readable[:5],
         "python_path_writable": writable[:5],

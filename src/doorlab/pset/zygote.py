@@ -252,7 +252,14 @@ def _fork(request: dict, fds: list[int], config: dict, children: dict) -> None:
         return
     sys.stdout.flush()
     sys.stderr.flush()
-    pid = os.fork()
+    try:
+        pid = os.fork()
+    except OSError as e:  # EAGAIN (a process limit), ENOMEM: this test only, said so
+        _send(status, {"refused": f"it could not fork the test's process ({e.strerror or e})"})
+        status.close()
+        for fd in fds[:3]:
+            os.close(fd)
+        return
     if pid == 0:
         _child(request, fds, config)
     for fd in fds[:3]:

@@ -146,9 +146,20 @@ def _within(timeout_s: float, what: str, call):
     return box["value"]
 
 
-def probe_scheduler(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> dict:
+def _security(security=None):
+    """The TLS settings to connect with: ``security`` (a ``distributed.Security``), else
+    Dask's configuration's (``distributed.comm.tls.*``: empty unless the course set them)."""
+    if security is not None:
+        return security
+    from distributed import Security
+
+    return Security()
+
+
+def probe_scheduler(address: str, timeout_s: float = CONNECT_TIMEOUT_S, security=None) -> dict:
     """Connects to ``address``, completes Dask's handshake and asks who answers, all within
-    ``timeout_s``; returns the scheduler's identity.
+    ``timeout_s``; returns the scheduler's identity. ``security``: a ``distributed.Security``
+    (a ``tls://`` scheduler's certificates; default: Dask's configuration's).
 
     Raises:
         ConfigError: Unreachable, silent, not speaking Dask's protocol (a garbage answer),
@@ -156,8 +167,17 @@ def probe_scheduler(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> dict:
     """
     from distributed.comm import connect
 
+    security = _security(security)
+    if address.startswith(("tls://", "wss://")) and not security.tls_ca_file:
+        raise ConfigError(
+            f"the scheduler at {address} speaks TLS: give its certificates in Dask's "
+            "configuration (distributed.comm.tls.ca-file, client.cert and client.key, e.g. "
+            "DASK_DISTRIBUTED__COMM__TLS__CA_FILE)"
+        )
+    arguments = security.get_connection_args("client")
+
     async def identify() -> object:
-        comm = await connect(address, timeout=timeout_s)  # reaching it, and the handshake
+        comm = await connect(address, timeout=timeout_s, **arguments)  # and the handshake
         try:
             await comm.write({"op": "identity", "reply": True})
             return await comm.read()
@@ -198,19 +218,22 @@ class DaskExecutor(concurrent.futures.Executor):
     timeout), then the Client (within the timeout), then a first worker (within the timeout).
     """
 
-    def __init__(self, address: str, *, timeout_s: float = CONNECT_TIMEOUT_S) -> None:
+    def __init__(
+        self, address: str, *, timeout_s: float = CONNECT_TIMEOUT_S, security=None
+    ) -> None:
         check_scheduler(address)
         try:
             from distributed import Client
         except ImportError as e:  # pragma: no cover - distributed is a dependency
             raise ConfigError(f"--scheduler needs the 'distributed' package: {e}") from None
         self.timeout_s = timeout_s
-        probe_scheduler(address, timeout_s)
+        security = _security(security)
+        probe_scheduler(address, timeout_s, security)
         try:
             self.client = _within(
                 timeout_s + 1.0,
                 "dask-client",
-                lambda: Client(address, timeout=timeout_s, set_as_default=False),
+                lambda: Client(address, timeout=timeout_s, set_as_default=False, security=security),
             )
         except Exception as e:
             raise ConfigError(
@@ -261,7 +284,11 @@ class DaskExecutor(concurrent.futures.Executor):
 
 @contextmanager
 def open_executor(
-    *, jobs: int = 1, scheduler: str | None = None, timeout_s: float = CONNECT_TIMEOUT_S
+    *,
+    jobs: int = 1,
+    scheduler: str | None = None,
+    timeout_s: float = CONNECT_TIMEOUT_S,
+    security=None,
 ) -> Iterator[LocalExecutor | DaskExecutor]:
     """An executor for the ``with`` block: local processes, or a Dask cluster's.
 
@@ -272,11 +299,16 @@ def open_executor(
         jobs: Local worker processes (ignored with ``scheduler``).
         scheduler: A Dask scheduler address ``tcp://HOST:PORT``; None: local processes.
         timeout_s: Each step of connecting to ``scheduler`` [s] (see :class:`DaskExecutor`).
+        security: A ``distributed.Security``: the TLS certificates of a ``tls://``
+            scheduler (default: Dask's configuration's, ``distributed.comm.tls.*``).
 
     Raises:
         ConfigError: Bad ``jobs`` or ``scheduler``, or the scheduler cannot be reached.
     """
-    executor = DaskExecutor(scheduler, timeout_s=timeout_s) if scheduler else LocalExecutor(jobs)
+    if scheduler:
+        executor = DaskExecutor(scheduler, timeout_s=timeout_s, security=security)
+    else:
+        executor = LocalExecutor(jobs)
     try:
         yield executor
     except BaseException:
