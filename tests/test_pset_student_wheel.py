@@ -148,7 +148,9 @@ def test_the_handout_s_wheel_holds_no_answer_key(handout, tmp_path):
         for p in (students / edition.STUBS).rglob("*")
         if p.is_file()
     }
-    assert stubs == render_folder(solutions=False)
+    assert stubs == render_folder(
+        solutions=False, course=True
+    )  # the handout's, course.yaml included
     practice = json.loads((students / edition.PRACTICE).read_text())
     assert set(practice["units"]) == {"ik", "calc_p_Q", "calc_R_WL7_ref", "velocity", "impedance"}
     assert set(practice["reference"]) == {
