@@ -407,7 +407,9 @@ def test_the_class_is_graded_as_expected_once_per_distinct_files(semester):
             ), t["output"]
             assert "so every test that uses manip_station_sim/robot_plans.py fails" in t["output"]
             assert "frozen" not in t["output"]
-    assert "13 of 13 submissions in the sheet: 1 absent, 12 graded" in first.stdout
+    # The notebook-only upload holds none of the student files: not graded (every path's rule).
+    assert sheet["submission_9"]["status"] == "not_graded"
+    assert "13 of 13 submissions in the sheet: 1 absent, 11 graded, 1 not graded" in first.stdout
     print(f"first grading: {semester.cpu['grade-all']:.1f} CPU-s for 12 uploads")
 
 
@@ -493,7 +495,11 @@ def test_the_feedback_pages_and_the_class_page_render_with_every_figure(semester
     result = render_check(page, tmp_path)
     assert result["images"] == 3 and result["broken_images"] == [], result
     stats = json.loads((semester.grades / "summary.json").read_text())
-    assert stats["submissions"] == 13 and stats["by_status"] == {"absent": 1, "graded": 12}
+    assert stats["submissions"] == 13 and stats["by_status"] == {
+        "absent": 1,
+        "graded": 11,
+        "not_graded": 1,
+    }
     velocity = next(t for t in stats["tests"] if t["key"] == "velocity_unit")
     assert velocity["pass_rate"] == pytest.approx(3 / 12)  # the key's three uploads
     groups = stats["identical_files"]
