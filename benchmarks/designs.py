@@ -42,14 +42,19 @@ NEW_OVER_FLOOR_TARGET = 1.15
 OLD_OVER_NEW_TARGET = 1.3
 
 
-def recorded_commands(controller: str, doors: str):
-    """Runs the episode once with the logs at the control period; returns (scenario, result)."""
+def recorded_commands(controller: str, doors: str, *, scenario=None):
+    """Runs the episode once with the logs at the control period; returns (scenario, result).
+
+    ``scenario``: run this one (its controller and doors) instead of the default episode.
+    """
     from doorlab import Scenario, run_controller
 
-    scenario = Scenario(controller=controller, doors=doors)
+    if scenario is None:
+        scenario = Scenario(controller=controller, doors=doors)
+    log_period = scenario.timeline.log_period
     scenario.timeline.log_period = scenario.timeline.control_period
     result, _ = run_controller(scenario)
-    scenario.timeline.log_period = Scenario().timeline.log_period
+    scenario.timeline.log_period = log_period
     return scenario, result
 
 

@@ -29,6 +29,12 @@ Benchmarks (``--only`` takes names, groups such as ``episode``, or globs such as
     The episode against Drake's floor (the same cell, the recorded commands replayed from
     C++), against the same machinery with no law (the Python runner replaying the commands)
     and against the 353b732 design, side by side (``benchmarks/designs.py``).
+``instr/velocity_closed``, ``instr/impedance_closed``
+    The same three simulations (floor, python, new) counted in instructions by callgrind on a
+    short episode with the same phases (``benchmarks/instructions.py``): metrics
+    ``design/<controller>_closed/python_over_floor_instr`` (target <= 1.2),
+    ``.../new_over_python_instr`` (<= 1.1), the counts themselves; one count per run (they are
+    deterministic). Needs valgrind; ~3 min on 2 cores.
 ``memory/episode``
     Peak resident set size of a fresh process that runs one velocity/closed episode, and of
     one that only imports doorlab: VmHWM read by the child from /proc/self/status (NOT
@@ -39,8 +45,8 @@ Benchmarks (``--only`` takes names, groups such as ``episode``, or globs such as
     around ``PlanRunner._tick`` (unbiased), then once more under cProfile for the top lines.
 
 The command line, selection, output and comparison live here; the benchmark groups in
-``micro.py`` (tick, ik), ``episodes.py``, ``designs.py``, ``processes.py`` (run, memory) and
-``profiling.py``; what they share in ``common.py``.
+``micro.py`` (tick, ik), ``episodes.py``, ``designs.py``, ``instructions.py``, ``processes.py``
+(run, memory) and ``profiling.py``; what they share in ``common.py``.
 
 Every number is the MEDIAN over the repeats, with min and max. Targets are printed as pass/fail
 but never change the exit code: 0 when the benchmarks ran (targets missed or not), 1 when a
@@ -93,7 +99,8 @@ TICKS = ("tick/velocity", "tick/impedance", "tick/adaptive")
 IKS = tuple(f"ik/{n}_knots" for n in IK_KNOTS)
 RUNS = (*(f"run/{c}" for c in CONTROLLERS), "run/report", "run/report_full")
 DESIGNS = tuple(f"design/{c}_closed" for c in CONTROLLERS)
-ALL = (*TICKS, *IKS, *EPISODES, *DESIGNS, *RUNS, "memory/episode", "profile/episode")
+INSTRUCTIONS = ("instr/velocity_closed", "instr/impedance_closed")
+ALL = (*TICKS, *IKS, *EPISODES, *DESIGNS, *INSTRUCTIONS, *RUNS, "memory/episode", "profile/episode")
 """Every benchmark, in the order they run (cheap ones first)."""
 
 
@@ -157,6 +164,11 @@ def run_all(settings: Settings) -> tuple[list[Metric], dict[str, str], dict | No
             "design/*",
             lambda: bench_designs(designs, settings, ctx),
         )
+    counted = [n for n in selected if n.startswith("instr/")]
+    if counted:
+        from instructions import bench_instructions
+
+        attempt("instr/*", lambda: bench_instructions(counted, settings, ctx))
     runs = [n for n in selected if n.startswith("run/")]
     if runs:
         attempt("run/*", lambda: bench_runs(runs, settings, ctx))

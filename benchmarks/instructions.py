@@ -1,0 +1,327 @@
+"""Benchmark group ``instr/<controller>_closed``: the design group's three simulations counted in
+instructions (callgrind), so that a ratio does not depend on what else the machine runs.
+
+``benchmarks/designs.py`` times three simulations of one episode side by side in CPU time:
+**floor** (Drake alone: the recorded commands replayed from C++), **python** (the episode's
+machinery, the Python plan runner and the logger, with a plan that replays the recorded
+commands) and **new** (``run_controller``). On a shared 2-core machine their CPU-time ratios
+moved by 2x between runs of the same commit (issue 35). Here each of the three runs in its own
+process under ``valgrind --tool=callgrind``, which counts the instructions executed inside
+``Simulator::AdvanceTo`` only (``--toggle-collect``: the simulation, the Python ticks it
+calls, nothing of the imports, IK or diagram building), the same region ``designs.py`` times.
+
+Under callgrind Python and Drake run ~50x slower, so the counted episode is a short one with
+the same phases (:func:`short_scenario`: the approach, the grasp, the arc against the closed
+door at the full episode's door speed, the settle and extra time): 9.85 s of simulated time
+instead of 24 s. ``python benchmarks/instructions.py --check-cpu`` checks that its ratios
+predict the full episode's (CPU-time medians of both, side by side).
+
+What the count leaves out: an instruction is an instruction, whether its data came from L1 or
+from memory. Cache and TLB misses, branch mispredictions and the interpreter's poor
+instruction-level parallelism are invisible to it, and Python code, which chases pointers,
+spends more time per instruction than Drake's dense numerics: the CPU-time ratios (medians of
+side-by-side repeats) remain the check on any conclusion drawn from the counts.
+
+Metrics (per controller, one count per run: the counts are deterministic to ~0.01 %):
+``design/<controller>_closed/{floor,python,new}_instr`` [instructions] and the ratios
+``python_over_floor_instr`` (target <= 1.2), ``new_over_python_instr`` (<= 1.1) and
+``new_over_floor_instr``.
+
+Run alone::
+
+    python benchmarks/instructions.py [--runs N] [--jobs J] [--keep DIR]
+    python benchmarks/instructions.py --check-cpu [--repeats N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures
+import os
+import pickle
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from common import BENCH_DIR, CpuWatch, Metric, Settings, subprocess_env
+
+CONTROLLERS = ("velocity", "impedance")
+"""The controllers whose ticks run Python (IK has no python variant: no tick to replay)."""
+VARIANTS = ("floor", "python", "new")
+PYTHON_OVER_FLOOR_TARGET = 1.2
+NEW_OVER_PYTHON_TARGET = 1.1
+
+ADVANCE_SYMBOL = "drake::systems::Simulator<double>::AdvanceTo(double const&)"
+"""Callgrind counts only inside this function (and what it calls)."""
+
+SHORT_TIMELINE = {
+    "hold_duration": 0.05,
+    "approach_duration": 1.5,
+    "grasp_duration": 0.3,
+    "arc_duration": 3.0,
+    "extra_time": 1.0,
+}
+"""The counted episode's timeline [s] (each plan is also held PLAN_SETTLE_TIME, 1 s, after it):
+0-1.05 hold, 1.05-3.55 approach, 3.55-4.85 grasp, 4.85-8.85 arc, then 1 s: 9.85 s in all, the
+plan runner ticking over the last 5 s (the full episode: 13 of 24 s)."""
+SHORT_ARC_END_DEG = 15.0
+"""The short arc's end [deg]: 15 deg in 3 s, the full arc's 50 deg in 10 s (the same handle
+speed, so the same contact forces on the door)."""
+
+
+def short_scenario(controller: str):
+    """The counted episode: ``controller`` against the closed doors on :data:`SHORT_TIMELINE`."""
+    from doorlab import Scenario
+
+    scenario = Scenario(controller=controller, doors="closed")
+    for name, value in SHORT_TIMELINE.items():
+        setattr(scenario.timeline, name, value)
+    scenario.arc.angle_end_deg = SHORT_ARC_END_DEG
+    return scenario
+
+
+def recorded_short(controller: str):
+    """(scenario, result): the short episode run once, its commands logged at every tick."""
+    from designs import recorded_commands
+
+    return recorded_commands(controller, "closed", scenario=short_scenario(controller))
+
+
+def valgrind() -> str:
+    """The valgrind executable.
+
+    Raises:
+        RuntimeError: It is not installed (one line, how to get it).
+    """
+    found = shutil.which("valgrind")
+    if found is None:
+        raise RuntimeError(
+            "valgrind not found: instr/* counts instructions with callgrind "
+            "(apt-get install valgrind), or leave instr/* out"
+        )
+    return found
+
+
+def _total(out_file: Path) -> int:
+    """The instructions (Ir) a callgrind output file collected."""
+    for line in out_file.read_text().splitlines():
+        if line.startswith(("totals:", "summary:")):
+            return int(line.split()[1])
+    raise RuntimeError(f"{out_file}: no totals line (did callgrind finish?)")
+
+
+def count(variant: str, recorded_file: Path, out_file: Path) -> int:
+    """Instructions executed inside ``Simulator::AdvanceTo`` by one ``variant`` simulation of
+    the recorded episode, in a child process under callgrind."""
+    env = subprocess_env()
+    env["PYTHONHASHSEED"] = "0"  # the same dict and set orders in every run
+    cmd = [
+        valgrind(),
+        "--tool=callgrind",
+        f"--toggle-collect={ADVANCE_SYMBOL}",
+        f"--callgrind-out-file={out_file}",
+        sys.executable,
+        str(Path(__file__).resolve()),
+        "--child",
+        variant,
+        str(recorded_file),
+    ]
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=BENCH_DIR)
+    if proc.returncode != 0:
+        tail = "\n".join(proc.stderr.strip().splitlines()[-5:])
+        raise RuntimeError(f"callgrind run of {variant} failed (exit {proc.returncode}):\n{tail}")
+    return _total(out_file)
+
+
+def _child(variant: str, recorded_file: Path) -> None:
+    """One simulation of ``variant`` (the counted process)."""
+    from designs import build_floor, replay_episode
+
+    scenario, result = pickle.loads(recorded_file.read_bytes())
+    if variant == "floor":
+        simulator, t_final = build_floor(scenario, result)
+        simulator.Initialize()
+        simulator.AdvanceTo(t_final)
+    elif variant == "python":
+        replay_episode(scenario, result)
+    else:
+        from doorlab import run_controller
+
+        run_controller(scenario)
+
+
+def count_all(
+    controllers: Sequence[str], *, jobs: int, keep: Path | None = None
+) -> dict[str, dict[str, int]]:
+    """{controller: {variant: instructions}}: every (controller, variant) counted once, ``jobs``
+    child processes at a time."""
+    with tempfile.TemporaryDirectory(prefix="doorlab-instr-") as tmp:
+        folder = Path(tmp) if keep is None else keep
+        folder.mkdir(parents=True, exist_ok=True)
+        recorded = {}
+        for controller in controllers:
+            path = folder / f"{controller}.pkl"
+            path.write_bytes(pickle.dumps(recorded_short(controller)))
+            recorded[controller] = path
+        with concurrent.futures.ThreadPoolExecutor(max_workers=jobs) as pool:
+            futures = {
+                (c, v): pool.submit(count, v, recorded[c], folder / f"callgrind.{c}_{v}.out")
+                for c in controllers
+                for v in VARIANTS
+            }
+            counts: dict[str, dict[str, int]] = {c: {} for c in controllers}
+            for (c, v), future in futures.items():
+                counts[c][v] = future.result()
+    return counts
+
+
+def ratios(counts: dict[str, int]) -> dict[str, float]:
+    """The three ratios of one controller's counts."""
+    return {
+        "python_over_floor_instr": counts["python"] / counts["floor"],
+        "new_over_python_instr": counts["new"] / counts["python"],
+        "new_over_floor_instr": counts["new"] / counts["floor"],
+    }
+
+
+def bench_instructions(names: Sequence[str], settings: Settings, ctx) -> list[Metric]:
+    """``instr/<controller>_closed``: the counts and their ratios, ``settings.instr_runs``
+    runs (each a full set of counts)."""
+    valgrind()
+    controllers = [n.split("/", 1)[1].split("_")[0] for n in names]
+    samples: dict[str, dict[str, list[float]]] = {c: {} for c in controllers}
+    watch = CpuWatch()
+    for _ in range(settings.instr_runs):
+        start = time.perf_counter()
+        counts = count_all(controllers, jobs=min(2, os.cpu_count() or 1))
+        for c in controllers:
+            row = {f"{v}_instr": float(counts[c][v]) for v in VARIANTS} | ratios(counts[c])
+            for key, value in row.items():
+                samples[c].setdefault(key, []).append(value)
+            print(
+                f"  instr/{c}_closed: floor {counts[c]['floor'] / 1e9:.3f} G, python "
+                f"{counts[c]['python'] / 1e9:.3f} G, new {counts[c]['new'] / 1e9:.3f} G "
+                f"(python/floor {row['python_over_floor_instr']:.4f}, new/python "
+                f"{row['new_over_python_instr']:.4f})",
+                flush=True,
+            )
+        print(f"  ({time.perf_counter() - start:.0f} s)", flush=True)
+    targets = {
+        "python_over_floor_instr": ("<", PYTHON_OVER_FLOOR_TARGET),
+        "new_over_python_instr": ("<", NEW_OVER_PYTHON_TARGET),
+    }
+    other = watch.other_cores()
+    metrics = []
+    for c in controllers:
+        name = f"design/{c}_closed"
+        for key, values in samples[c].items():
+            metric = Metric(
+                f"{name}/{key}",
+                f"instr/{c}_closed",
+                "instr" if key.endswith("_instr") and "_over_" not in key else "x",
+                values,
+                target=targets.get(key),
+                info={"timeline": SHORT_TIMELINE, "arc_end_deg": SHORT_ARC_END_DEG},
+            )
+            metric.other_cpu_cores = other
+            metrics.append(metric)
+    return metrics
+
+
+# ---------------------------------------------------------------------------------------------
+# The check: do the short episode's ratios predict the full episode's? (CPU time, side by side)
+
+
+def check_cpu(controllers: Sequence[str], repeats: int) -> dict[str, dict[str, list[float]]]:
+    """CPU-time ratios of the full and the short episode, round-robin over ``repeats``:
+    {"<controller>/<full|short>": {"python_over_floor": [...], "new_over_python": [...]}}."""
+    import gc
+
+    from designs import recorded_commands, time_episode, time_floor, time_python_floor
+
+    from doorlab import run_controller
+
+    episodes = {}
+    for c in controllers:
+        episodes[f"{c}/full"] = recorded_commands(c, "closed")
+        episodes[f"{c}/short"] = recorded_short(c)
+    samples = {k: {"python_over_floor": [], "new_over_python": []} for k in episodes}
+    for i in range(repeats):
+        watch = CpuWatch()
+        for key, (scenario, result) in episodes.items():
+            floor = time_floor(scenario, result)[1]
+            gc.collect()
+            python = time_python_floor(scenario, result)[1]
+            gc.collect()
+            new = time_episode(run_controller, scenario)[1]
+            gc.collect()
+            samples[key]["python_over_floor"].append(python / floor)
+            samples[key]["new_over_python"].append(new / python)
+        other = watch.other_cores()
+        print(
+            f"  repeat {i + 1}/{repeats} (other processes: {other:.2f} cores): "
+            + ", ".join(
+                f"{k} {s['python_over_floor'][-1]:.3f} / {s['new_over_python'][-1]:.3f}"
+                for k, s in samples.items()
+            ),
+            flush=True,
+        )
+    return samples
+
+
+def _main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--child", nargs=2, metavar=("VARIANT", "RECORDED"), help=argparse.SUPPRESS)
+    parser.add_argument("--runs", type=int, default=3, help="full sets of counts (default 3)")
+    parser.add_argument("--jobs", type=int, default=2, help="callgrind processes at a time")
+    parser.add_argument("--keep", type=Path, help="keep the callgrind files in this folder")
+    parser.add_argument("--controllers", nargs="+", default=list(CONTROLLERS))
+    parser.add_argument(
+        "--check-cpu", action="store_true", help="CPU-time ratios of the full and short episodes"
+    )
+    parser.add_argument("--repeats", type=int, default=15, help="repeats of --check-cpu")
+    args = parser.parse_args(argv)
+    if args.child:
+        _child(args.child[0], Path(args.child[1]))
+        return 0
+    print(f"load average {os.getloadavg()} on {os.cpu_count()} cores", flush=True)
+    if args.check_cpu:
+        samples = check_cpu(args.controllers, args.repeats)
+        print("\nmedians of the CPU-time ratios (python/floor, new/python):")
+        for key, s in samples.items():
+            print(
+                f"  {key:<16} {statistics.median(s['python_over_floor']):.3f}  "
+                f"{statistics.median(s['new_over_python']):.3f}"
+            )
+        return 0
+    runs = []
+    for r in range(args.runs):
+        keep = None if args.keep is None else args.keep / f"run{r + 1}"
+        start = time.perf_counter()
+        counts = count_all(args.controllers, jobs=args.jobs, keep=keep)
+        runs.append(counts)
+        print(f"run {r + 1} ({time.perf_counter() - start:.0f} s, load {os.getloadavg()}):")
+        for c, row in counts.items():
+            q = ratios(row)
+            print(
+                f"  {c:<10} floor {row['floor']:>14,d}  python {row['python']:>14,d}  "
+                f"new {row['new']:>14,d}  python/floor {q['python_over_floor_instr']:.4f}  "
+                f"new/python {q['new_over_python_instr']:.4f}",
+                flush=True,
+            )
+    if len(runs) > 1:
+        print("spread over the runs (max / min - 1):")
+        for c in args.controllers:
+            for v in VARIANTS:
+                values = [run[c][v] for run in runs]
+                print(f"  {c:<10} {v:<7} {100 * (max(values) / min(values) - 1):.4f} %")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_main())
