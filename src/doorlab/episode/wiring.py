@@ -72,6 +72,11 @@ class CommandWiring:
     tau_ff: OutputPort
     wsg_position: OutputPort
 
+    def advance_to(self, simulator, t: float) -> None:
+        """Advances ``simulator`` to ``t`` [s] with the plan runner's ticks on the way (the
+        episode's one way to advance the diagram the wiring is in)."""
+        simulator.AdvanceTo(t)
+
 
 def wire_commands(
     builder: DiagramBuilder,
