@@ -6,9 +6,12 @@ instructions (callgrind), so that a ratio does not depend on what else the machi
 machinery, the Python plan runner and the logger, with a plan that replays the recorded
 commands) and **new** (``run_controller``). On a shared 2-core machine their CPU-time ratios
 moved by 2x between runs of the same commit (issue 35). Here each of the three runs in its own
-process under ``valgrind --tool=callgrind``, which counts the instructions executed inside
-``Simulator::AdvanceTo`` only (``--toggle-collect``: the simulation, the Python ticks it
-calls, nothing of the imports, IK or diagram building), the same region ``designs.py`` times.
+process under ``valgrind --tool=callgrind``, which counts the instructions of the episode's
+advance only, the region ``designs.py`` times: ``Simulator.AdvanceTo`` for the floor, the
+episode's ``advance_interruptibly`` for the others (the simulator's steps and the plan
+runner's ticks between them; nothing of the imports, IK or diagram building). Callgrind
+starts uninstrumented and the region is marked with its client requests
+(``callgrind_region.c``, built with the system's C compiler: valgrind's headers and ``cc``).
 
 Under callgrind Python and Drake run ~50x slower, so the counted episode is a short one with
 the same phases (:func:`short_scenario`: the approach, the grasp, the arc against the closed
@@ -56,8 +59,9 @@ VARIANTS = ("floor", "python", "new")
 PYTHON_OVER_FLOOR_TARGET = 1.2
 NEW_OVER_PYTHON_TARGET = 1.1
 
-ADVANCE_SYMBOL = "drake::systems::Simulator<double>::AdvanceTo(double const&)"
-"""Callgrind counts only inside this function (and what it calls)."""
+REGION_SOURCE = BENCH_DIR / "callgrind_region.c"
+"""The counted region's markers (callgrind's client requests): built into each run's folder."""
+REGION_ENV = "DOORLAB_CALLGRIND_REGION"
 
 SHORT_TIMELINE = {
     "hold_duration": 0.05,
@@ -107,23 +111,48 @@ def valgrind() -> str:
     return found
 
 
+def build_region(folder: Path) -> Path:
+    """The region markers as a shared library in ``folder``.
+
+    Raises:
+        RuntimeError: No C compiler, or no valgrind headers (one line, what to install).
+    """
+    compiler = shutil.which("cc") or shutil.which("gcc")
+    if compiler is None:
+        raise RuntimeError("no C compiler (cc): instr/* builds callgrind's region markers")
+    library = folder / "callgrind_region.so"
+    proc = subprocess.run(
+        [compiler, "-O2", "-shared", "-fPIC", "-o", str(library), str(REGION_SOURCE)],
+        capture_output=True,
+        text=True,
+    )
+    if proc.returncode != 0:
+        first = (proc.stderr.strip().splitlines() or ["?"])[0]
+        raise RuntimeError(f"cannot build {REGION_SOURCE.name} (valgrind's headers?): {first}")
+    return library
+
+
 def _total(out_file: Path) -> int:
     """The instructions (Ir) a callgrind output file collected."""
-    for line in out_file.read_text().splitlines():
-        if line.startswith(("totals:", "summary:")):
-            return int(line.split()[1])
+    lines = out_file.read_text().splitlines()
+    for prefix in ("totals:", "summary:"):  # with the collection toggled, summary is 0
+        for line in lines:
+            if line.startswith(prefix):
+                return int(line.split()[1])
     raise RuntimeError(f"{out_file}: no totals line (did callgrind finish?)")
 
 
-def count(variant: str, recorded_file: Path, out_file: Path) -> int:
-    """Instructions executed inside ``Simulator::AdvanceTo`` by one ``variant`` simulation of
-    the recorded episode, in a child process under callgrind."""
+def count(variant: str, recorded_file: Path, out_file: Path, region: Path) -> int:
+    """Instructions of the advance of one ``variant`` simulation of the recorded episode, in
+    a child process under callgrind (``region``: :func:`build_region`'s library)."""
     env = subprocess_env()
     env["PYTHONHASHSEED"] = "0"  # the same dict and set orders in every run
+    env[REGION_ENV] = str(region)
     cmd = [
         valgrind(),
         "--tool=callgrind",
-        f"--toggle-collect={ADVANCE_SYMBOL}",
+        "--instr-atstart=no",
+        "--collect-atstart=no",
         f"--callgrind-out-file={out_file}",
         sys.executable,
         str(Path(__file__).resolve()),
@@ -139,15 +168,33 @@ def count(variant: str, recorded_file: Path, out_file: Path) -> int:
 
 
 def _child(variant: str, recorded_file: Path) -> None:
-    """One simulation of ``variant`` (the counted process)."""
+    """One simulation of ``variant`` (the counted process): its advance between the markers."""
+    import ctypes
+
     from designs import build_floor, replay_episode
 
+    from doorlab.episode import simulation
+
+    markers = ctypes.CDLL(os.environ[REGION_ENV])
     scenario, result = pickle.loads(recorded_file.read_bytes())
     if variant == "floor":
         simulator, t_final = build_floor(scenario, result)
         simulator.Initialize()
+        markers.doorlab_region_start()
         simulator.AdvanceTo(t_final)
-    elif variant == "python":
+        markers.doorlab_region_stop()
+        return
+    original = simulation.advance_interruptibly
+
+    def counted(*args, **kwargs):
+        markers.doorlab_region_start()
+        try:
+            return original(*args, **kwargs)
+        finally:
+            markers.doorlab_region_stop()
+
+    simulation.advance_interruptibly = counted
+    if variant == "python":
         replay_episode(scenario, result)
     else:
         from doorlab import run_controller
@@ -163,6 +210,7 @@ def count_all(
     with tempfile.TemporaryDirectory(prefix="doorlab-instr-") as tmp:
         folder = Path(tmp) if keep is None else keep
         folder.mkdir(parents=True, exist_ok=True)
+        region = build_region(folder)
         recorded = {}
         for controller in controllers:
             path = folder / f"{controller}.pkl"
@@ -170,7 +218,9 @@ def count_all(
             recorded[controller] = path
         with concurrent.futures.ThreadPoolExecutor(max_workers=jobs) as pool:
             futures = {
-                (c, v): pool.submit(count, v, recorded[c], folder / f"callgrind.{c}_{v}.out")
+                (c, v): pool.submit(
+                    count, v, recorded[c], folder / f"callgrind.{c}_{v}.out", region
+                )
                 for c in controllers
                 for v in VARIANTS
             }
@@ -238,8 +288,9 @@ def bench_instructions(names: Sequence[str], settings: Settings, ctx) -> list[Me
 
 
 def check_cpu(controllers: Sequence[str], repeats: int) -> dict[str, dict[str, list[float]]]:
-    """CPU-time ratios of the full and the short episode, round-robin over ``repeats``:
-    {"<controller>/<full|short>": {"python_over_floor": [...], "new_over_python": [...]}}."""
+    """CPU times [s] of the full and the short episode's three simulations, round-robin over
+    ``repeats``: {"<controller>/<full|short>": {"floor": [...], "python": [...], "new": [...],
+    "python_over_floor": [...], "new_over_python": [...]}} (ratios per repeat)."""
     import gc
 
     from designs import recorded_commands, time_episode, time_floor, time_python_floor
@@ -250,7 +301,8 @@ def check_cpu(controllers: Sequence[str], repeats: int) -> dict[str, dict[str, l
     for c in controllers:
         episodes[f"{c}/full"] = recorded_commands(c, "closed")
         episodes[f"{c}/short"] = recorded_short(c)
-    samples = {k: {"python_over_floor": [], "new_over_python": []} for k in episodes}
+    keys = ("floor", "python", "new", "python_over_floor", "new_over_python")
+    samples = {k: {key: [] for key in keys} for k in episodes}
     for i in range(repeats):
         watch = CpuWatch()
         for key, (scenario, result) in episodes.items():
@@ -260,8 +312,9 @@ def check_cpu(controllers: Sequence[str], repeats: int) -> dict[str, dict[str, l
             gc.collect()
             new = time_episode(run_controller, scenario)[1]
             gc.collect()
-            samples[key]["python_over_floor"].append(python / floor)
-            samples[key]["new_over_python"].append(new / python)
+            row = (floor, python, new, python / floor, new / python)
+            for name, value in zip(keys, row, strict=True):
+                samples[key][name].append(value)
         other = watch.other_cores()
         print(
             f"  repeat {i + 1}/{repeats} (other processes: {other:.2f} cores): "
@@ -292,11 +345,12 @@ def _main(argv: Sequence[str] | None = None) -> int:
     print(f"load average {os.getloadavg()} on {os.cpu_count()} cores", flush=True)
     if args.check_cpu:
         samples = check_cpu(args.controllers, args.repeats)
-        print("\nmedians of the CPU-time ratios (python/floor, new/python):")
+        print("\nmedians: CPU s of floor, python, new; python/floor, new/python")
         for key, s in samples.items():
+            m = {name: statistics.median(values) for name, values in s.items()}
             print(
-                f"  {key:<16} {statistics.median(s['python_over_floor']):.3f}  "
-                f"{statistics.median(s['new_over_python']):.3f}"
+                f"  {key:<16} {m['floor']:.3f} {m['python']:.3f} {m['new']:.3f}  "
+                f"{m['python_over_floor']:.3f}  {m['new_over_python']:.3f}"
             )
         return 0
     runs = []
