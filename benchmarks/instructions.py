@@ -132,19 +132,36 @@ def build_region(folder: Path) -> Path:
     return library
 
 
-def _total(out_file: Path) -> int:
-    """The instructions (Ir) a callgrind output file collected."""
+CACHE_SIM = (
+    "--cache-sim=yes",
+    "--branch-sim=yes",
+    "--I1=65536,8,64",  # this machine's L1 instruction cache (per core, lscpu)
+    "--D1=49152,12,64",  # its L1 data cache
+    "--LL=2097152,16,64",  # its L2, the last level private to a core, as callgrind's LL
+)
+"""``--cache-sim``: callgrind also simulates this machine's caches and a branch predictor."""
+
+
+def _events(out_file: Path) -> dict[str, int]:
+    """The events a callgrind output file collected: ``Ir`` (instructions), and with
+    :data:`CACHE_SIM` the cache misses (``I1mr``, ``D1mr``, ``D1mw``, ``ILmr``, ``DLmr``,
+    ``DLmw``) and mispredicted branches (``Bcm``, ``Bim``)."""
     lines = out_file.read_text().splitlines()
+    names = next((line.split()[1:] for line in lines if line.startswith("events:")), ["Ir"])
     for prefix in ("totals:", "summary:"):  # with the collection toggled, summary is 0
         for line in lines:
             if line.startswith(prefix):
-                return int(line.split()[1])
+                values = [int(v) for v in line.split()[1:]]
+                return dict(zip(names, values + [0] * (len(names) - len(values)), strict=True))
     raise RuntimeError(f"{out_file}: no totals line (did callgrind finish?)")
 
 
-def count(variant: str, recorded_file: Path, out_file: Path, region: Path) -> int:
-    """Instructions of the advance of one ``variant`` simulation of the recorded episode, in
-    a child process under callgrind (``region``: :func:`build_region`'s library)."""
+def count(
+    variant: str, recorded_file: Path, out_file: Path, region: Path, *, cache_sim: bool = False
+) -> dict[str, int]:
+    """The events (:func:`_events`) of the advance of one ``variant`` simulation of the
+    recorded episode, in a child process under callgrind (``region``: :func:`build_region`'s
+    library)."""
     env = subprocess_env()
     env["PYTHONHASHSEED"] = "0"  # the same dict and set orders in every run
     env[REGION_ENV] = str(region)
@@ -153,6 +170,7 @@ def count(variant: str, recorded_file: Path, out_file: Path, region: Path) -> in
         "--tool=callgrind",
         "--instr-atstart=no",
         "--collect-atstart=no",
+        *(CACHE_SIM if cache_sim else ()),
         f"--callgrind-out-file={out_file}",
         sys.executable,
         str(Path(__file__).resolve()),
@@ -164,7 +182,7 @@ def count(variant: str, recorded_file: Path, out_file: Path, region: Path) -> in
     if proc.returncode != 0:
         tail = "\n".join(proc.stderr.strip().splitlines()[-5:])
         raise RuntimeError(f"callgrind run of {variant} failed (exit {proc.returncode}):\n{tail}")
-    return _total(out_file)
+    return _events(out_file)
 
 
 def _child(variant: str, recorded_file: Path) -> None:
@@ -203,10 +221,10 @@ def _child(variant: str, recorded_file: Path) -> None:
 
 
 def count_all(
-    controllers: Sequence[str], *, jobs: int, keep: Path | None = None
-) -> dict[str, dict[str, int]]:
-    """{controller: {variant: instructions}}: every (controller, variant) counted once, ``jobs``
-    child processes at a time."""
+    controllers: Sequence[str], *, jobs: int, keep: Path | None = None, cache_sim: bool = False
+) -> dict[str, dict[str, dict[str, int]]]:
+    """{controller: {variant: events}} (:func:`count`): every (controller, variant) counted
+    once, ``jobs`` child processes at a time."""
     with tempfile.TemporaryDirectory(prefix="doorlab-instr-") as tmp:
         folder = Path(tmp) if keep is None else keep
         folder.mkdir(parents=True, exist_ok=True)
@@ -219,24 +237,63 @@ def count_all(
         with concurrent.futures.ThreadPoolExecutor(max_workers=jobs) as pool:
             futures = {
                 (c, v): pool.submit(
-                    count, v, recorded[c], folder / f"callgrind.{c}_{v}.out", region
+                    count,
+                    v,
+                    recorded[c],
+                    folder / f"callgrind.{c}_{v}.out",
+                    region,
+                    cache_sim=cache_sim,
                 )
                 for c in controllers
                 for v in VARIANTS
             }
-            counts: dict[str, dict[str, int]] = {c: {} for c in controllers}
+            counts: dict[str, dict[str, dict[str, int]]] = {c: {} for c in controllers}
             for (c, v), future in futures.items():
                 counts[c][v] = future.result()
     return counts
 
 
-def ratios(counts: dict[str, int]) -> dict[str, float]:
-    """The three ratios of one controller's counts."""
+def ratios(counts: dict[str, dict[str, int]]) -> dict[str, float]:
+    """The three ratios of one controller's instruction counts."""
+    floor, python, new = (counts[v]["Ir"] for v in VARIANTS)
     return {
-        "python_over_floor_instr": counts["python"] / counts["floor"],
-        "new_over_python_instr": counts["new"] / counts["python"],
-        "new_over_floor_instr": counts["new"] / counts["floor"],
+        "python_over_floor_instr": python / floor,
+        "new_over_python_instr": new / python,
+        "new_over_floor_instr": new / floor,
     }
+
+
+def misses(counts: dict[str, dict[str, int]]) -> list[str]:
+    """Lines for ``--cache-sim``: each variant's misses, then per 1000 instructions of the
+    floor and of what python adds to it and new to python (MPKI)."""
+
+    def kinds(e: dict[str, int]) -> tuple[int, int, int, int, int]:
+        return (
+            e["Ir"],
+            e["I1mr"],
+            e["D1mr"] + e["D1mw"],
+            e["ILmr"] + e["DLmr"] + e["DLmw"],
+            e["Bcm"] + e["Bim"],
+        )
+
+    rows = {v: kinds(counts[v]) for v in VARIANTS}
+    lines = [
+        f"    {v:<7} instr {r[0]:>14,d}  L1i miss {r[1]:>12,d}  L1d miss {r[2]:>12,d}  "
+        f"L2 miss {r[3]:>10,d}  branch miss {r[4]:>12,d}"
+        for v, r in rows.items()
+    ]
+    parts = {
+        "floor": rows["floor"],
+        "python - floor": tuple(a - b for a, b in zip(rows["python"], rows["floor"], strict=True)),
+        "new - python": tuple(a - b for a, b in zip(rows["new"], rows["python"], strict=True)),
+    }
+    for label, r in parts.items():
+        per = [1000 * x / r[0] for x in r[1:]]
+        lines.append(
+            f"    {label:<15} per 1000 instructions: L1i {per[0]:.2f}, L1d {per[1]:.2f}, "
+            f"L2 {per[2]:.3f}, branch {per[3]:.2f}"
+        )
+    return lines
 
 
 def bench_instructions(names: Sequence[str], settings: Settings, ctx) -> list[Metric]:
@@ -250,12 +307,12 @@ def bench_instructions(names: Sequence[str], settings: Settings, ctx) -> list[Me
         start = time.perf_counter()
         counts = count_all(controllers, jobs=min(2, os.cpu_count() or 1))
         for c in controllers:
-            row = {f"{v}_instr": float(counts[c][v]) for v in VARIANTS} | ratios(counts[c])
+            row = {f"{v}_instr": float(counts[c][v]["Ir"]) for v in VARIANTS} | ratios(counts[c])
             for key, value in row.items():
                 samples[c].setdefault(key, []).append(value)
             print(
-                f"  instr/{c}_closed: floor {counts[c]['floor'] / 1e9:.3f} G, python "
-                f"{counts[c]['python'] / 1e9:.3f} G, new {counts[c]['new'] / 1e9:.3f} G "
+                f"  instr/{c}_closed: floor {row['floor_instr'] / 1e9:.3f} G, python "
+                f"{row['python_instr'] / 1e9:.3f} G, new {row['new_instr'] / 1e9:.3f} G "
                 f"(python/floor {row['python_over_floor_instr']:.4f}, new/python "
                 f"{row['new_over_python_instr']:.4f})",
                 flush=True,
@@ -338,6 +395,11 @@ def _main(argv: Sequence[str] | None = None) -> int:
         "--check-cpu", action="store_true", help="CPU-time ratios of the full and short episodes"
     )
     parser.add_argument("--repeats", type=int, default=15, help="repeats of --check-cpu")
+    parser.add_argument(
+        "--cache-sim",
+        action="store_true",
+        help="also simulate this machine's caches and branch predictor (slower): the misses",
+    )
     args = parser.parse_args(argv)
     if args.child:
         _child(args.child[0], Path(args.child[1]))
@@ -357,22 +419,25 @@ def _main(argv: Sequence[str] | None = None) -> int:
     for r in range(args.runs):
         keep = None if args.keep is None else args.keep / f"run{r + 1}"
         start = time.perf_counter()
-        counts = count_all(args.controllers, jobs=args.jobs, keep=keep)
+        counts = count_all(args.controllers, jobs=args.jobs, keep=keep, cache_sim=args.cache_sim)
         runs.append(counts)
         print(f"run {r + 1} ({time.perf_counter() - start:.0f} s, load {os.getloadavg()}):")
         for c, row in counts.items():
             q = ratios(row)
+            floor, python, new = (row[v]["Ir"] for v in VARIANTS)
             print(
-                f"  {c:<10} floor {row['floor']:>14,d}  python {row['python']:>14,d}  "
-                f"new {row['new']:>14,d}  python/floor {q['python_over_floor_instr']:.4f}  "
+                f"  {c:<10} floor {floor:>14,d}  python {python:>14,d}  new {new:>14,d}  "
+                f"python/floor {q['python_over_floor_instr']:.4f}  "
                 f"new/python {q['new_over_python_instr']:.4f}",
                 flush=True,
             )
+            if args.cache_sim:
+                print("\n".join(misses(row)), flush=True)
     if len(runs) > 1:
         print("spread over the runs (max / min - 1):")
         for c in args.controllers:
             for v in VARIANTS:
-                values = [run[c][v] for run in runs]
+                values = [run[c][v]["Ir"] for run in runs]
                 print(f"  {c:<10} {v:<7} {100 * (max(values) / min(values) - 1):.4f} %")
     return 0
 

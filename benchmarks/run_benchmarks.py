@@ -490,6 +490,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             isolated = next((m.median for m in metrics if m.key == "tick/velocity"), None)
             versus = "" if isolated is None else f" vs {isolated:.0f} us isolated (tick/velocity)"
             print(f"  velocity plan command: median {inside:.0f} us inside the episode{versus}")
+            print(
+                f"  the same command repeated at once in a tick: "
+                f"{split['velocity_command_first_median_us']:.0f} us, then "
+                f"{split['velocity_command_repeat_median_us']:.0f} us (warm caches)"
+            )
         for label, value in split["cprofile"]["named_cumulative_s"].items():
             print(f"    cProfile cumulative, {label}: {value:.3f} s")
         print("\n  cProfile top lines:")
