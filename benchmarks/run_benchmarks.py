@@ -40,9 +40,10 @@ Benchmarks (``--only`` takes names, groups such as ``episode``, or globs such as
     one that only imports doorlab: VmHWM read by the child from /proc/self/status (NOT
     ``ru_maxrss`` via RUSAGE_CHILDREN, which Linux seeds with the parent's peak at fork).
 ``profile/episode``
-    Where the time of one velocity/closed episode goes: Python control ticks, the rest of
-    ``Simulator.AdvanceTo`` (the C++ plant step), and setup/teardown. Measured with a timer
-    around ``PlanRunner._tick`` (unbiased), then once more under cProfile for the top lines.
+    Where the time of one velocity/closed episode goes: Python control ticks, the rest of the
+    advance (the C++ plant steps), and setup/teardown. Measured with a timer around
+    ``PlanRunner._tick`` (unbiased), then once more under cProfile for the top lines, then
+    once more timing each velocity command and its repeat at once (cold and warm caches).
 
 The command line, selection, output and comparison live here; the benchmark groups in
 ``micro.py`` (tick, ik), ``episodes.py``, ``designs.py``, ``instructions.py``, ``processes.py``
@@ -476,7 +477,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("profile/episode (velocity, doors closed): where the wall time goes")
         for label, key in (
             ("(a) Python control ticks (PlanRunner._tick)", "ticks_s"),
-            ("(b) rest of Simulator.AdvanceTo (C++ plant step)", "plant_step_s"),
+            ("(b) rest of the advance (C++ plant steps)", "plant_step_s"),
             ("(c) setup/teardown (parsing, IK, build, logs)", "setup_and_teardown_s"),
         ):
             cp = split["cprofile"][key]
