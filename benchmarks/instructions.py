@@ -135,7 +135,7 @@ def build_region(folder: Path) -> Path:
 CACHE_SIM = (
     "--cache-sim=yes",
     "--branch-sim=yes",
-    "--I1=65536,8,64",  # this machine's L1 instruction cache (per core, lscpu)
+    "--I1=65536,16,64",  # this machine's L1 instruction cache (per core, /sys/.../cache)
     "--D1=49152,12,64",  # its L1 data cache
     "--LL=2097152,16,64",  # its L2, the last level private to a core, as callgrind's LL
 )
