@@ -21,7 +21,8 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-from pydrake.systems.framework import OutputPort
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import Diagram, OutputPort
 from pydrake.systems.primitives import ConstantVectorSource
 
 from doorlab.constants import NUM_JOINTS
@@ -78,7 +79,7 @@ class PlanRunner:
 
     def connect(
         self,
-        cell,
+        cell: Diagram,
         state: OutputPort,
         torque_external: OutputPort,
         q_ref: ConstantVectorSource,
@@ -102,7 +103,7 @@ class PlanRunner:
             self._cursor -= 1
         return self._schedule[self._cursor]
 
-    def advance_to(self, simulator, t: float) -> None:
+    def advance_to(self, simulator: Simulator, t: float) -> None:
         """``simulator.AdvanceTo(t)``, running every tick whose stop (t_k + lag) is at or
         before ``t`` [s] on the way (a tick whose stop is ``t`` itself runs before the first
         step after ``t``, as a discrete update at ``t`` would)."""
@@ -129,7 +130,7 @@ class PlanRunner:
         q_source.get_mutable_source_value(q_context).SetFromVector(command.q_ref - self._q_offset)
         tau_source.get_mutable_source_value(tau_context).SetFromVector(command.tau_ff)
 
-    def _bind(self, simulator) -> tuple:
+    def _bind(self, simulator: Simulator) -> tuple:
         """The ports and the contexts in ``simulator``'s; on a simulator not seen before, the
         next tick is the first whose stop is after its time."""
         if self._io is None:

@@ -21,6 +21,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder, OutputPort
 from pydrake.systems.primitives import (
     Adder,
@@ -72,7 +73,7 @@ class CommandWiring:
     tau_ff: OutputPort
     wsg_position: OutputPort
 
-    def advance_to(self, simulator, t: float) -> None:
+    def advance_to(self, simulator: Simulator, t: float) -> None:
         """Advances ``simulator`` to ``t`` [s], running the plan runner's ticks on the way
         (:meth:`PlanRunner.advance_to`; a plain ``AdvanceTo`` when there is no runner)."""
         if self.runner is None:
