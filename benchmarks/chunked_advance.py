@@ -62,7 +62,7 @@ def _timed_episode(controller: str, chunk: float, default: float) -> tuple[dict,
     measured = {}
     gaps = [0.0]
 
-    def timed_advance(simulator, t_final, *, realtime_rate=0.0):
+    def timed_advance(simulator, t_final, **kwargs):
         def step(self, t):  # one AdvanceTo: the time Python waits for C++
             start = time.perf_counter()
             advance_to(self, t)
@@ -72,7 +72,7 @@ def _timed_episode(controller: str, chunk: float, default: float) -> tuple[dict,
         simulator_type.AdvanceTo = step
         cpu = time.process_time()
         try:
-            original(simulator, t_final, realtime_rate=realtime_rate)
+            original(simulator, t_final, **kwargs)
         finally:
             simulator_type.AdvanceTo = advance_to
         measured["cpu"] = time.process_time() - cpu

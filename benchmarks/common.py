@@ -106,6 +106,7 @@ class Settings:
     tick_calls: int
     quick: bool
     selected: list[str]
+    instr_runs: int = 1  # full sets of instruction counts (instr/*): deterministic, one suffices
 
 
 # ---------------------------------------------------------------------------------------------

@@ -1,8 +1,9 @@
 """Benchmark group ``design/<controller>_<doors>``: the episode against Drake's floor and the
 old (353b732) design, side by side in one process, round-robin over the repeats.
 
-Per repeat, three simulations of the same 24 s episode, each timed around
-``Simulator.AdvanceTo`` only (no IK, no diagram building):
+Per repeat, three simulations of the same 24 s episode, each timed around its advance only
+(``Simulator.AdvanceTo`` for the floor; the episode's ``advance_interruptibly``, the
+simulator's steps and the plan runner's ticks, for the others; no IK, no diagram building):
 
 ``floor``
     The same cell (the current station) with the episode's commands (q_ref, tau_ff every
@@ -42,14 +43,19 @@ NEW_OVER_FLOOR_TARGET = 1.15
 OLD_OVER_NEW_TARGET = 1.3
 
 
-def recorded_commands(controller: str, doors: str):
-    """Runs the episode once with the logs at the control period; returns (scenario, result)."""
+def recorded_commands(controller: str, doors: str, *, scenario=None):
+    """Runs the episode once with the logs at the control period; returns (scenario, result).
+
+    ``scenario``: run this one (its controller and doors) instead of the default episode.
+    """
     from doorlab import Scenario, run_controller
 
-    scenario = Scenario(controller=controller, doors=doors)
+    if scenario is None:
+        scenario = Scenario(controller=controller, doors=doors)
+    log_period = scenario.timeline.log_period
     scenario.timeline.log_period = scenario.timeline.control_period
     result, _ = run_controller(scenario)
-    scenario.timeline.log_period = Scenario().timeline.log_period
+    scenario.timeline.log_period = log_period
     return scenario, result
 
 
@@ -102,25 +108,27 @@ def build_floor(scenario, result):
 
 @contextlib.contextmanager
 def advance_clock() -> Iterator[list[float]]:
-    """Within the block, sums the wall and CPU time [s] of every ``Simulator.AdvanceTo``."""
-    from pydrake.systems.analysis import Simulator
+    """Within the block, sums the wall and CPU time [s] of every episode's advance
+    (``doorlab.episode.simulation.advance_interruptibly``: the simulator's steps and the plan
+    runner's ticks between its stops, which run outside ``Simulator.AdvanceTo``)."""
+    from doorlab.episode import simulation
 
     spent = [0.0, 0.0]
-    original = Simulator.AdvanceTo
+    original = simulation.advance_interruptibly
 
-    def timed(self, t):
+    def timed(*args, **kwargs):
         wall, cpu = time.perf_counter(), time.process_time()
         try:
-            return original(self, t)
+            return original(*args, **kwargs)
         finally:
             spent[0] += time.perf_counter() - wall
             spent[1] += time.process_time() - cpu
 
-    Simulator.AdvanceTo = timed
+    simulation.advance_interruptibly = timed
     try:
         yield spent
     finally:
-        Simulator.AdvanceTo = original
+        simulation.advance_interruptibly = original
 
 
 def time_floor(scenario, result) -> tuple[float, float]:

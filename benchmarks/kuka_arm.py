@@ -90,9 +90,9 @@ def _each_step_episode(scenario):
             joint.SetDamping(plant_context, float(d))
         t_next = min((n + 0.5) * h, episode.t_final)
         if context.get_time() < unlock_at <= t_next:
-            simulator.AdvanceTo(unlock_at)
+            episode.commands.advance_to(simulator, unlock_at)
             episode.arm.unlock(context)
-        simulator.AdvanceTo(t_next)
+        episode.commands.advance_to(simulator, t_next)  # the plan runner's ticks on the way
     result, _ = _result(episode, simulator, scenario, 0.0, len(plans) + 1)
     return result, np.array(dampings)
 

@@ -1,4 +1,6 @@
-"""Benchmark ``profile/episode``: where one episode's time goes."""
+"""Benchmark ``profile/episode``: where one episode's time goes (the ticks, the plant's steps,
+set-up; cProfile's top lines; a velocity command inside the episode, and the same command
+repeated at once, on warm caches)."""
 
 from __future__ import annotations
 
@@ -28,10 +30,10 @@ def bench_profile(settings: Settings, ctx: Context) -> tuple[list[Metric], dict]
     original = PlanRunner._tick
     spent = [0.0, 0]
 
-    def timed_tick(self, context, discrete_state):
+    def timed_tick(self, *args):
         start = time.perf_counter()
         try:
-            return original(self, context, discrete_state)
+            return original(self, *args)
         finally:
             spent[0] += time.perf_counter() - start
             spent[1] += 1
@@ -48,7 +50,7 @@ def bench_profile(settings: Settings, ctx: Context) -> tuple[list[Metric], dict]
         finally:
             commands.append((time.perf_counter_ns() - start) / 1e3)
 
-    PlanRunner._tick = timed_tick  # the runner binds self._tick when it is built
+    PlanRunner._tick = timed_tick
     TaskSpaceVelocityPlan.command = timed_command
     try:
         start = time.perf_counter()
@@ -91,6 +93,25 @@ def bench_profile(settings: Settings, ctx: Context) -> tuple[list[Metric], dict]
     stats.sort_stats("tottime").print_stats(12)
     top = _trim_pstats(text.getvalue())
 
+    # 3. The same command repeated at once inside the episode: the first call of a tick runs
+    # on caches the plant's steps (and other processes) left cold, the repeat on warm ones.
+    first, repeat = [], []
+
+    def cold_then_warm(self, t, state):
+        start = time.perf_counter_ns()
+        result = original_command(self, t, state)
+        middle = time.perf_counter_ns()
+        original_command(self, t, state)  # same inputs, same plan context: the same result
+        first.append((middle - start) / 1e3)
+        repeat.append((time.perf_counter_ns() - middle) / 1e3)
+        return result
+
+    TaskSpaceVelocityPlan.command = cold_then_warm
+    try:
+        run_controller(scenario)
+    finally:
+        TaskSpaceVelocityPlan.command = original_command
+
     split = {
         "episode_e2e_s": e2e,
         "ticks_s": ticks_s,
@@ -100,6 +121,8 @@ def bench_profile(settings: Settings, ctx: Context) -> tuple[list[Metric], dict]
         "setup_and_teardown_s": setup_s,
         "velocity_commands": len(commands),
         "velocity_command_median_us": statistics.median(commands) if commands else None,
+        "velocity_command_first_median_us": statistics.median(first),
+        "velocity_command_repeat_median_us": statistics.median(repeat),
         "cprofile": {
             "e2e_s": profiled_e2e,
             "ticks_s": cp_ticks,
@@ -117,7 +140,9 @@ def bench_profile(settings: Settings, ctx: Context) -> tuple[list[Metric], dict]
     if commands:
         print(
             f"  velocity plan command inside the episode: median "
-            f"{statistics.median(commands):.0f} us over {len(commands)} calls",
+            f"{statistics.median(commands):.0f} us over {len(commands)} calls; repeated at "
+            f"once in a tick: {statistics.median(first):.0f} us, then "
+            f"{statistics.median(repeat):.0f} us",
             flush=True,
         )
     metrics = [

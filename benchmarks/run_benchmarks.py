@@ -29,18 +29,25 @@ Benchmarks (``--only`` takes names, groups such as ``episode``, or globs such as
     The episode against Drake's floor (the same cell, the recorded commands replayed from
     C++), against the same machinery with no law (the Python runner replaying the commands)
     and against the 353b732 design, side by side (``benchmarks/designs.py``).
+``instr/velocity_closed``, ``instr/impedance_closed``
+    The same three simulations (floor, python, new) counted in instructions by callgrind on a
+    short episode with the same phases (``benchmarks/instructions.py``): metrics
+    ``design/<controller>_closed/python_over_floor_instr`` (target <= 1.2),
+    ``.../new_over_python_instr`` (<= 1.1), the counts themselves; one count per run (they are
+    deterministic). Needs valgrind; ~3 min on 2 cores.
 ``memory/episode``
     Peak resident set size of a fresh process that runs one velocity/closed episode, and of
     one that only imports doorlab: VmHWM read by the child from /proc/self/status (NOT
     ``ru_maxrss`` via RUSAGE_CHILDREN, which Linux seeds with the parent's peak at fork).
 ``profile/episode``
-    Where the time of one velocity/closed episode goes: Python control ticks, the rest of
-    ``Simulator.AdvanceTo`` (the C++ plant step), and setup/teardown. Measured with a timer
-    around ``PlanRunner._tick`` (unbiased), then once more under cProfile for the top lines.
+    Where the time of one velocity/closed episode goes: Python control ticks, the rest of the
+    advance (the C++ plant steps), and setup/teardown. Measured with a timer around
+    ``PlanRunner._tick`` (unbiased), then once more under cProfile for the top lines, then
+    once more timing each velocity command and its repeat at once (cold and warm caches).
 
 The command line, selection, output and comparison live here; the benchmark groups in
-``micro.py`` (tick, ik), ``episodes.py``, ``designs.py``, ``processes.py`` (run, memory) and
-``profiling.py``; what they share in ``common.py``.
+``micro.py`` (tick, ik), ``episodes.py``, ``designs.py``, ``instructions.py``, ``processes.py``
+(run, memory) and ``profiling.py``; what they share in ``common.py``.
 
 Every number is the MEDIAN over the repeats, with min and max. Targets are printed as pass/fail
 but never change the exit code: 0 when the benchmarks ran (targets missed or not), 1 when a
@@ -93,7 +100,8 @@ TICKS = ("tick/velocity", "tick/impedance", "tick/adaptive")
 IKS = tuple(f"ik/{n}_knots" for n in IK_KNOTS)
 RUNS = (*(f"run/{c}" for c in CONTROLLERS), "run/report", "run/report_full")
 DESIGNS = tuple(f"design/{c}_closed" for c in CONTROLLERS)
-ALL = (*TICKS, *IKS, *EPISODES, *DESIGNS, *RUNS, "memory/episode", "profile/episode")
+INSTRUCTIONS = ("instr/velocity_closed", "instr/impedance_closed")
+ALL = (*TICKS, *IKS, *EPISODES, *DESIGNS, *INSTRUCTIONS, *RUNS, "memory/episode", "profile/episode")
 """Every benchmark, in the order they run (cheap ones first)."""
 
 
@@ -157,6 +165,11 @@ def run_all(settings: Settings) -> tuple[list[Metric], dict[str, str], dict | No
             "design/*",
             lambda: bench_designs(designs, settings, ctx),
         )
+    counted = [n for n in selected if n.startswith("instr/")]
+    if counted:
+        from instructions import bench_instructions
+
+        attempt("instr/*", lambda: bench_instructions(counted, settings, ctx))
     runs = [n for n in selected if n.startswith("run/")]
     if runs:
         attempt("run/*", lambda: bench_runs(runs, settings, ctx))
@@ -464,7 +477,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("profile/episode (velocity, doors closed): where the wall time goes")
         for label, key in (
             ("(a) Python control ticks (PlanRunner._tick)", "ticks_s"),
-            ("(b) rest of Simulator.AdvanceTo (C++ plant step)", "plant_step_s"),
+            ("(b) rest of the advance (C++ plant steps)", "plant_step_s"),
             ("(c) setup/teardown (parsing, IK, build, logs)", "setup_and_teardown_s"),
         ):
             cp = split["cprofile"][key]
@@ -478,6 +491,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             isolated = next((m.median for m in metrics if m.key == "tick/velocity"), None)
             versus = "" if isolated is None else f" vs {isolated:.0f} us isolated (tick/velocity)"
             print(f"  velocity plan command: median {inside:.0f} us inside the episode{versus}")
+            print(
+                f"  the same command repeated at once in a tick: "
+                f"{split['velocity_command_first_median_us']:.0f} us, then "
+                f"{split['velocity_command_repeat_median_us']:.0f} us (warm caches)"
+            )
         for label, value in split["cprofile"]["named_cumulative_s"].items():
             print(f"    cProfile cumulative, {label}: {value:.3f} s")
         print("\n  cProfile top lines:")

@@ -192,3 +192,39 @@ def test_a_tick_sees_the_arm_after_the_steps_up_to_it_and_acts_from_the_next(tim
     ticks_ms = [4300 + 5 * k for k in range(320)]
     assert len(seen) == 320
     assert on_step == sum(t * 1000 % time_step_us == 0 for t in ticks_ms) > 0
+
+
+def test_the_simulated_episode_has_no_python_system():
+    """The plan runner ticks between simulator stops, not as a system of the diagram: every
+    system of a velocity-like episode (station, wiring, logger) is one of Drake's C++ systems.
+    A Python LeafSystem anywhere in it would cost Python at every plant step (Drake asks each
+    subsystem for witness functions after every discrete update; pydrake answers for a
+    Python one through the GIL), whatever its own events."""
+    from pydrake.systems.framework import Diagram
+
+    from doorlab.control.plans import Command
+    from doorlab.episode.simulation import build_simulated_episode
+
+    class Feedback:  # any plan that is not a joint-space plan needs the runner
+        name, duration = "feedback", 0.1
+
+        def command(self, t, state):
+            return Command(state.q, np.zeros(7))
+
+    scenario = Scenario()
+    schedule = make_schedule(
+        [Feedback()], [0.02], q_initial=Q_HOME, q_start=Q_START, scenario=scenario
+    )
+    episode = build_simulated_episode(scenario, schedule, q_initial=Q_HOME)
+    assert episode.commands.runner is not None
+
+    def leaves(diagram):
+        for system in diagram.GetSystems():
+            yield from leaves(system) if isinstance(system, Diagram) else (system,)
+
+    python = [
+        f"{s.get_name()} ({type(s).__module__}.{type(s).__name__})"
+        for s in leaves(episode.diagram)
+        if not type(s).__module__.startswith("pydrake.")
+    ]
+    assert python == []

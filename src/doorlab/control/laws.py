@@ -53,12 +53,7 @@ def pose_error(
 def desired_spatial_vector(error: PoseError, kv: float, kw: float) -> np.ndarray:
     """(Kw theta n; Kv e_xyz), shape (6,): a spatial velocity [rad/s, m/s] (task 2, gains in
     1/s) or a spatial force [N m, N] (task 3, gains in N m/rad and N/m)."""
-    V = np.empty(6)
-    V[:3] = error.theta_n_W
-    V[:3] *= kw
-    V[3:] = error.e_xyz_W
-    V[3:] *= kv
-    return V
+    return np.concatenate((np.multiply(kw, error.theta_n_W), np.multiply(kv, error.e_xyz_W)))
 
 
 def pseudo_inverse_solve(J: np.ndarray, V: np.ndarray) -> np.ndarray:

@@ -26,6 +26,8 @@ from doorlab.control.plan_base import (  # noqa: F401 - re-exported: doorlab.con
     Plan,
 )
 
+_KV = JacobianWrtVariable.kV  # looked up once, not at every tick
+
 
 class _TaskSpacePlan:
     """Shared part of tasks 2 and 3: the pose error of Q and L7 and the Jacobian at Q."""
@@ -53,7 +55,7 @@ class _TaskSpacePlan:
         # p_L7Q, 1 us instead of 3 us: this runs at every control tick).
         p_WQ = self._plant.CalcPointsPositions(self._context, self._L7, p_L7Q, self._W)[:, 0]
         Jv_V_WL7q = self._plant.CalcJacobianSpatialVelocity(
-            self._context, JacobianWrtVariable.kV, self._L7, p_L7Q, self._W, self._W
+            self._context, _KV, self._L7, p_L7Q, self._W, self._W
         )
         tau = t / self.duration
         error = pose_error(

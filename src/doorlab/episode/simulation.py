@@ -19,7 +19,7 @@ The real cell runs the same schedule, wiring and logger over LCM
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,7 +45,7 @@ from doorlab.constants import Q_HOME
 from doorlab.control.plan_base import Plan
 from doorlab.episode.result import EpisodeResult, schedule_fields
 from doorlab.episode.schedule import ScheduledPlan, make_schedule, tick_lag
-from doorlab.episode.wiring import EpisodeLogger, wire_commands
+from doorlab.episode.wiring import CommandWiring, EpisodeLogger, wire_commands
 from doorlab.errors import ConfigError, SafetyStop, SimulationError
 from doorlab.kuka import CYCLE_PERIOD, WSG_COMMAND_PERIOD
 
@@ -69,15 +69,17 @@ _SEPARATE_LOG_PORTS = (
 
 @dataclass(frozen=True)
 class SimulatedEpisode:
-    """A built simulated episode: the diagram, the station in it, the logger, the schedule;
-    with ``station.driver.timing: kuka_driver`` the arm cell around the station and its
-    per-cycle status log."""
+    """A built simulated episode: the diagram, the station in it, the logger, the schedule,
+    the command wiring (whose :meth:`~doorlab.episode.wiring.CommandWiring.advance_to` runs the
+    plan runner's ticks); with ``station.driver.timing: kuka_driver`` the arm cell around the
+    station and its per-cycle status log."""
 
     diagram: Diagram
     station: Station
     logger: EpisodeLogger
     schedule: list[ScheduledPlan]
     t_final: float
+    commands: CommandWiring
     arm: ArmCell | None = None
     cycle_logger: VectorLogSink | None = None
 
@@ -179,7 +181,7 @@ def build_simulated_episode(
         LogVectorOutput(wiring.tau_ff, builder, log_period)
     diagram = builder.Build()
     diagram.set_name("doorlab_episode")
-    return SimulatedEpisode(diagram, station, logger, list(schedule), t_final)
+    return SimulatedEpisode(diagram, station, logger, list(schedule), t_final, wiring)
 
 
 def _build_arm_episode(
@@ -232,7 +234,7 @@ def _build_arm_episode(
     diagram = builder.Build()
     diagram.set_name("doorlab_arm_episode")
     return SimulatedEpisode(
-        diagram, arm.station, logger, list(schedule), t_final, arm, cycle_logger
+        diagram, arm.station, logger, list(schedule), t_final, wiring, arm, cycle_logger
     )
 
 
@@ -281,22 +283,29 @@ MAX_PACED_CHUNK_WALL_S = 0.1
 
 
 def advance_interruptibly(
-    simulator: Simulator, t_final: float, *, realtime_rate: float = 0.0
+    simulator: Simulator,
+    t_final: float,
+    *,
+    realtime_rate: float = 0.0,
+    advance: Callable[[Simulator, float], None] | None = None,
 ) -> None:
     """``simulator.AdvanceTo(t_final)`` in chunks of simulated time, so that Python's signal
     handlers run between them.
 
-    A diagram of C++ systems only (an IK episode: no Python plan runner) or real-time pacing
-    (which sleeps in C++) would not return to Python before ``t_final``: Ctrl-C and SIGTERM
-    would wait for the whole episode. The chunks are bit-identical to one call: every state is
-    discrete, its events are scheduled from t = 0, and stopping between two of them advances
-    time only (tests/test_simulation.py checks it).
+    A diagram of C++ systems only (an IK episode, or the joint-space phases before the plan
+    runner's first tick) or real-time pacing (which sleeps in C++) would not return to Python
+    before ``t_final``: Ctrl-C and SIGTERM would wait for the whole episode. The chunks are
+    bit-identical to one call: every state is discrete, its events are scheduled from t = 0,
+    and stopping between two of them advances time only (tests/test_simulation.py checks it).
 
     Args:
         simulator: An initialized simulator.
         t_final: Where to stop [s].
         realtime_rate: The simulator's target real-time rate (0: as fast as possible); a paced
             chunk lasts at most :data:`MAX_PACED_CHUNK_WALL_S` of wall time.
+        advance: ``advance(simulator, t)`` advances to t (default ``simulator.AdvanceTo``;
+            the episode's :meth:`~doorlab.episode.wiring.CommandWiring.advance_to` runs the
+            plan runner's ticks on the way).
     """
     chunk = ADVANCE_CHUNK_S
     if realtime_rate > 0:
@@ -305,7 +314,10 @@ def advance_interruptibly(
     k = 1
     while True:
         t = min(t_start + k * chunk, t_final)
-        simulator.AdvanceTo(t)
+        if advance is None:
+            simulator.AdvanceTo(t)
+        else:
+            advance(simulator, t)
         if t >= t_final:
             return
         k += 1
@@ -336,11 +348,14 @@ def _simulate(
     wall_start = time.perf_counter()
     try:
         simulator.Initialize()
+        advance = episode.commands.advance_to
         if episode.arm is not None:  # locked until the first command, applied at 5 ms
             first = CYCLE_PERIOD + episode.arm.offset + WATCH_DELAY
-            simulator.AdvanceTo(min(first, episode.t_final))
+            advance(simulator, min(first, episode.t_final))
             episode.arm.unlock(context)
-        advance_interruptibly(simulator, episode.t_final, realtime_rate=realtime_rate)
+        advance_interruptibly(
+            simulator, episode.t_final, realtime_rate=realtime_rate, advance=advance
+        )
     except RuntimeError as e:
         message = str(e).splitlines()[0]
         raise SimulationError(

@@ -21,6 +21,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder, OutputPort
 from pydrake.systems.primitives import (
     Adder,
@@ -72,6 +73,14 @@ class CommandWiring:
     tau_ff: OutputPort
     wsg_position: OutputPort
 
+    def advance_to(self, simulator: Simulator, t: float) -> None:
+        """Advances ``simulator`` to ``t`` [s], running the plan runner's ticks on the way
+        (:meth:`PlanRunner.advance_to`; a plain ``AdvanceTo`` when there is no runner)."""
+        if self.runner is None:
+            simulator.AdvanceTo(t)
+        else:
+            self.runner.advance_to(simulator, t)
+
 
 def wire_commands(
     builder: DiagramBuilder,
@@ -91,7 +100,7 @@ def wire_commands(
     needs feedback (its first tick), with no Python before it. The sources then keep sending
     their last value q_handoff, and the runner sends q_ref - q_handoff: the sum is q_ref.
     They send exactly what the runner would have: the plans sampled at its ticks t_k, each
-    sample switched on ``lag`` after t_k, as the runner's update event is.
+    sample switched on ``lag`` after t_k, as the runner's command is.
 
     Args:
         builder: The episode's builder, which holds ``cell``.
@@ -129,25 +138,25 @@ def wire_commands(
         joint_source = add(ConstantVectorSource(q_handoff), "joint_space_plans")
     builder.Connect(joint_source.get_output_port(), q_ref_sum.get_input_port(0))
     runner = None
+    zero = np.zeros(NUM_JOINTS)
     if k < len(schedule):
-        runner = add(
-            PlanRunner(
-                schedule[k:],
-                control_period=period,
-                t_first=t_first,
-                lag=lag,
-                q_offset=q_handoff,
-            ),
-            "plan_runner",
+        runner = PlanRunner(
+            schedule[k:], control_period=period, t_first=t_first, lag=lag, q_offset=q_handoff
         )
-        for name in ("iiwa_state", "iiwa_torque_external"):
-            builder.Connect(cell.GetOutputPort(name), runner.GetInputPort(name))
-        q_ref_runner = runner.GetOutputPort("iiwa_position")
-        tau_ff_port = runner.GetOutputPort("iiwa_feedforward_torque")
+        q_ref_source = add(ConstantVectorSource(zero), "plan_runner_q_ref")
+        tau_ff_source = add(ConstantVectorSource(zero), "plan_runner_tau_ff")
+        runner.connect(
+            cell,
+            cell.GetOutputPort("iiwa_state"),
+            cell.GetOutputPort("iiwa_torque_external"),
+            q_ref_source,
+            tau_ff_source,
+        )
     else:
-        zero = np.zeros(NUM_JOINTS)
-        q_ref_runner = add(ConstantVectorSource(zero), "no_runner").get_output_port()
-        tau_ff_port = add(ConstantVectorSource(zero), "no_feedforward").get_output_port()
+        q_ref_source = add(ConstantVectorSource(zero), "no_runner")
+        tau_ff_source = add(ConstantVectorSource(zero), "no_feedforward")
+    q_ref_runner = q_ref_source.get_output_port()
+    tau_ff_port = tau_ff_source.get_output_port()
     builder.Connect(q_ref_runner, q_ref_sum.get_input_port(1))
     builder.Connect(q_ref_sum.get_output_port(), cell.GetInputPort("iiwa_position"))
     builder.Connect(tau_ff_port, cell.GetInputPort("iiwa_feedforward_torque"))
@@ -168,7 +177,7 @@ def _wire_gripper(
     link: tuple[float, float] | None = None,
 ) -> OutputPort:
     """The gripper's setpoint: a C++ zero-order hold switching ``lag`` after the tick that
-    starts each plan (as the runner's state did), or as sent over ``link``
+    starts each plan (as the runner's command does), or as sent over ``link``
     (:func:`gripper_as_sent`); the force limit a constant."""
     period = scenario.timeline.control_period
     widths = [s.gripper_width for s in schedule]

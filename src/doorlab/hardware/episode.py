@@ -42,7 +42,7 @@ from doorlab.config import Scenario
 from doorlab.control.plan_base import Plan
 from doorlab.episode.result import EpisodeResult, schedule_fields
 from doorlab.episode.schedule import ScheduledPlan, make_schedule
-from doorlab.episode.wiring import EpisodeLogger, wire_commands
+from doorlab.episode.wiring import CommandWiring, EpisodeLogger, wire_commands
 from doorlab.errors import NoDriver
 from doorlab.hardware.estimates import door_angle_estimate, hardware_plant_positions
 from doorlab.hardware.interface import HardwareCell, build_hardware_cell
@@ -173,6 +173,7 @@ class _Episode:
     logger: EpisodeLogger
     schedule: list[ScheduledPlan]
     t_final: float
+    commands: CommandWiring  # its advance_to runs the plan runner's ticks
 
 
 def _build(scenario: Scenario, schedule: list[ScheduledPlan], link: DriverLink, q_initial):
@@ -202,7 +203,7 @@ def _build(scenario: Scenario, schedule: list[ScheduledPlan], link: DriverLink, 
     logger = EpisodeLogger(builder, channels, scenario.timeline.log_period)
     diagram = builder.Build()
     diagram.set_name("doorlab_hardware_episode")
-    return _Episode(diagram, cell, system, logger, list(schedule), t_final)
+    return _Episode(diagram, cell, system, logger, list(schedule), t_final, wiring)
 
 
 class _Runner:
@@ -301,7 +302,9 @@ class _Runner:
         while True:
             t = self.slot(status)
             self.record.add_status(status)
-            self.simulator.AdvanceTo(min(t + STATUS_WINDOW, self.episode.t_final))
+            self.episode.commands.advance_to(
+                self.simulator, min(t + STATUS_WINDOW, self.episode.t_final)
+            )
             self.t = t
             violation = self.command(status, t)
             if violation is not None:
@@ -326,7 +329,7 @@ class _Runner:
                     break
             self.last_fresh = status.arrival
             if self.slot(status) >= self.episode.t_final:
-                self.simulator.AdvanceTo(self.episode.t_final)
+                self.episode.commands.advance_to(self.simulator, self.episode.t_final)
                 return "ok", "", None
 
 
