@@ -50,9 +50,9 @@ def _practice_text() -> str:
 
 
 def practice() -> dict:
-    """The practice table (a fresh copy): ``seed``, ``units`` (each unit test's
-    expectations), ``reference`` (the reference episodes' figures), ``helpers`` (the
-    reference helpers' table)."""
+    """The practice table (a fresh copy): ``seed`` (the practice draws' random seed),
+    ``units`` (each unit test's expectations), ``reference`` (the reference episodes'
+    figures), ``helpers`` (the reference helpers' table)."""
     return json.loads(_practice_text())
 
 

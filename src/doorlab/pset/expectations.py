@@ -268,11 +268,11 @@ def expect_law(kind: str, seed: int | None = None) -> dict:
 
 
 def expect_velocity(seed: int | None = None) -> dict:
-    return expect_law("velocity", seed)
+    return expect_law("velocity", seed=seed)
 
 
 def expect_impedance(seed: int | None = None) -> dict:
-    return expect_law("impedance", seed)
+    return expect_law("impedance", seed=seed)
 
 
 def expect_ik(seed: int | None = None) -> dict:
@@ -368,7 +368,7 @@ def practice_table(assignment, reference: dict) -> dict:
         figures[job] = {"figures": data}
     return {
         "seed": seed,
-        "units": {name: expect(seed) for name, expect in sorted(EXPECTATIONS.items())},
+        "units": {name: expect(seed=seed) for name, expect in sorted(EXPECTATIONS.items())},
         "reference": figures,
         "helpers": reference_helper_table(),
     }

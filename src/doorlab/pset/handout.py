@@ -55,7 +55,7 @@ def write_handout(
         out: The zip to write (its name must end in ``.zip``).
         force: Replace a handout zip doorlab wrote.
         assignment: The course's settings (the README's points and margins, the practice
-            draws' seed); None: defaults.
+            draws' random seed); None: defaults.
         reference: The reference episodes' figures of an earlier grading (for the practice
             table); None: simulated now (a few seconds).
 

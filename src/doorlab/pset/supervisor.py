@@ -65,7 +65,7 @@ def _seed(request: dict, folder: Path, assignment) -> dict:
 def _practice(drawn: dict, options: dict[str, dict], reference: dict) -> tuple[dict, dict]:
     """The students' doorlab grades against the handout's practice table
     (:mod:`doorlab.pset.edition`): each unit test's expectations and draws, the reference
-    helpers' table, the reference figures (unless given); returns (the seed's record, the
+    helpers' table, the reference figures (unless given); returns (the random seed's record, the
     reference)."""
     from doorlab.pset import edition
 
