@@ -28,7 +28,7 @@ from doorlab.pset.assignment import (
 )
 from doorlab.pset.folder import STUDENT_FILES, init_folder
 from doorlab.pset.grader import TESTS, grade
-from doorlab.pset.verdicts import results_from_jobs
+from doorlab.pset.results import results_from_jobs
 
 UNITS = [t.name for t in TESTS if "unit test" in t.name]
 IK_EPISODE = next(t.name for t in TESTS if t.key == "ik_episode")

@@ -28,8 +28,9 @@ from doorlab.pset.grader import pretty_format_json_results
 from doorlab.pset.late import apply_late, lateness, submission_time
 from doorlab.pset.regrade import Step, changed_tests, plan_step
 from doorlab.pset.rescore import NeedsGrading, rejudge, settings_change
+from doorlab.pset.results import results_from_jobs
 from doorlab.pset.roster import Submission, read_metadata_entries
-from doorlab.pset.verdicts import TESTS, results_from_jobs
+from doorlab.pset.verdicts import TESTS
 from doorlab.pset.worker import import_failure
 from doorlab.runtime.inputs import load_yaml
 

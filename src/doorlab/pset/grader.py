@@ -371,7 +371,8 @@ def grade_taken(
     from importlib.metadata import version
 
     from doorlab import __version__
-    from doorlab.pset.verdicts import TESTS, results_not_graded
+    from doorlab.pset.results import results_not_graded
+    from doorlab.pset.verdicts import TESTS
 
     if intake.refused is not None:
         from doorlab.pset.assignment import Assignment

@@ -2,14 +2,14 @@
 
 Every grading stores in its results (``extra_data``) the settings it graded with
 (``settings``: :meth:`doorlab.pset.assignment.Assignment.to_dict`), the student's episodes'
-figures or failures (``episodes``, :func:`doorlab.pset.verdicts.stored_episodes`), the
+figures or failures (``episodes``, :func:`doorlab.pset.results.stored_episodes`), the
 reference episodes' figures (``reference``) and each unit test's verdict (its entry of
 ``tests``). From them, against another assignment (:func:`settings_change`):
 
 - points or visibility (a test's, the results', their stdout's) changed: **re-scored**, the
   same verdicts at the new points;
 - an episode's margins changed, or the reference episodes: **re-judged**, the same figures
-  against the new bounds (the same judges as a grading: :func:`doorlab.pset.verdicts.judge_test`);
+  against the new bounds (the same judges as a grading: :func:`doorlab.pset.results.judge_test`);
 - the random seed (other unit-test inputs) or an episode's helpers (another simulation)
   changed, or the results hold no stored figures (an older doorlab): it must be **graded**
   again (:class:`NeedsGrading` says why).
@@ -24,6 +24,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 from doorlab.pset import verdicts
+from doorlab.pset.results import judge_test, results_not_graded
 
 ACTIONS = ("keep", "rescore", "rejudge", "grade")
 """What a regrade does to a submission, cheapest first."""
@@ -119,7 +120,7 @@ def rejudge(results: dict, assignment, reference: dict | None = None) -> dict:
         raise NeedsGrading("; ".join(change.why))
     out = copy.deepcopy(results)
     if extra.get("not_graded"):  # not graded (the intake refused it): every test 0
-        fresh = verdicts.results_not_graded(
+        fresh = results_not_graded(
             [s for s in verdicts.TESTS if s.name in {t["name"] for t in results["tests"]}],
             extra["not_graded"],
             assignment,
@@ -170,5 +171,5 @@ def _judged(results: dict, assignment, reference: dict | None) -> list[dict]:
                 f"the figures of {', '.join(missing)} are not in its results (graded by an "
                 "older doorlab)"
             )
-        tests.append(verdicts.judge_test(spec, settings, jobs))
+        tests.append(judge_test(spec, settings, jobs))
     return tests

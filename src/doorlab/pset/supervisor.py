@@ -108,7 +108,8 @@ def supervise(request: dict, prepared: dict | None = None) -> dict:
     """
     from doorlab.errors import ConfigError
     from doorlab.pset.assignment import Assignment, assignment_from_dict
-    from doorlab.pset.verdicts import TESTS, results_from_jobs, test_settings
+    from doorlab.pset.results import results_from_jobs
+    from doorlab.pset.verdicts import TESTS, test_settings
 
     if request.get("reference_only"):
         todo = _order({j for t in TESTS for j in t.jobs if j.startswith("reference:")})
