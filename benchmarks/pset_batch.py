@@ -7,14 +7,14 @@ A class of K correct submissions (the answer key: every test runs to the end, th
 submission there is; each with a comment of its own appended to ik_utils.py, so that no two
 have identical files, which grade-all grades once) is graded, per repeat, side by side:
 
-- ``batch_1`` and ``batch_2``: ``doorlab pset grade-all`` (:func:`doorlab.pset.batch.grade_class`)
-  on 1 and on 2 local workers, the reference episodes given (as ``--reference``; the class
-  simulates them once otherwise: ``reference`` below);
+- ``batch_1`` and ``batch_2``: ``doorlab pset grade-all``
+  (:func:`doorlab.pset.classroom.grade_all.grade_class`) on 1 and on 2 local workers, the reference
+  episodes given (as ``--reference``; the class simulates them once otherwise: ``reference`` below);
 - ``batch_1_stubs``: a class of K untouched stubs on 1 worker (every test fails at its
   first call: what a grading costs beyond the work);
 - ``alone``: each submission by ``grade_submission`` (as ``doorlab pset grade SUBMISSION
   --reference EARLIER.json``: its own supervisor, 2 tests at a time);
-- ``reference``: the reference episodes once (:func:`doorlab.pset.grader.grade_reference`);
+- ``reference``: the reference episodes once (:func:`doorlab.pset.grading.grader.grade_reference`);
 - with ``--baseline-src DIR`` (another version's ``src``, e.g. ``git archive main src | tar -x
   -C /tmp/main``): ``baseline_alone``, each submission graded by that version's
   ``grade_submission`` with the reference given, and ``baseline_batch_1`` /
@@ -61,7 +61,7 @@ CLUSTER_CORES = (2, 8, 32, 64)
 
 _BASELINE = """
 import json, sys
-from doorlab.pset.grader import grade_submission
+from doorlab.pset.grading.grader import grade_submission
 reference = json.loads(open(sys.argv[1]).read())
 for folder in sys.argv[2:]:
     r = grade_submission(folder, reference=reference)
@@ -69,7 +69,7 @@ for folder in sys.argv[2:]:
 """
 _BASELINE_BATCH = """
 import json, shutil, sys
-from doorlab.pset.batch import grade_class
+from doorlab.pset.classroom.grade_all import grade_class
 reference = json.loads(open(sys.argv[1]).read())
 shutil.rmtree(sys.argv[3], ignore_errors=True)
 outcome = grade_class(sys.argv[2], sys.argv[3], jobs=int(sys.argv[4]), reference=reference)
@@ -84,7 +84,7 @@ def _measure(meter: CpuMeter, call) -> tuple[float, float]:
 
 
 def _class(root: Path, count: int, *, solutions: bool) -> Path:
-    from doorlab.pset.folder import init_folder
+    from doorlab.pset.handout.folder import init_folder
 
     name = "key" if solutions else "stubs"
     key = init_folder(root / name, solutions=solutions)
@@ -99,7 +99,7 @@ def _class(root: Path, count: int, *, solutions: bool) -> Path:
 
 
 def _batch(export: Path, out: Path, reference: dict, jobs: int, score: float = 14.0) -> None:
-    from doorlab.pset.batch import grade_class
+    from doorlab.pset.classroom.grade_all import grade_class
 
     shutil.rmtree(out, ignore_errors=True)
     outcome = grade_class(export, out, jobs=jobs, reference=reference)
@@ -109,7 +109,7 @@ def _batch(export: Path, out: Path, reference: dict, jobs: int, score: float = 1
 
 
 def _alone(export: Path, reference: dict) -> None:
-    from doorlab.pset.grader import grade_submission
+    from doorlab.pset.grading.grader import grade_submission
 
     for folder in sorted(export.iterdir()):
         results = grade_submission(folder, reference=reference)
@@ -164,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
 
-    from doorlab.pset.grader import grade_reference
+    from doorlab.pset.grading.grader import grade_reference
 
     k = args.submissions
     meter = CpuMeter()

@@ -8,13 +8,13 @@ Per tick (``--ticks`` ticks at states near the arc, the solutions' velocity plan
 - ``local``: the plan called in this process through ``ProblemSetPlanAdapter`` (what the student's
   process did when it also ran the simulation, before issue 17);
 - ``remote``: the same plan in a sandboxed student process, through
-  ``doorlab.pset.episodes.RemotePlan`` (one round trip of ``doorlab.pset.channel`` per tick:
-  30 floats out, 14 back, validated);
+  ``doorlab.pset.grading.episodes.RemotePlan`` (one round trip of ``doorlab.pset.isolation.channel``
+  per tick: 30 floats out, 14 back, validated);
 - ``remote_trivial``: a plan that answers at once (q_ref = q, tau_ff = 0): the channel alone.
 
 Per episode (task 2's episode, doors open, as graded): ``local`` runs it in this process
 through ``station_api.StationRun`` (the pre-issue-17 student episode), ``remote`` through
-``doorlab.pset.episodes.student_episode`` (the simulation here, the plan in the student's
+``doorlab.pset.grading.episodes.student_episode`` (the simulation here, the plan in the student's
 process). Wall times and CPU times (``cpu``: this process plus the student's process);
 medians of the repeats, run alternately. ``other cpu``: the average number of cores other
 processes used meanwhile (the machine is shared).
@@ -77,8 +77,8 @@ def _trivial_folder(solutions: Path, root: Path) -> Path:
 
 
 def _student(folder: Path, root: Path, name: str):
-    from doorlab.pset import sandbox
-    from doorlab.pset.student import StudentProcess
+    from doorlab.pset.isolation import sandbox
+    from doorlab.pset.isolation.handle import StudentProcess
 
     work = root / name
     work.mkdir()
@@ -91,7 +91,7 @@ def _remote_ticks(folder: Path, root: Path, name: str, states) -> tuple[float, f
     from doorlab.cell.frames import p_L7Q
     from doorlab.constants import Q_HOME
     from doorlab.control.plans import ArmState
-    from doorlab.pset.episodes import RemotePlan
+    from doorlab.pset.grading.episodes import RemotePlan
 
     with _student(folder, root, name) as student:
         q = Q_HOME.tolist()
@@ -108,7 +108,7 @@ def _remote_ticks(folder: Path, root: Path, name: str, states) -> tuple[float, f
 def _local_ticks(plans_module, states) -> tuple[float, float]:
     from doorlab.cell.frames import p_L7Q
     from doorlab.control.plans import ArmState
-    from doorlab.pset.station_api import ProblemSetPlanAdapter
+    from doorlab.pset.handout.station_api import ProblemSetPlanAdapter
 
     old = importlib.import_module("open_left_door")
     plan = plans_module.IiwaTaskSpaceVelocityPlan(
@@ -126,8 +126,8 @@ def _local_episode(plans_module) -> tuple[float, float]:
     from pydrake.trajectories import PiecewisePolynomial
 
     from doorlab.constants import Q_HOME
-    from doorlab.pset.episodes import DOOR_OPEN, grasp_configuration
-    from doorlab.pset.station_api import StationRun
+    from doorlab.pset.grading.episodes import DOOR_OPEN, grasp_configuration
+    from doorlab.pset.handout.station_api import StationRun
 
     old = importlib.import_module("open_left_door")
     cpu0, t0 = time.process_time(), time.perf_counter()
@@ -152,7 +152,7 @@ def _local_episode(plans_module) -> tuple[float, float]:
 
 
 def _remote_episode(folder: Path, root: Path, name: str) -> tuple[float, float, int]:
-    from doorlab.pset import episodes
+    from doorlab.pset.grading import episodes
 
     ticks = []
     original = episodes.RemotePlan.command
@@ -184,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--ticks", type=int, default=2000, help="ticks per repeat (default 2000)")
     parser.add_argument("--out", type=Path, default=None, help="write the figures as JSON")
     args = parser.parse_args(argv)
-    from doorlab.pset.folder import init_folder
+    from doorlab.pset.handout.folder import init_folder
 
     root = Path(tempfile.mkdtemp(prefix="doorlab_channel_bench_"))
     os.chmod(root, 0o711)

@@ -31,8 +31,8 @@ from pathlib import Path
 
 from common import source_label
 
-from doorlab.pset.folder import init_folder
-from doorlab.pset.grader import grade
+from doorlab.pset.grading.grader import grade
+from doorlab.pset.handout.folder import init_folder
 
 TARGET_S = 180.0
 """The issue's target for a full grading on 2 cores [s]."""
@@ -48,7 +48,7 @@ def _cpu_times() -> tuple[float, float]:
 _GRADE = """
 import json, resource, sys, time
 import doorlab
-from doorlab.pset.grader import grade
+from doorlab.pset.grading.grader import grade
 start = time.perf_counter()
 r = grade(sys.argv[1], jobs=int(sys.argv[2]))
 usage = [resource.getrusage(w) for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]

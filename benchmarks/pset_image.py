@@ -34,8 +34,8 @@ from pathlib import Path
 
 from pset_grading import _cgroup_cpu, _new_cgroup
 
-from doorlab.pset import autograder
-from doorlab.pset.folder import STUDENT_FILES, render_folder
+from doorlab.pset.classroom import gradescope
+from doorlab.pset.handout.folder import STUDENT_FILES, render_folder
 
 SAMPLE_S = 0.05
 
@@ -88,7 +88,7 @@ def _du(path: Path) -> int:
 
 
 def _setup(root: Path) -> float:
-    env = dict(os.environ, **{autograder.ROOT_ENV: str(root)})
+    env = dict(os.environ, **{gradescope.ROOT_ENV: str(root)})
     command = ["bash", str(root / "source" / "setup.sh")]
     if os.geteuid() == 0 and shutil.which("bwrap"):
         etc = root.parent / "etc"
@@ -107,7 +107,7 @@ def _setup(root: Path) -> float:
 
 def _grade(root: Path, jobs: int) -> dict:
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON")}
-    env[autograder.ROOT_ENV] = str(root)
+    env[gradescope.ROOT_ENV] = str(root)
     before = os.times()
     cgroup = _new_cgroup(f"doorlab_image_{os.getpid()}_{time.time_ns()}")
 
@@ -159,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="doorlab_image_bench_") as tmp:
         tmp = Path(tmp)
         os.chmod(tmp, 0o755)
-        zip_path = autograder.write_autograder(tmp / "autograder.zip")
+        zip_path = gradescope.write_autograder(tmp / "autograder.zip")
         figures["zip_bytes"] = zip_path.stat().st_size
         root = tmp / "autograder"
         with zipfile.ZipFile(zip_path) as archive:

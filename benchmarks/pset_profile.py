@@ -11,7 +11,7 @@ running, the CPU time [s] (user + system, every process of the cgroup) and the w
   with the reference episodes given (``reference=``, as a batch shares them); and
   ``grading/batch_worker``, as a worker of ``doorlab pset grade-all`` grades: the reference
   given, one test at a time, through a supervisor that already graded a submission
-  (:class:`doorlab.pset.grader.Supervisor`: its imports and the view's preparation done);
+  (:class:`doorlab.pset.grading.grader.Supervisor`: its imports and the view's preparation done);
 - ``start/*``: what a grading pays before any work: an interpreter with the supervisor's
   imports, one with a trusted job's imports (pydrake, the checks, the episodes: what the
   supervisor imports once, and what the design before issue 26 paid in each job's
@@ -108,14 +108,14 @@ def _python(code: str) -> None:
 
 
 def _student_process(folder: Path, work: Path, isolation, name: str) -> None:
-    from doorlab.pset.student import StudentProcess
+    from doorlab.pset.isolation.handle import StudentProcess
 
     with StudentProcess(folder, work, name, 60.0, isolation):
         pass
 
 
 def _forked_student(folder: Path, student_view, name: str) -> None:
-    from doorlab.pset.views import ForkedStudent
+    from doorlab.pset.isolation.student_view import ForkedStudent
 
     with ForkedStudent(student_view, folder, name, 60.0):
         pass
@@ -131,7 +131,7 @@ def _fork_and_wait() -> None:
 def _job(name: str, folder: Path, work: Path, isolation, views: dict) -> dict:
     """One job as the supervisor runs it: a forked trusted process, its student's process
     forked in its view."""
-    from doorlab.pset.jobs import _Jobs
+    from doorlab.pset.grading.jobs import _Jobs
 
     runner = _Jobs(folder, work, 1.0, isolation, {name: {"seed": 1}})
     runner.views = views
@@ -158,18 +158,21 @@ class Samples(dict):
 
 def one_round(samples: Samples, folder: Path, work: Path, jobs: list[str]) -> None:
     """Every figure once (see the module docstring)."""
-    from doorlab.pset.grader import Supervisor, grade_submission
-    from doorlab.pset.isolation import prepare
-    from doorlab.pset.supervisor import _warm
-    from doorlab.pset.views import StudentView
+    from doorlab.pset.grading.grader import Supervisor, grade_submission
+    from doorlab.pset.grading.supervisor import _warm
+    from doorlab.pset.isolation.choice import prepare
+    from doorlab.pset.isolation.student_view import StudentView
 
     samples.timed(
         "start/supervisor_imports",
-        lambda: _python("import doorlab.pset.jobs, doorlab.pset.supervisor"),
+        lambda: _python("import doorlab.pset.grading.jobs, doorlab.pset.grading.supervisor"),
     )
     samples.timed(
         "start/trusted_job_imports",
-        lambda: _python("import doorlab.pset.jobs, doorlab.pset.checks, doorlab.pset.episodes"),
+        lambda: _python(
+            "import doorlab.pset.grading.jobs, doorlab.pset.grading.checks, "
+            "doorlab.pset.grading.episodes"
+        ),
     )
     isolation = samples.timed("start/isolation_prepare", lambda: prepare(work, "require"))
     samples.timed(
@@ -203,8 +206,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=None, help="write the figures as JSON")
     args = parser.parse_args(argv)
 
-    from doorlab.pset.folder import init_folder
-    from doorlab.pset.verdicts import TESTS
+    from doorlab.pset.handout.folder import init_folder
+    from doorlab.pset.rules.verdicts import TESTS
 
     jobs = sorted({j for t in TESTS for j in t.jobs})
     meter = CpuMeter()

@@ -99,7 +99,7 @@ GRADER_TEST_FILES = {
     "test_pset_semester.py",
 }
 """Test files that grade: the grader runs student code in bubblewrap's minimal root, or not
-at all (doorlab.pset.isolation)."""
+at all (doorlab.pset.isolation.choice)."""
 
 
 @cache

@@ -13,7 +13,7 @@ import json
 import re
 from pathlib import Path
 
-from doorlab.pset.folder import init_folder
+from doorlab.pset.handout.folder import init_folder
 
 STUB = '    raise NotImplementedError("{}: your code here")'
 BODIES = {
@@ -83,15 +83,16 @@ text = None
 for wheel in ev["wheels"]:
     try:
         with zipfile.ZipFile(wheel) as z:
-            text = z.read("doorlab/pset/templates/open_left_door.py.j2").decode()
+            text = z.read("doorlab/pset/handout/templates/open_left_door.py.j2").decode()
             ev["wheel_read"] = wheel
     except Exception as e:
         ev.setdefault("wheel_errors", []).append(type(e).__name__)
 for clone in CLONES:
     try:
         git = subprocess.run(
-            ["git", "-C", clone, "show", "HEAD:src/doorlab/pset/templates/open_left_door.py.j2"],
-            capture_output=True, text=True, timeout=20,
+            ["git", "-C", clone, "show",
+            "HEAD:src/doorlab/pset/handout/templates/open_left_door.py.j2"], capture_output=True,
+            text=True, timeout=20,
         )
         ev.setdefault("git", []).append(git.returncode)
         if git.returncode == 0:
@@ -113,7 +114,7 @@ ev = {}
 ik = importlib.reload(doorlab.control.ik)
 ev["reload_has_pointwise_ik"] = hasattr(ik, "pointwise_ik")
 hidden = ("doorlab.control.ik_pointwise", "doorlab.cell.geometry", "doorlab.control.laws")
-for name in (*hidden, "doorlab.pset.folder"):
+for name in (*hidden, "doorlab.pset.handout.folder"):
     try:
         module = importlib.reload(importlib.import_module(name))
         ev[name] = "imported"
@@ -149,8 +150,9 @@ for pid in ev["pids"]:
         cmdline = open(f"/proc/{pid}/cmdline", "rb").read()
     except OSError:
         continue
-    # the grader's processes: python -I -m doorlab.pset.supervisor (or .jobs, before)
-    if {b"doorlab.pset.supervisor", b"doorlab.pset.jobs"} & set(cmdline.split(b"\x00")):
+    # the grader's processes: python -I -m doorlab.pset.grading.supervisor (or .jobs, before)
+    if {b"doorlab.pset.grading.supervisor", b"doorlab.pset.grading.jobs"} &
+    set(cmdline.split(b"\x00")):
         ev["grader_seen"].append(pid)
 try:
     s = socket.socket(socket.AF_UNIX)

@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 from shared_cache import shared_text
 
-from doorlab.pset.folder import init_folder
+from doorlab.pset.handout.folder import init_folder
 
 NOTEBOOK_ENV = "DOORLAB_PSET5_NOTEBOOK"
 """The one setting the notebook tests need: the path of a copy of the 2019 notebook,
@@ -173,7 +173,7 @@ def _compute_reference() -> str:
         folder, _ = solutions_run()
         data = json.loads((folder / "test_results.json").read_text())
         return json.dumps(data["extra_data"]["reference"])
-    from doorlab.pset.grader import TESTS, grade
+    from doorlab.pset.grading.grader import TESTS, grade
 
     folder = init_folder(_root() / "reference", solutions=True)
     episodes = [t.name for t in TESTS if "episode" in t.name]

@@ -19,8 +19,8 @@ import pset_fixtures
 import pytest
 
 from doorlab.cli.parser import main
-from doorlab.pset.folder import STUDENT_FUNCTIONS, init_folder
-from doorlab.pset.grader import TESTS, grade, pretty_format_json_results
+from doorlab.pset.grading.grader import TESTS, grade, pretty_format_json_results
+from doorlab.pset.handout.folder import STUDENT_FUNCTIONS, init_folder
 
 UNIT = {t.name.split(": ", 1)[1]: t.name for t in TESTS if "unit test" in t.name}
 EPISODE = {
@@ -229,7 +229,7 @@ def test_calc_p_Q_without_the_handle_offset_costs_its_own_point_only(tmp_path_fa
     default the task 2 and 3 episodes run doorlab's helpers, so only calc_p_Q's unit test
     fails; with the student's helpers (the assignment's choice) both episodes fail and say
     that they used the student's calc_p_Q, which failed its unit test."""
-    from doorlab.pset.assignment import Assignment
+    from doorlab.pset.rules.assignment import Assignment
 
     folder = _wrong_folder(
         tmp_path_factory,

@@ -16,8 +16,9 @@ from doorlab.cell.geometry import default_door_geometry
 from doorlab.constants import Q_HOME
 from doorlab.control.plans import ArmState
 from doorlab.errors import ConfigError
-from doorlab.pset import grader, task_helpers, verdicts
-from doorlab.pset.station_api import (
+from doorlab.pset.grading import grader
+from doorlab.pset.handout import task_helpers
+from doorlab.pset.handout.station_api import (
     ProblemSetJointSpacePlan,
     ProblemSetPlanAdapter,
     ProblemSetTaskSpacePlanBase,
@@ -25,6 +26,7 @@ from doorlab.pset.station_api import (
     StudentCodeError,
     VectorLogView,
 )
+from doorlab.pset.rules import verdicts
 
 STATE = ArmState(Q_HOME.copy(), np.zeros(7), np.zeros(7))
 

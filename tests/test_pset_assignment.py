@@ -17,8 +17,11 @@ import pset_fixtures
 import pytest
 
 from doorlab.cli.parser import main
-from doorlab.pset import autograder
-from doorlab.pset.assignment import (
+from doorlab.pset.classroom import gradescope
+from doorlab.pset.grading.grader import TESTS, grade
+from doorlab.pset.grading.results import results_from_jobs
+from doorlab.pset.handout.folder import STUDENT_FILES, init_folder
+from doorlab.pset.rules.assignment import (
     Assignment,
     assignment_yaml,
     files_digest,
@@ -26,9 +29,6 @@ from doorlab.pset.assignment import (
     load_assignment,
     parse_assignment,
 )
-from doorlab.pset.folder import STUDENT_FILES, init_folder
-from doorlab.pset.grader import TESTS, grade
-from doorlab.pset.results import results_from_jobs
 
 UNITS = [t.name for t in TESTS if "unit test" in t.name]
 IK_EPISODE = next(t.name for t in TESTS if t.key == "ik_episode")
@@ -170,10 +170,10 @@ def test_points_visibility_and_seed_reach_results_json(tmp_path, reference, caps
 
 def test_a_changed_margin_or_points_changes_the_zip_and_its_digest(tmp_path):
     def digest(assignment) -> tuple[str, bytes]:
-        out = autograder.write_autograder(tmp_path / "ag.zip", assignment=assignment, force=True)
+        out = gradescope.write_autograder(tmp_path / "ag.zip", assignment=assignment, force=True)
         with zipfile.ZipFile(out) as archive:
-            settings = json.loads(archive.read(autograder.SETTINGS_NAME))
-            return settings["digest"], archive.read(autograder.ASSIGNMENT_NAME)
+            settings = json.loads(archive.read(gradescope.SETTINGS_NAME))
+            return settings["digest"], archive.read(gradescope.ASSIGNMENT_NAME)
 
     base, base_text = digest(None)
     assert digest(Assignment()) == (base, base_text)  # no file: the defaults

@@ -29,10 +29,10 @@ from pset_attacks import attack_folder, evidence
 
 import doorlab
 from doorlab.cli.parser import main
-from doorlab.pset import autograder
-from doorlab.pset.folder import STUDENT_FILES, init_folder
-from doorlab.pset.grader import TESTS
-from doorlab.pset.view import BWRAP_ENV
+from doorlab.pset.classroom import gradescope
+from doorlab.pset.grading.grader import TESTS
+from doorlab.pset.handout.folder import STUDENT_FILES, init_folder
+from doorlab.pset.isolation.bwrap_root import BWRAP_ENV
 
 FULL_MARKS = sum(t.max_score for t in TESTS)
 RUN_TIMEOUT_S = 900
@@ -65,7 +65,7 @@ def _install(root: Path, zip_path: Path, python: str) -> Path:
     venv = root / "doorlab-venv"
     subprocess.run([python, "-m", "venv", "--without-pip", str(venv)], check=True)
     python = venv / "bin" / "python"
-    settings = json.loads((root / "source" / autograder.SETTINGS_NAME).read_text())
+    settings = json.loads((root / "source" / gradescope.SETTINGS_NAME).read_text())
     subprocess.run(
         [sys.executable, "-m", "pip", "--python", str(python), "install", "--quiet"]
         + ["--no-deps", "--no-index", str(root / "source" / settings["wheel"])],
@@ -92,7 +92,7 @@ def reference_args(tmp_path_factory) -> tuple[str, ...]:
 
 def _run(root: Path, *args: str, env_extra: dict | None = None) -> subprocess.CompletedProcess:
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON")}
-    env[autograder.ROOT_ENV] = str(root)
+    env[gradescope.ROOT_ENV] = str(root)
     env.update(env_extra or {})
     return subprocess.run(
         ["bash", str(root / "run_autograder"), *args],
@@ -123,14 +123,14 @@ def _results(root: Path) -> dict:
 def test_zip_holds_the_scripts_the_settings_and_this_doorlab_as_a_wheel(zip_path, tmp_path):
     with zipfile.ZipFile(zip_path) as archive:
         names = set(archive.namelist())
-        settings = json.loads(archive.read(autograder.SETTINGS_NAME))
+        settings = json.loads(archive.read(gradescope.SETTINGS_NAME))
         wheel_name = settings["wheel"]
         assert names == {
             "setup.sh",
             "run_autograder",
-            autograder.SETTINGS_NAME,
-            autograder.ASSIGNMENT_NAME,
-            autograder.CONSTRAINTS_NAME,
+            gradescope.SETTINGS_NAME,
+            gradescope.ASSIGNMENT_NAME,
+            gradescope.CONSTRAINTS_NAME,
             wheel_name,
         }
         for script in ("setup.sh", "run_autograder"):
@@ -144,12 +144,12 @@ def test_zip_holds_the_scripts_the_settings_and_this_doorlab_as_a_wheel(zip_path
         wheel = archive.read(wheel_name)
     # The files setup.sh takes from the zip: the wheel and the pinned versions.
     assert f'WHEEL="$SOURCE/{wheel_name}"' in setup
-    assert f'CONSTRAINTS="$SOURCE/{autograder.CONSTRAINTS_NAME}"' in setup
+    assert f'CONSTRAINTS="$SOURCE/{gradescope.CONSTRAINTS_NAME}"' in setup
     assert settings["doorlab"] == doorlab.__version__
-    assert settings["package_sha256"] == autograder.package_digest()
+    assert settings["package_sha256"] == gradescope.package_digest()
     assert settings["student_files"] == list(STUDENT_FILES)
     assert settings["jobs"] == 1  # fits Gradescope's default 768 MB (the teaching guide: its peak)
-    assert settings["digest"] == autograder.zip_digest(settings)
+    assert settings["digest"] == gradescope.zip_digest(settings)
     assert wheel_name == f"doorlab-{doorlab.__version__}-py3-none-any.whl"
 
     # The wheel: exactly the imported package's files (models, templates included), and a
@@ -161,8 +161,11 @@ def test_zip_holds_the_scripts_the_settings_and_this_doorlab_as_a_wheel(zip_path
         entries = set(w.namelist())
         info_dir = f"doorlab-{doorlab.__version__}.dist-info"
         package_entries = {n for n in entries if not n.startswith(info_dir)}
-        assert package_entries == {str(p) for p in autograder.package_files()}
-        assert {"doorlab/cell/models/package.xml", "doorlab/pset/templates/README.md.j2"} <= entries
+        assert package_entries == {str(p) for p in gradescope.package_files()}
+        assert {
+            "doorlab/cell/models/package.xml",
+            "doorlab/pset/handout/templates/README.md.j2",
+        } <= entries
         assert not any("__pycache__" in n or n.endswith(".pyc") for n in entries)
         for name in ("METADATA", "WHEEL", "RECORD", "entry_points.txt"):
             assert f"{info_dir}/{name}" in entries
@@ -218,20 +221,20 @@ def test_autograder_refuses_bad_destinations_and_leaves_nothing_half_written(
     assert "is a folder" in refused(str(tmp_path / "folder.zip"))
     assert main(["pset", "autograder", str(out), "--force", "--jobs", "3"]) == 0
     with zipfile.ZipFile(out) as archive:
-        assert json.loads(archive.read(autograder.SETTINGS_NAME))["jobs"] == 3
+        assert json.loads(archive.read(gradescope.SETTINGS_NAME))["jobs"] == 3
 
     # Interrupted while writing (Ctrl-C or SIGTERM): the old zip stays, no partial file.
     def interrupt(name: str, context: dict) -> str:
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(autograder, "_render", interrupt)
+    monkeypatch.setattr(gradescope, "_render", interrupt)
     before = sorted(p.name for p in tmp_path.iterdir())
     with pytest.raises(KeyboardInterrupt):
-        autograder.write_autograder(out, force=True)
+        gradescope.write_autograder(out, force=True)
     assert sorted(p.name for p in tmp_path.iterdir()) == before
     with zipfile.ZipFile(out) as archive:  # still the whole --jobs 3 zip
         assert archive.testzip() is None
-        assert json.loads(archive.read(autograder.SETTINGS_NAME))["jobs"] == 3
+        assert json.loads(archive.read(gradescope.SETTINGS_NAME))["jobs"] == 3
 
 
 # run_autograder --------------------------------------------------------------------------
@@ -247,24 +250,32 @@ def test_setup_check_accepts_the_installed_wheel_and_rejects_another_doorlab(roo
     ).stdout.strip()
     assert Path(where).is_relative_to(root / "doorlab-venv"), where
     check = subprocess.run(
-        [str(python), "-I", "-m", "doorlab.pset.autograder", "--check", "--root", str(root)],
+        [
+            str(python),
+            "-I",
+            "-m",
+            "doorlab.pset.classroom.gradescope",
+            "--check",
+            "--root",
+            str(root),
+        ],
         capture_output=True,
         text=True,
     )
     assert check.returncode == 0, check.stderr
     assert "ready to grade" in check.stdout
-    assert f"distributions at the versions of {autograder.CONSTRAINTS_NAME}" in check.stdout
+    assert f"distributions at the versions of {gradescope.CONSTRAINTS_NAME}" in check.stdout
 
     # A root whose settings name other package files: refused before any grading.
     other = tmp_path / "other"
     shutil.copytree(root / "source", other / "source")
-    settings_file = other / "source" / autograder.SETTINGS_NAME
+    settings_file = other / "source" / gradescope.SETTINGS_NAME
     settings = json.loads(settings_file.read_text())
     settings["package_sha256"] = "0" * 64
     settings_file.write_text(json.dumps(settings))
     init_folder(other / "submission", solutions=True)
     proc = subprocess.run(
-        [str(python), "-I", "-m", "doorlab.pset.autograder", "--root", str(other)],
+        [str(python), "-I", "-m", "doorlab.pset.classroom.gradescope", "--root", str(other)],
         capture_output=True,
         text=True,
     )
@@ -276,15 +287,15 @@ def test_setup_check_accepts_the_installed_wheel_and_rejects_another_doorlab(roo
     # image): refused too, naming the file.
     shutil.rmtree(other / "source")
     shutil.copytree(root / "source", other / "source")
-    path = other / "source" / autograder.ASSIGNMENT_NAME
+    path = other / "source" / gradescope.ASSIGNMENT_NAME
     path.write_text(path.read_text().replace("points: 2.0", "points: 20.0", 1))
     proc = subprocess.run(
-        [str(python), "-I", "-m", "doorlab.pset.autograder", "--root", str(other)],
+        [str(python), "-I", "-m", "doorlab.pset.classroom.gradescope", "--root", str(other)],
         capture_output=True,
         text=True,
     )
     assert proc.returncode == 1 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
-    assert f"{autograder.ASSIGNMENT_NAME} is not the zip's" in proc.stderr
+    assert f"{gradescope.ASSIGNMENT_NAME} is not the zip's" in proc.stderr
     assert not (other / "results" / "results.json").exists()
 
 
@@ -304,7 +315,7 @@ def test_run_autograder_gives_a_correct_submission_full_marks(root):
     assert results["visibility"] == "visible"
     assert [t["number"] for t in results["tests"]] == [t.number for t in TESTS]
     assert all(t["status"] == "passed" and t["output_format"] == "text" for t in results["tests"])
-    settings = json.loads((root / "source" / autograder.SETTINGS_NAME).read_text())
+    settings = json.loads((root / "source" / gradescope.SETTINGS_NAME).read_text())
     assert results["extra_data"]["autograder"]["digest"] == settings["digest"]
 
 
@@ -333,7 +344,7 @@ def _write_my_own_verdict():
     if job.startswith("unit:"):
         result = {"passed": True, "output": "all good"}
     else:  # an episode: doorlab's reference figures, passed off as mine
-        from doorlab.pset import checks
+        from doorlab.pset.grading import checks
 
         result = {"figures": checks.reference_episode(job.partition(":")[2])}
     with open(argv[3], "w") as f:
@@ -448,7 +459,7 @@ def test_run_autograder_falls_back_to_another_user_and_hides_the_grader(
     is removed; extra_data.sandbox says what held."""
     root = fallback_root
     package = next((root / "doorlab-venv").glob("lib/python3*/site-packages/doorlab"))
-    for compiled in package.glob("pset/__pycache__/checks.*.pyc"):
+    for compiled in package.glob("pset/grading/__pycache__/checks.*.pyc"):
         compiled.unlink()  # the grading writes it again, after the fallback hid checks.py
     _submit(root, _attacks(root, None))
     proc = _run(root, *JOBS, *reference_args, env_extra={BWRAP_ENV: str(root / "no-bwrap")})
@@ -480,11 +491,11 @@ def test_run_autograder_falls_back_to_another_user_and_hides_the_grader(
     hidden = [
         wheel,
         package / "control" / "laws.py",
-        package / "pset" / "templates" / "open_left_door.py.j2",
+        package / "pset" / "handout" / "templates" / "open_left_door.py.j2",
         # checks.py compiled again by this grading, after the fallback hid its source: a
         # .pyc takes its source's mode.
         *package.glob("control/__pycache__/laws.*.pyc"),
-        *package.glob("pset/__pycache__/checks.*.pyc"),
+        *package.glob("pset/grading/__pycache__/checks.*.pyc"),
     ]
     assert len(hidden) >= 5
     probe = subprocess.run(

@@ -33,10 +33,8 @@ import pytest
 
 from doorlab.cli.parser import main
 from doorlab.errors import ConfigError
-from doorlab.pset.batch import GRADES_CSV, RESULTS_JSON, summarize
-from doorlab.pset.folder import init_folder
-from doorlab.pset.grader import grade_submission
-from doorlab.pset.roster import (
+from doorlab.pset.classroom.grade_all import GRADES_CSV, RESULTS_JSON, summarize
+from doorlab.pset.classroom.roster import (
     Submission,
     columns,
     find_submissions,
@@ -44,7 +42,9 @@ from doorlab.pset.roster import (
     sheet_row,
     sheet_text,
 )
-from doorlab.pset.verdicts import TESTS
+from doorlab.pset.grading.grader import grade_submission
+from doorlab.pset.handout.folder import init_folder
+from doorlab.pset.rules.verdicts import TESTS
 
 FILES = ("ik_utils.py", "open_left_door.py", "manip_station_sim/robot_plans.py")
 FULL = sum(t.max_score for t in TESTS)
@@ -386,7 +386,7 @@ def test_the_class_graded_again_on_a_dask_cluster_gives_the_identical_sheet(
     pytest.importorskip("distributed")
     import dask
 
-    from doorlab.pset.cluster import local_cluster
+    from doorlab.pset.classroom.cluster import local_cluster
 
     export, _, reference = klass
     out = tmp_path / "dask"
@@ -550,7 +550,7 @@ def test_a_grading_the_grader_fails_is_a_row_and_resume_grades_it_again(klass, t
     """A grading whose supervisor fails (here: an isolation policy it does not know) is the
     row of its submission with status error and the message, no results file, exit code 1;
     --resume grades it again, and it lands."""
-    from doorlab.pset.batch import grade_class
+    from doorlab.pset.classroom.grade_all import grade_class
 
     export, _, reference_file = klass
     reference = json.loads(reference_file.read_text())["extra_data"]["reference"]
@@ -574,8 +574,8 @@ def test_every_upload_is_one_row_and_names_cannot_forge_summary_lines(tmp_path):
     each with its own files; file names holding every character str.splitlines breaks on
     (U+2028 and U+2029 among them) print no line of their own: one "Total score" line. None of
     these holds a student file, so nothing is graded (and no worker is started)."""
-    from doorlab.pset.batch import grade_class
-    from doorlab.pset.grader import pretty_format_json_results
+    from doorlab.pset.classroom.grade_all import grade_class
+    from doorlab.pset.grading.grader import pretty_format_json_results
 
     uploads = tmp_path / "uploads"
     (uploads / "hw0").mkdir(parents=True)

@@ -5,7 +5,7 @@ Each attack of the issue is rebuilt from the untouched stubs, in a class graded 
 reference episodes (``pset_fixtures.reference``): a submission that forks until EAGAIN, on and
 off for most of a minute, beside 6 honest ones; a submission whose 50 busy children share a
 0.5-CPU group with an honest one. The honest ones keep full marks and the status ``graded``:
-each grading is a cgroup of its own (:mod:`doorlab.pset.cgroups`), its views' processes
+each grading is a cgroup of its own (:mod:`doorlab.pset.isolation.cgroups`), its views' processes
 bounded by their own ``pids.max``, its CPU share its own. Tests that make cgroups run as root
 on a machine whose cgroups this user may write (they skip, saying why, elsewhere).
 """
@@ -26,10 +26,10 @@ import pset_fixtures
 import pytest
 from pset_attacks import _insert, evidence
 
-from doorlab.pset import cgroups
-from doorlab.pset.batch import GRADES_CSV, RESULTS_JSON, grade_class
-from doorlab.pset.folder import init_folder
-from doorlab.pset.grader import TESTS
+from doorlab.pset.classroom.grade_all import GRADES_CSV, RESULTS_JSON, grade_class
+from doorlab.pset.grading.grader import TESTS
+from doorlab.pset.handout.folder import init_folder
+from doorlab.pset.isolation import cgroups
 
 FULL = sum(t.max_score for t in TESTS)
 SETUP = cgroups.probe()
@@ -163,7 +163,7 @@ def test_the_student_s_code_cannot_reach_a_tls_cluster_and_nothing_connects_with
     distributed = pytest.importorskip("distributed")
     from distributed.comm import connect
 
-    from doorlab.pset.cluster import local_cluster
+    from doorlab.pset.classroom.cluster import local_cluster
 
     with local_cluster(1) as cluster:
         address = cluster.address
@@ -194,7 +194,7 @@ def test_a_cluster_whose_workers_would_not_isolate_the_network_is_refused():
     from concurrent.futures import Future
 
     from doorlab.errors import ConfigError
-    from doorlab.pset.cluster import check_workers
+    from doorlab.pset.classroom.cluster import check_workers
 
     class Worker:
         def __init__(self, facts):
@@ -273,7 +273,7 @@ def test_an_honest_submission_beside_50_busy_children_in_half_a_cpu_keeps_full_m
 
 CLOCK = r"""
 import json, sys, time
-from doorlab.pset.clock import Clock
+from doorlab.pset.rules.clock import Clock
 clock = Clock(LIMIT)
 if MODE == "busy":  # the trusted side computing, starved by the quota
     while clock.remaining() > 0:
@@ -340,7 +340,7 @@ def test_a_supervisor_ended_by_sigterm_leaves_no_folder_behind(tmp_path, monkeyp
     Ctrl-C of grade-all brings): the grading is the grader's error, and nothing of it is left
     in its TMPDIR: not its own folder, not the grading's, not the submission's copy (the
     student's files)."""
-    from doorlab.pset.grader import GradingError, Supervisor, grade_taken, take_files
+    from doorlab.pset.grading.grader import GradingError, Supervisor, grade_taken, take_files
 
     folder = init_folder(tmp_path / "sleeper")
     _insert(folder, "calc_p_Q", SLEEPER, {})
@@ -382,7 +382,7 @@ def test_a_trusted_process_killed_as_by_the_oom_killer_is_the_grader_s_error(tmp
     """A trusted job process killed by SIGKILL from outside (what the kernel's OOM killer
     does) while its student sleeps: the grading is the grader's error, naming the signal,
     never a failed test the student did not fail."""
-    from doorlab.pset.grader import GradingError, Supervisor, grade
+    from doorlab.pset.grading.grader import GradingError, Supervisor, grade
 
     folder = init_folder(tmp_path / "sleeper")
     _insert(folder, "calc_p_Q", SLEEPER, {})
@@ -424,9 +424,9 @@ def test_a_fork_the_view_cannot_make_refuses_that_test_and_the_view_serves_on(tm
     """The view's first process cannot fork a test's process (its group's pids.max leaves no
     room): that test is refused with a message (the grader's error), and the view is still
     there for the next test once there is room."""
-    from doorlab.pset.isolation import prepare
-    from doorlab.pset.student import SandboxError
-    from doorlab.pset.views import ForkedStudent, StudentView
+    from doorlab.pset.isolation.choice import prepare
+    from doorlab.pset.isolation.handle import SandboxError
+    from doorlab.pset.isolation.student_view import ForkedStudent, StudentView
 
     work = tmp_path / "work"
     work.mkdir(mode=0o711)

@@ -21,12 +21,12 @@ from package_index import clean_environment, fresh_venv, pip_install, require_in
 
 import doorlab
 from doorlab.cli.parser import main
-from doorlab.pset import handout
-from doorlab.pset.expectations import practice_table
-from doorlab.pset.folder import STUDENT_FILES, render_folder
-from doorlab.pset.grader import TESTS
-from doorlab.pset.notebook import NOTEBOOK_NAME
-from doorlab.pset.wheel import student_wheel_bytes, wheel_bytes
+from doorlab.pset.classroom.handout_zip import FOLDER
+from doorlab.pset.classroom.wheel import student_wheel_bytes, wheel_bytes
+from doorlab.pset.grading.answer_key import practice_table
+from doorlab.pset.grading.grader import TESTS
+from doorlab.pset.handout.folder import STUDENT_FILES, render_folder
+from doorlab.pset.handout.notebook import NOTEBOOK_NAME
 
 WHEEL = f"doorlab-{doorlab.__version__}-py3-none-any.whl"
 NOTEBOOK_TIMEOUT_S = 1800
@@ -54,14 +54,14 @@ def test_the_handout_holds_the_stub_folder_and_the_students_wheel(
     stubs = render_folder(solutions=False, course=True)  # with the course's course.yaml
     with zipfile.ZipFile(handout_zip) as archive:
         names = set(archive.namelist())
-        assert names == {f"{handout.FOLDER}/{rel}" for rel in stubs} | {f"pset5/{WHEEL}"}
+        assert names == {f"{FOLDER}/{rel}" for rel in stubs} | {f"pset5/{WHEEL}"}
         for rel, text in stubs.items():
-            assert archive.read(f"{handout.FOLDER}/{rel}").decode() == text, rel
+            assert archive.read(f"{FOLDER}/{rel}").decode() == text, rel
         practice = practice_table(None, pset_fixtures.reference())
         students = student_wheel_bytes(practice, stubs)
-        assert archive.read(f"{handout.FOLDER}/{WHEEL}") == students[1]
+        assert archive.read(f"{FOLDER}/{WHEEL}") == students[1]
         assert students[1] != wheel_bytes()[1]  # not the instructor's (test_pset_student_wheel)
-        readme = archive.read(f"{handout.FOLDER}/README.md").decode()
+        readme = archive.read(f"{FOLDER}/README.md").decode()
     assert f'pip install "./{WHEEL}[pset]"' in readme
     assert "doorlab report" not in readme
     # The same doorlab writes the same bytes; --force replaces a handout, never a user's zip.
@@ -86,7 +86,7 @@ def test_from_the_handout_alone_install_the_notebook_and_grade(handout_zip, tmp_
     student = tmp_path / "student"
     with zipfile.ZipFile(handout_zip) as archive:
         archive.extractall(student)
-    folder = student / handout.FOLDER
+    folder = student / FOLDER
     python = fresh_venv(tmp_path / "venv")
     pip_install(python, f"./{WHEEL}[pset]", cwd=folder)  # the README's line
     env = clean_environment(tmp_path / "venv", home=tmp_path / "home")

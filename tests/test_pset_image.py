@@ -21,7 +21,7 @@ from packaging.utils import canonicalize_name
 
 import doorlab
 from doorlab.cli.parser import main
-from doorlab.pset import autograder
+from doorlab.pset.classroom import gradescope
 
 BOOTSTRAP = {"setuptools"}
 """What ``python3 -m venv`` itself puts in a venv besides pip (Python < 3.12)."""
@@ -43,7 +43,7 @@ def test_setup_sh_installs_the_pinned_versions_only_and_creates_the_user(tmp_pat
     for name in ("first.zip", "second.zip"):  # one environment, two builds
         assert main(["pset", "autograder", str(tmp_path / name)]) == 0
         with zipfile.ZipFile(tmp_path / name) as archive:
-            zips.append(archive.read(autograder.CONSTRAINTS_NAME).decode())
+            zips.append(archive.read(gradescope.CONSTRAINTS_NAME).decode())
     assert zips[0] == zips[1]
     pins = _pins(zips[0])
     assert {"drake", "numpy", "matplotlib", "pip"} <= set(pins)
@@ -53,7 +53,7 @@ def test_setup_sh_installs_the_pinned_versions_only_and_creates_the_user(tmp_pat
     with zipfile.ZipFile(tmp_path / "first.zip") as archive:
         archive.extractall(root / "source")
     env = clean_environment(root / "doorlab-venv")
-    env[autograder.ROOT_ENV] = str(root)
+    env[gradescope.ROOT_ENV] = str(root)
     command = ["bash", str(root / "source" / "setup.sh")]
     etc = None
     if os.geteuid() == 0 and shutil.which("bwrap"):
@@ -68,7 +68,7 @@ def test_setup_sh_installs_the_pinned_versions_only_and_creates_the_user(tmp_pat
     )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     assert "ready to grade" in proc.stdout
-    assert f"distributions at the versions of {autograder.CONSTRAINTS_NAME}" in proc.stdout
+    assert f"distributions at the versions of {gradescope.CONSTRAINTS_NAME}" in proc.stdout
 
     listed = subprocess.run(
         [str(root / "doorlab-venv" / "bin" / "python"), "-m", "pip", "list", "--format=json"],
@@ -84,9 +84,9 @@ def test_setup_sh_installs_the_pinned_versions_only_and_creates_the_user(tmp_pat
     assert installed == pins  # exactly the pinned versions, nothing more
 
     if etc is not None:
-        assert f"created the user {autograder.SANDBOX_USER}" in proc.stdout
+        assert f"created the user {gradescope.SANDBOX_USER}" in proc.stdout
         passwd = (etc / "passwd").read_text()
-        assert f"\n{autograder.SANDBOX_USER}:" in f"\n{passwd}"
-        assert "/usr/sbin/nologin" in passwd.split(f"{autograder.SANDBOX_USER}:", 1)[1]
+        assert f"\n{gradescope.SANDBOX_USER}:" in f"\n{passwd}"
+        assert "/usr/sbin/nologin" in passwd.split(f"{gradescope.SANDBOX_USER}:", 1)[1]
     else:
         pytest.skip("setup.sh's user: needs root and bubblewrap to rehearse (the rest held)")

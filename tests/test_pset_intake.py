@@ -1,4 +1,5 @@
-"""The one intake (``doorlab.pset.intake``): what of a submission is graded, by every path.
+"""The one intake (``doorlab.pset.isolation.intake``): what of a submission is graded, by every
+path.
 
 Most tests here run the intake alone (no grading: it is a copy and a walk); the two paths'
 agreement is checked on what they hand the grader (its ``grade`` recorded, for the five
@@ -19,10 +20,12 @@ import pytest
 from cli_harness import assert_clean_exit, run_doorlab
 
 from doorlab.cli.parser import main
-from doorlab.pset import autograder, grader, intake
-from doorlab.pset.assignment import files_digest
-from doorlab.pset.folder import STUDENT_FILES, init_folder, render_folder
-from doorlab.pset.verdicts import TESTS
+from doorlab.pset.classroom import gradescope
+from doorlab.pset.grading import grader
+from doorlab.pset.handout.folder import STUDENT_FILES, init_folder, render_folder
+from doorlab.pset.isolation import intake
+from doorlab.pset.rules.assignment import files_digest
+from doorlab.pset.rules.verdicts import TESTS
 from doorlab.runtime.folders import MANIFEST_NAME
 
 SOLUTIONS = render_folder(solutions=True)
@@ -98,8 +101,10 @@ def test_only_the_student_files_are_taken_from_a_submission(tmp_path):
     submission = tmp_path / "submission"
     init_folder(submission / "pset5", solutions=True)
     (submission / "json.py").write_text("def dumps(*a, **k):\n    return '{\"passed\": true}'\n")
-    (submission / "doorlab" / "pset").mkdir(parents=True)
-    (submission / "doorlab" / "pset" / "worker.py").write_text("raise SystemExit(0)\n")
+    (submission / "doorlab" / "pset" / "isolation").mkdir(parents=True)
+    (submission / "doorlab" / "pset" / "isolation" / "worker.py").write_text(
+        "raise SystemExit(0)\n"
+    )
     (submission / "ik_utils.py").symlink_to("/etc/passwd")
     big = "#" * (intake.SUBMISSION_FILE_LIMIT + 1)
     (submission / "open_left_door.py").write_text(big)
@@ -117,7 +122,7 @@ def test_only_the_student_files_are_taken_from_a_submission(tmp_path):
     for rel in files:
         expected = SOLUTIONS[rel] if rel in STUDENT_FILES else STUBS[rel]
         assert (folder / rel).read_text() == expected, rel
-    assert {"json.py", "doorlab/pset/worker.py", "robot_plans.py"} <= set(taken.ignored)
+    assert {"json.py", "doorlab/pset/isolation/worker.py", "robot_plans.py"} <= set(taken.ignored)
     assert not any("__MACOSX" in f for f in taken.ignored)
     assert any("ik_utils.py is a symbolic link" in r for r in taken.rejected), taken.rejected
     assert any("open_left_door.py is over" in r for r in taken.rejected), taken.rejected
@@ -226,7 +231,7 @@ def _remove_deep(top: Path) -> None:
 
 @pytest.fixture
 def recorded_grade(monkeypatch):
-    """``doorlab.pset.grader.grade`` replaced by a recorder of the student files it would
+    """``doorlab.pset.grading.grader.grade`` replaced by a recorder of the student files it would
     grade (a folder, or the taken files over the stubs)."""
     calls = []
 
@@ -245,7 +250,7 @@ def recorded_grade(monkeypatch):
 
 def _autograder_root(tmp_path: Path) -> Path:
     root = tmp_path / "autograder"
-    zip_path = autograder.write_autograder(tmp_path / "ag.zip")
+    zip_path = gradescope.write_autograder(tmp_path / "ag.zip")
     with zipfile.ZipFile(zip_path) as archive:
         archive.extractall(root / "source")
     return root
@@ -256,7 +261,7 @@ def test_pset_grade_and_run_autograder_take_the_same_files(tmp_path, recorded_gr
     for name, submission in _shapes(tmp_path / "shapes").items():
         shutil.rmtree(root / "submission", ignore_errors=True)
         shutil.copytree(submission, root / "submission", symlinks=True)
-        autograder.run_autograder(root)
+        gradescope.run_autograder(root)
         from_autograder = json.loads((root / "results" / "results.json").read_text())
         assert main(["pset", "grade", str(submission), "--out", str(tmp_path / "r.json")]) == 0
         from_grade = json.loads((tmp_path / "r.json").read_text())
@@ -276,7 +281,7 @@ def test_both_paths_grade_a_missing_file_the_same(tmp_path):
     submission = _key_files(tmp_path / "submission", STUDENT_FILES[:2], flat=True)
     root = _autograder_root(tmp_path)
     shutil.copytree(submission, root / "submission")
-    autograder.run_autograder(root, jobs=2, reference=pset_fixtures.reference())
+    gradescope.run_autograder(root, jobs=2, reference=pset_fixtures.reference())
     via_autograder = json.loads((root / "results" / "results.json").read_text())
     out = tmp_path / "graded.json"
     argv = ["pset", "grade", str(submission), "--out", str(out), "--reference", str(reference)]

@@ -30,12 +30,12 @@ from pset_attacks import _insert, attack_folder, evidence
 
 import doorlab
 from doorlab.cli.parser import main
-from doorlab.pset import isolation, syscalls, view
-from doorlab.pset.autograder import wheel_bytes
-from doorlab.pset.folder import STUDENT_FUNCTIONS, init_folder
-from doorlab.pset.grader import TESTS, grade
-from doorlab.pset.safe_text import clean_text
-from doorlab.pset.verdicts import REFERENCE_SOLUTIONS, hidden_modules
+from doorlab.pset.classroom.gradescope import wheel_bytes
+from doorlab.pset.grading.grader import TESTS, grade
+from doorlab.pset.handout.folder import STUDENT_FUNCTIONS, init_folder
+from doorlab.pset.isolation import bwrap_root, choice, seccomp
+from doorlab.pset.isolation.safe_text import clean_text
+from doorlab.pset.rules.verdicts import REFERENCE_SOLUTIONS, hidden_modules
 
 AS_ROOT = os.geteuid() == 0
 FULL_MARKS = sum(t.max_score for t in TESTS)
@@ -80,7 +80,7 @@ def test_every_graded_function_s_reference_is_in_the_table_and_off_the_student_s
     templates and renderer) live in those modules; none is on the student side."""
     from doorlab.cell import geometry
     from doorlab.control import ik_pointwise, laws, plans
-    from doorlab.pset import folder
+    from doorlab.pset.handout import folder
 
     assert set(REFERENCE_SOLUTIONS) == set(STUDENT_FUNCTIONS)
     hidden = hidden_modules()
@@ -103,16 +103,16 @@ def test_every_graded_function_s_reference_is_in_the_table_and_off_the_student_s
     for modules in REFERENCE_SOLUTIONS.values():
         assert set(modules) <= set(hidden)
     assert folder.render_folder.__module__ in hidden  # the --solutions files
-    assert not set(hidden) & set(view.STUDENT_MODULES)
+    assert not set(hidden) & set(bwrap_root.STUDENT_MODULES)
     # The student side's files are exactly its modules and the models: no template, and
     # none of the hidden modules' files.
-    files = view.student_files()
+    files = bwrap_root.student_files()
     assert not any("templates" in f for f in files)
     for name in hidden:
         assert name.replace(".", "/") + ".py" not in files
     # What the folder's provided helpers give is the handout's own arc, equal to the
     # reference arc it is kept apart from.
-    from doorlab.pset import task_helpers
+    from doorlab.pset.handout import task_helpers
 
     g = geometry.default_door_geometry()
     for tau in (0.0, 0.2, 0.57, 1.0, 1.3):
@@ -124,18 +124,27 @@ def test_every_graded_function_s_reference_is_in_the_table_and_off_the_student_s
 def _in_view(tmp: Path, code: str, *args: str) -> subprocess.CompletedProcess:
     """``code`` in a student process's view (as root: as the sandbox user), this test's
     way (no limits, no channel)."""
-    site = view.build_site(tmp / "site")
-    plan = view.plan_view(site, view.find_bwrap())
-    identity = isolation.sandbox.sandbox_identity()
+    site = bwrap_root.build_site(tmp / "site")
+    plan = bwrap_root.plan_view(site, bwrap_root.find_bwrap())
+    identity = choice.sandbox.sandbox_identity()
     drop = None if identity is None else (identity.uid, identity.gid)
     scratch = tmp / "scratch"
     scratch.mkdir()
     if drop is not None:
         os.chown(scratch, *drop)
-    seccomp = syscalls.filter_descriptor()
+    seccomp_fd = seccomp.filter_descriptor()
     try:
-        argv = view.bwrap_argv(plan, scratch, None, as_root=drop is not None, seccomp_fd=seccomp)
-        argv += [plan.python, "-I", "-S", "-B", "-c", view.boot_code(plan, drop) + "\n" + code]
+        argv = bwrap_root.bwrap_argv(
+            plan, scratch, None, as_root=drop is not None, seccomp_fd=seccomp_fd
+        )
+        argv += [
+            plan.python,
+            "-I",
+            "-S",
+            "-B",
+            "-c",
+            bwrap_root.boot_code(plan, drop) + "\n" + code,
+        ]
         return subprocess.run(
             [*argv, *args],
             capture_output=True,
@@ -162,7 +171,7 @@ def test_the_view_holds_only_what_it_is_given(work):
     clone = Path(doorlab.__file__).resolve().parents[2]
     probe = r"""
 import json, os, sys
-import doorlab.pset.worker as worker
+import doorlab.pset.isolation.worker as worker
 worker._preload()
 out = {"modules": sorted(m for m in sys.modules if m.startswith("doorlab"))}
 out["root"] = sorted(os.listdir("/"))
@@ -190,14 +199,14 @@ print("VIEW " + json.dumps(out))
     proc = _in_view(work, probe, *outside)
     assert proc.returncode == 0, proc.stderr[-3000:]
     facts = json.loads(proc.stdout.split("VIEW ", 1)[1])
-    assert set(facts["modules"]) <= set(view.STUDENT_MODULES), facts["modules"]
+    assert set(facts["modules"]) <= set(bwrap_root.STUDENT_MODULES), facts["modules"]
     assert facts["exists"] == {p: False for p in outside}, facts["exists"]
     assert {"home", "srv"}.isdisjoint(facts["root"])
     assert facts["usr_packages"] == {}
     assert facts["writable"] == []
     assert len(facts["pids"]) <= 2  # bwrap's init and this process
     if AS_ROOT:
-        assert facts["uid"] == isolation.sandbox.sandbox_identity().uid != 0
+        assert facts["uid"] == choice.sandbox.sandbox_identity().uid != 0
 
 
 NAMESPACES = r"""
@@ -220,12 +229,12 @@ def test_inside_the_view_no_namespace_nor_keyring_can_be_made(work):
     """Issue 31: the view's system-call filter refuses unshare(CLONE_NEWUSER) (and every other
     namespace) and the kernel's keyrings (shared by every process of the sandbox user, so by
     two gradings at once); fork and threads still work."""
-    code = f"FLAGS = {syscalls.NAMESPACE_FLAGS!r}\n" + NAMESPACES
+    code = f"FLAGS = {seccomp.NAMESPACE_FLAGS!r}\n" + NAMESPACES
     proc = _in_view(work, code + "import threading; threading.Thread(target=print).start()")
     assert proc.returncode == 0, proc.stderr[-3000:]
     facts = json.loads(proc.stdout.split("VIEW ", 1)[1].splitlines()[0])
     assert facts.pop("keyctl") == -1  # KEYCTL_GET_KEYRING_ID of the user's keyring: EPERM
-    assert facts == dict.fromkeys(syscalls.NAMESPACE_FLAGS, "EPERM"), facts
+    assert facts == dict.fromkeys(seccomp.NAMESPACE_FLAGS, "EPERM"), facts
 
 
 # No isolation, no grade -------------------------------------------------------------------
@@ -263,7 +272,7 @@ def test_without_bwrap_or_namespaces_pset_grade_refuses_before_any_student_code(
             (str(work / "no-such-bwrap"), "bubblewrap (bwrap) is not installed"),
             (str(_fake_bwrap(work)), "non-privileged user namespaces"),
         ):
-            monkeypatch.setenv(view.BWRAP_ENV, bwrap)
+            monkeypatch.setenv(bwrap_root.BWRAP_ENV, bwrap)
             assert main(["pset", "grade", str(folder)]) == 1
             err = capsys.readouterr().err
             assert len(err.strip().splitlines()) == 1, err
@@ -542,7 +551,7 @@ def test_each_test_gets_a_fresh_view_whose_first_process_is_out_of_reach(
     assert look["pids"] == [1, look["me"]], look  # no detached process of the earlier test
     # What the view itself holds there: the read-only way to a venv made under /tmp (a clone
     # in /tmp/ci); usually nothing.
-    plan = view.plan_view(view.build_site(tmp_path / "site"), view.find_bwrap())
+    plan = bwrap_root.plan_view(bwrap_root.build_site(tmp_path / "site"), bwrap_root.find_bwrap())
     assert look["files"] == sorted(Path(top).name for top in plan.private_tops), look
     assert look["shm"] == [], look
     if "key" in leave:  # the keyring is the user's, kept by the kernel: the filter refuses it
@@ -625,7 +634,7 @@ def test_insecure_grades_without_the_view_as_another_user_and_says_so(
             "        return velocity_law(q_iiwa, self.Jv_WL7q, err_xyz, R_L7L7r, control_period)",
         )
     )
-    env = {"PATH": "/usr/bin:/bin", view.BWRAP_ENV: str(public / "no-bwrap")}
+    env = {"PATH": "/usr/bin:/bin", bwrap_root.BWRAP_ENV: str(public / "no-bwrap")}
     proc = _cli(
         system_venv / "bin" / "python",
         *("pset", "grade", str(folder), "--insecure", "--reference", str(reference_file)),
@@ -731,7 +740,7 @@ def test_as_an_ordinary_user_the_venv_is_never_writable_from_the_student_s_view(
     again = init_folder(public / "user-stubs-again")
     subprocess.run(["chown", "-R", f"{TEST_UID}:{TEST_UID}", str(again)], check=True)
     code = (
-        "import json, sys; from doorlab.pset.grader import grade, load_reference, TESTS\n"
+        "import json, sys; from doorlab.pset.grading.grader import grade, load_reference, TESTS\n"
         "units = [t.name for t in TESTS if 'unit test' in t.name]\n"
         "r = grade(sys.argv[1], only=units, reference=load_reference(sys.argv[2]))\n"
         "print(json.dumps(r['score']))"
@@ -758,7 +767,7 @@ def test_as_an_ordinary_user_without_namespaces_the_grader_refuses(public, user_
     folder = init_folder(public / "user-refused")
     subprocess.run(["chown", "-R", f"{TEST_UID}:{TEST_UID}", str(folder)], check=True)
     fake = _fake_bwrap(public)
-    env = {"PATH": "/usr/bin:/bin", "HOME": str(folder), view.BWRAP_ENV: str(fake)}
+    env = {"PATH": "/usr/bin:/bin", "HOME": str(folder), bwrap_root.BWRAP_ENV: str(fake)}
     python = user_venv / "bin" / "python"
     for extra, expected in (((), "--insecure grades"), (("--insecure",), "is writable")):
         proc = _cli(python, "pset", "grade", str(folder), *extra, env=env, user=TEST_UID)
@@ -776,7 +785,11 @@ def test_a_student_s_self_check_without_namespaces_grades_and_says_so(
     summary's first line and the results say it ran without the minimal root."""
     folder = init_folder(public / "self-check")  # the stubs: quick to grade
     subprocess.run(["chown", "-R", f"{TEST_UID}:{TEST_UID}", str(folder)], check=True)
-    env = {"PATH": "/usr/bin:/bin", "HOME": str(folder), view.BWRAP_ENV: str(_fake_bwrap(public))}
+    env = {
+        "PATH": "/usr/bin:/bin",
+        "HOME": str(folder),
+        bwrap_root.BWRAP_ENV: str(_fake_bwrap(public)),
+    }
     proc = subprocess.run(
         [str(user_venv / "bin" / "python"), "test_pset_5a.py", "out.json"]
         + ["--reference", str(reference_file)],
@@ -819,7 +832,7 @@ def test_the_guard_catches_dir_fd_opens_of_hidden_files(tmp_path):
     (tmp_path / "notes.txt").write_text("mine")
     code = f"""
 import os, sys
-from doorlab.pset.honesty import Guard, HonestyError
+from doorlab.pset.isolation.guard import Guard, HonestyError
 guard = Guard({{"doorlab.control.laws": "the laws"}}, [{str(hidden)!r}])
 guard.install()
 fd = os.open({str(tmp_path)!r}, os.O_RDONLY)
@@ -845,14 +858,14 @@ print("violation", guard.violation is not None)
 def test_bwrap_without_size_puts_tmp_and_shm_in_the_job_s_folder(work):
     """bwrap older than 0.7 (Ubuntu 22.04's 0.6) has no --size: /tmp and /dev/shm become two
     folders of the job (on disk, removed with it) instead of unbounded RAM."""
-    plan = view.plan_view(view.build_site(work / "site"), "/usr/bin/bwrap")
-    old = view.View(**{**plan.__dict__, "sized_tmpfs": False})
-    dirs = view.job_tmp_dirs(old, work / "tmp_job", None)
-    argv = view.bwrap_argv(old, work / "scratch", dirs, as_root=False)
+    plan = bwrap_root.plan_view(bwrap_root.build_site(work / "site"), "/usr/bin/bwrap")
+    old = bwrap_root.View(**{**plan.__dict__, "sized_tmpfs": False})
+    dirs = bwrap_root.job_tmp_dirs(old, work / "tmp_job", None)
+    argv = bwrap_root.bwrap_argv(old, work / "scratch", dirs, as_root=False)
     assert "--size" not in argv
     assert argv[argv.index("/tmp") - 1] == str(dirs[0])
     assert argv[argv.index("/dev/shm") - 1] == str(dirs[1])
-    assert view.job_tmp_dirs(plan, work / "unused", None) is None
+    assert bwrap_root.job_tmp_dirs(plan, work / "unused", None) is None
 
 
 def test_signals_reach_the_student_s_message_through_bwrap(work):

@@ -12,12 +12,12 @@ import pytest
 from fake_driver import FakeDriver
 from pydrake.trajectories import PiecewisePolynomial
 
-import doorlab.pset
+import doorlab.pset.handout
 from doorlab.config import Scenario
 from doorlab.constants import Q_HOME
 from doorlab.errors import ConfigError, SafetyStop
 from doorlab.hardware.link import DriverLink
-from doorlab.pset.station_api import ProblemSetJointSpacePlan, StationRun
+from doorlab.pset.handout.station_api import ProblemSetJointSpacePlan, StationRun
 
 Q0 = Q_HOME + np.array([0.1, 0.1, 0.0, 0.2, 0.0, 0.0, 0.0])
 Q_START = Q0 + 0.1
@@ -82,7 +82,7 @@ def test_run_real_robot_stops_on_a_broken_limit_and_keeps_the_logs():
 
 def test_the_problem_sets_simulator_has_run_real_robot_with_the_2019_signature():
     path = (
-        Path(doorlab.pset.__file__).parent
+        Path(doorlab.pset.handout.__file__).parent
         / "templates/manip_station_sim/manipulation_station_simulator.py"
     )
     spec = importlib.util.spec_from_file_location("manipulation_station_simulator", path)

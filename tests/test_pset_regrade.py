@@ -19,19 +19,19 @@ from pathlib import Path
 import pytest
 
 from doorlab.errors import ConfigError
-from doorlab.pset import gradebook
-from doorlab.pset.assignment import Assignment, LatePolicy, assignment_yaml, parse_assignment
-from doorlab.pset.classstats import class_statistics
-from doorlab.pset.course import COURSE_FILE, course_yaml, load_course
-from doorlab.pset.folder import render_folder
-from doorlab.pset.grader import pretty_format_json_results
-from doorlab.pset.late import apply_late, lateness, submission_time
-from doorlab.pset.regrade import Step, changed_tests, plan_step
-from doorlab.pset.rescore import NeedsGrading, rejudge, settings_change
-from doorlab.pset.results import results_from_jobs
-from doorlab.pset.roster import Submission, read_metadata_entries
-from doorlab.pset.verdicts import TESTS
-from doorlab.pset.worker import import_failure
+from doorlab.pset.classroom import gradebook
+from doorlab.pset.classroom.class_statistics import class_statistics
+from doorlab.pset.classroom.late import apply_late, lateness, submission_time
+from doorlab.pset.classroom.regrade import Step, changed_tests, plan_step
+from doorlab.pset.classroom.roster import Submission, read_metadata_entries
+from doorlab.pset.grading.grader import pretty_format_json_results
+from doorlab.pset.grading.rescore import NeedsGrading, rejudge, settings_change
+from doorlab.pset.grading.results import results_from_jobs
+from doorlab.pset.handout.course import COURSE_FILE, course_yaml, load_course
+from doorlab.pset.handout.folder import render_folder
+from doorlab.pset.isolation.worker import import_failure
+from doorlab.pset.rules.assignment import Assignment, LatePolicy, assignment_yaml, parse_assignment
+from doorlab.pset.rules.verdicts import TESTS
 from doorlab.runtime.inputs import load_yaml
 
 DEG = 3.141592653589793 / 180
@@ -430,7 +430,7 @@ def test_every_new_assignment_field_round_trips():
 
 
 def test_the_feedback_page_shows_each_test_as_its_visibility_allows():
-    from doorlab.pset.feedback import Visibility, page_context
+    from doorlab.pset.classroom.feedback import Visibility, page_context
 
     course = Assignment(late=LatePolicy(due=DUE))
     course.tests.calc_p_Q_unit.visibility = "hidden"

@@ -24,9 +24,9 @@ import pset_fixtures
 import pytest
 
 from doorlab.cli.parser import main
-from doorlab.pset import sandbox
-from doorlab.pset.folder import init_folder
-from doorlab.pset.grader import TESTS, grade, write_results
+from doorlab.pset.grading.grader import TESTS, grade, write_results
+from doorlab.pset.handout.folder import init_folder
+from doorlab.pset.isolation import sandbox
 
 UNIT = {t.name.split(": ", 1)[1]: t.name for t in TESTS if "unit test" in t.name}
 UNITS = list(UNIT.values())
@@ -174,7 +174,8 @@ def test_a_json_py_in_the_folder_changes_nothing_through_test_pset_5a(tmp_path, 
 
 
 def test_a_doorlab_package_in_the_folder_shadows_nothing(tmp_path, reference):
-    """doorlab/pset/{worker,jobs,checks,grader,...}.py in the submission, each writing full
+    """doorlab/pset/isolation/worker.py, doorlab/pset/grading/jobs.py and the other modules
+    of a grading (and their packages) in the submission, each writing full
     marks wherever it can: 0 (a unit test and an episode: every job starts the same way)."""
     folder = _stubs(tmp_path)
     forge = f"""
@@ -189,11 +190,21 @@ print(FORGED)
 sys.stdout.flush()
 os._exit(0)
 """
-    for rel in ("doorlab/__init__.py", "doorlab/pset/__init__.py"):
+    subpackages = ("rules", "handout", "isolation", "grading", "classroom")
+    packages = ("doorlab", "doorlab/pset", *(f"doorlab/pset/{p}" for p in subpackages))
+    for rel in (f"{p}/__init__.py" for p in packages):
         (folder / rel).parent.mkdir(parents=True, exist_ok=True)
         (folder / rel).write_text(forge)
-    for name in ("worker", "jobs", "checks", "grader", "channel", "student", "station_api"):
-        (folder / "doorlab" / "pset" / f"{name}.py").write_text(forge)
+    for rel in (
+        "isolation/worker",
+        "grading/jobs",
+        "grading/checks",
+        "grading/grader",
+        "isolation/channel",
+        "isolation/handle",
+        "handout/station_api",
+    ):
+        (folder / "doorlab" / "pset" / f"{rel}.py").write_text(forge)
     results = grade(folder, only=ATTACKED, reference=reference)
     assert results["score"] == 0, _pretty(results)
     for t in results["tests"]:
@@ -202,7 +213,7 @@ os._exit(0)
 
 def test_forging_from_inside_the_student_process_scores_zero(tmp_path):
     """One forgery per function: write results to every file and descriptor then
-    os._exit(0); an atexit hook doing the same; patching json, doorlab.pset.checks and the
+    os._exit(0); an atexit hook doing the same; patching json, doorlab.pset.grading.checks and the
     worker; reading the grader's locals through sys._getframe; numpy.all patched."""
     folder = _stubs(tmp_path)
     forge = f"""
@@ -237,11 +248,11 @@ FORGED = {json.dumps(FORGED)!r}
 json.dumps = lambda *args, **kwargs: FORGED
 json.loads = lambda *args, **kwargs: {FORGED!r}
 try:
-    import doorlab.pset.checks as checks
+    import doorlab.pset.grading.checks as checks
     checks.check_ik = lambda *args: {{"passed": True}}
 except ImportError:
     pass
-import doorlab.pset.worker as worker
+import doorlab.pset.isolation.worker as worker
 worker.Server.op_ik = lambda self, request: {FORGED!r}
 worker._error = lambda *args: {FORGED!r}
 raise NotImplementedError("stub")
@@ -375,7 +386,7 @@ IiwaTaskSpaceVelocityPlan.CalcPositionCommand = _after_50_ticks
     )
     _prepend(
         folder,
-        "import doorlab.pset.channel as _c\n"
+        "import doorlab.pset.isolation.channel as _c\n"
         "_send = _c.Channel.send_json\n"
         "def _wrong(self, obj, *args, **kwargs):\n"
         "    _send(self, {'values': [[1.0, 2.0]] * 7, 'figures': {}, 'passed': True})\n"
@@ -461,7 +472,7 @@ def test_memory_file_output_and_time_limits_hold_and_results_stay_small(tmp_path
     out = tmp_path / "results.json"
     script = (
         "import resource, sys\n"
-        "from doorlab.pset.grader import grade, load_reference, write_results, TESTS\n"
+        "from doorlab.pset.grading.grader import grade, load_reference, write_results, TESTS\n"
         "units = [t.name for t in TESTS if 'unit test' in t.name][:4]\n"
         "r = grade(sys.argv[1], only=units, reference=load_reference(sys.argv[2]))\n"
         "write_results(r, sys.argv[3])\n"
@@ -499,7 +510,7 @@ def test_doorlab_reference_solutions_are_out_of_reach(tmp_path):
         folder,
         "calc_p_Q",
         """
-from doorlab.pset.folder import render_folder
+from doorlab.pset.handout.folder import render_folder
 namespace = {}
 exec(render_folder(True)["open_left_door.py"], namespace)
 return namespace["calc_p_Q"](tau)
@@ -510,7 +521,7 @@ return namespace["calc_p_Q"](tau)
         "calc_R_WL7_ref",
         """
 from importlib.resources import files
-text = files("doorlab.pset").joinpath("templates", "open_left_door.py.j2").read_text()
+text = files("doorlab.pset.handout").joinpath("templates", "open_left_door.py.j2").read_text()
 import jinja2
 namespace = {}
 exec(jinja2.Template(text).render(solutions=True), namespace)
@@ -559,7 +570,7 @@ return plans.impedance_law(self.Jv_WL7q, err_xyz)
     # refused by name (the honesty guard, the second line), so the message says what.
     assert "FileNotFoundError" in tests[UNIT["calc_R_WL7_ref"]]["output"]
     for name, module in (
-        ("calc_p_Q", "doorlab.pset.folder"),
+        ("calc_p_Q", "doorlab.pset.handout.folder"),
         ("InverseKinPointwise", "doorlab.control.ik_pointwise"),
         ("IiwaTaskSpaceVelocityPlan.CalcPositionCommand", "doorlab.control.laws"),
         ("IiwaTaskSpaceImpedancePlan.CalcTorqueCommand", "doorlab.control.plans"),
@@ -600,20 +611,20 @@ def test_a_correct_folder_with_helpers_named_like_the_grader_s_modules_scores_fu
 def _student_argv(tmp_path: Path, code: str) -> tuple[list[str], Path]:
     """``code`` as a student process runs: in the student's view (bwrap), as the sandbox
     user when the grader is root; (argv, its scratch folder)."""
-    from doorlab.pset import view
+    from doorlab.pset.isolation import bwrap_root
 
     site = tmp_path / "site"
     if not site.exists():
-        view.build_site(site)
-    plan = view.plan_view(site, view.find_bwrap())
+        bwrap_root.build_site(site)
+    plan = bwrap_root.plan_view(site, bwrap_root.find_bwrap())
     identity = sandbox.sandbox_identity()
     drop = None if identity is None else (identity.uid, identity.gid)
     work = tmp_path / "work"
     work.mkdir(exist_ok=True)
     if drop is not None:
         os.chown(work, *drop)
-    argv = view.bwrap_argv(plan, work, None, as_root=drop is not None)
-    argv += [plan.python, "-I", "-S", "-c", view.boot_code(plan, drop) + "\n" + code]
+    argv = bwrap_root.bwrap_argv(plan, work, None, as_root=drop is not None)
+    argv += [plan.python, "-I", "-S", "-c", bwrap_root.boot_code(plan, drop) + "\n" + code]
     return argv, work
 
 
@@ -676,7 +687,7 @@ def test_kill_descendants_catches_setsid_and_double_forks(tmp_path):
     marker = f"doorlab-escape-{os.getpid()}-{time.time_ns()}"
     script = f"""
 import os, subprocess, sys, time
-from doorlab.pset import sandbox
+from doorlab.pset.isolation import sandbox
 sandbox.become_subreaper()
 code = '''
 import os, subprocess, sys, time
@@ -730,15 +741,15 @@ def test_a_grader_environment_the_student_user_cannot_read_is_named_as_such():
     import the grader's packages (a venv under /root, mode 700: seen in a clone there) is
     reported as that, not as the student's code ending its process; any other module, or no
     traceback, leaves the usual cause."""
-    from doorlab.pset.student import _import_failure
+    from doorlab.pset.isolation.handle import _import_failure
 
     died = (
-        'File ".../doorlab/pset/worker.py", line 39, in _preload\n    import numpy\n'
+        'File ".../doorlab/pset/isolation/worker.py", line 39, in _preload\n    import numpy\n'
         "ModuleNotFoundError: No module named 'numpy'\n"
     )
     why = _import_failure(died)
     assert why is not None and "could not import numpy" in why and "/root" in why
-    no_doorlab = "Error while finding module specification for 'doorlab.pset.worker' "
+    no_doorlab = "Error while finding module specification for 'doorlab.pset.isolation.worker' "
     no_doorlab += "(ModuleNotFoundError: No module named 'doorlab')"
     assert "could not import doorlab" in _import_failure(no_doorlab)
     assert _import_failure("ModuleNotFoundError: No module named 'my_helpers'") is None
@@ -753,7 +764,7 @@ def test_the_separate_user_fallback_removes_its_ipc_objects(tmp_path):
     user's objects and older ones stay."""
     import ctypes
 
-    from doorlab.pset.student import remove_ipc_leftovers
+    from doorlab.pset.isolation.handle import remove_ipc_leftovers
 
     uid = 64123
     code = (

@@ -38,8 +38,8 @@ import pytest
 from test_pset_batch import MISTAKES, _edited, _put
 from test_report_browser import chromium, render_check
 
-from doorlab.pset.assignment import assignment_yaml, load_assignment
-from doorlab.pset.folder import init_folder
+from doorlab.pset.handout.folder import init_folder
+from doorlab.pset.rules.assignment import assignment_yaml, load_assignment
 
 pytestmark = pytest.mark.slow
 

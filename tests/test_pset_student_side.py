@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 import doorlab
-from doorlab.pset.folder import STUDENT_FILES, init_folder, render_folder
-from doorlab.pset.notebook import NOTEBOOK_NAME
+from doorlab.pset.handout.folder import STUDENT_FILES, init_folder, render_folder
+from doorlab.pset.handout.notebook import NOTEBOOK_NAME
 
 NOTEBOOK_TIMEOUT_S = 300
 """Per cell; the cells below plot synthetic logs (no simulation), a few seconds each."""

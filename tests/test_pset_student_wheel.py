@@ -1,16 +1,16 @@
 """Issue 31: the handout's wheel holds no answer key, and still runs and grades the problem set.
 
-The handout's wheel is the students' doorlab (:func:`doorlab.pset.wheel.student_wheel_bytes`):
-the installed package's files without :data:`~doorlab.pset.wheel.STUDENT_WHEEL_LEAVES_OUT`.
-What "holds the key" means here, derived from the instructor's doorlab rather than typed in:
-any line of the five solved functions (the ``--solutions`` files' lines the stubs lack), any
-definition (source) or code object (compiled ``.pyc``) named like one of the left-out modules'
-own functions and classes (the reference laws, IK and plans, the controllers, the grader's
-expected answers), any template of the solutions. The installed tree is checked after pip
-installed it and ``compileall`` compiled every file (``--no-deps --no-index``: the wheel is
-what is tested, the package index is not; doorlab's dependencies come from this environment
-through a path file, as in ``test_pset_autograder.py``). In that venv ``pset init
---solutions`` says in one line that the key is the instructor's, and the folder's self-check
+The handout's wheel is the students' doorlab
+(:func:`doorlab.pset.classroom.wheel.student_wheel_bytes`): the installed package's files without
+:data:`~doorlab.pset.classroom.wheel.STUDENT_WHEEL_LEAVES_OUT`. What "holds the key" means here,
+derived from the instructor's doorlab rather than typed in: any line of the five solved functions
+(the ``--solutions`` files' lines the stubs lack), any definition (source) or code object (compiled
+``.pyc``) named like one of the left-out modules' own functions and classes (the reference laws, IK
+and plans, the controllers, the grader's expected answers), any template of the solutions. The
+installed tree is checked after pip installed it and ``compileall`` compiled every file (``--no-deps
+--no-index``: the wheel is what is tested, the package index is not; doorlab's dependencies come
+from this environment through a path file, as in ``test_pset_autograder.py``). In that venv ``pset
+init --solutions`` says in one line that the key is the instructor's, and the folder's self-check
 grades the key's files 14/14 and the stubs 0 against the handout's practice table.
 """
 
@@ -30,10 +30,11 @@ import pset_fixtures
 import pytest
 
 import doorlab
-from doorlab.pset import edition, wheel
-from doorlab.pset.folder import STUDENT_FILES, render_folder
-from doorlab.pset.grader import TESTS
-from doorlab.pset.handout import FOLDER, write_handout
+from doorlab.pset.classroom import wheel
+from doorlab.pset.classroom.handout_zip import FOLDER, write_handout
+from doorlab.pset.grading.grader import TESTS
+from doorlab.pset.handout import edition
+from doorlab.pset.handout.folder import STUDENT_FILES, render_folder
 
 PACKAGE = Path(doorlab.__file__).resolve().parent
 FULL = sum(t.max_score for t in TESTS)
@@ -65,10 +66,10 @@ def key_lines() -> set[str]:
     """Each line of the five solved functions: the --solutions files' lines the stubs lack,
     but those of the handout's own helpers (the student side, which every student's view
     holds: SolveOneShotIk's InverseKinematics calls, InterpolateArc's arc)."""
-    from doorlab.pset import view
+    from doorlab.pset.isolation import bwrap_root
 
     given = set()
-    for rel in view.student_files():
+    for rel in bwrap_root.student_files():
         if rel.endswith(".py"):
             given |= {line.strip() for line in (PACKAGE.parent / rel).read_text().splitlines()}
     solved, stubs = render_folder(solutions=True), render_folder(solutions=False)
@@ -142,7 +143,7 @@ def test_the_handout_s_wheel_holds_no_answer_key(handout, tmp_path):
         archive.extractall(tmp_path / "wheel")
     assert not [n for n in names if wheel._left_out(n)]
     assert holding_the_key(tmp_path / "wheel") == []
-    students = tmp_path / "wheel" / "doorlab" / "pset" / edition.FOLDER
+    students = tmp_path / "wheel" / "doorlab" / "pset" / "handout" / edition.FOLDER
     stubs = {
         str(p.relative_to(students / edition.STUBS)): p.read_text()
         for p in (students / edition.STUBS).rglob("*")
@@ -210,7 +211,8 @@ def test_installed_from_the_handout_no_key_and_the_self_check_is_the_course_s_te
         "import importlib, json\n"
         "out = {}\n"
         "for name in ('doorlab.control.laws', 'doorlab.control.ik_pointwise', "
-        "'doorlab.control.plans', 'doorlab.pset.expectations', 'doorlab.episode.controllers'):\n"
+        "'doorlab.control.plans', 'doorlab.pset.grading.answer_key', "
+        "'doorlab.episode.controllers'):\n"
         "    try:\n"
         "        importlib.import_module(name); out[name] = 'imported'\n"
         "    except ImportError as e:\n"

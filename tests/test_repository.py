@@ -73,7 +73,7 @@ def test_the_search_finds_such_paths(tmp_path: Path):
         "/usr/lib/python3/dist-packages",
         "/tmp/doorlab_grade_*",
         "/venv/lib/python3.11/site-packages/doorlab/pset",
-        "src/doorlab/pset/view.py",
+        "src/doorlab/pset/isolation/bwrap_root.py",
     ]
     sample.write_text("\n".join(bad + good) + "\n")
     found = _findings([sample], str(tmp_path))

@@ -10,7 +10,7 @@ controller), :func:`run_episode` (your own plans), :class:`EpisodeResult` (named
 
 The names below are imported on first use (PEP 562), so importing one submodule (say
 ``doorlab.constants``) does not load the controllers: the problem set's graded process
-must not load doorlab's reference solutions (:mod:`doorlab.pset.honesty`).
+must not load doorlab's reference solutions (:mod:`doorlab.pset.isolation.guard`).
 """
 
 from doorlab.errors import ConfigError, DoorlabError, IkError, OutputError, SimulationError

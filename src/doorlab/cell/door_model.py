@@ -5,7 +5,7 @@ The problem set's door constants (``open_left_door.py``: ``p_WC_left_hinge``, ``
 student's process too. The handle's reference arc and L7's reference orientation along it
 (the reference of the graded ``calc_p_Q`` and ``calc_R_WL7_ref``) are not:
 :class:`doorlab.cell.geometry.DoorGeometry` adds them, in a module the grader keeps out of the
-student's sight (:mod:`doorlab.pset.verdicts`).
+student's sight (:mod:`doorlab.pset.rules.verdicts`).
 
 theta is the angle of the handle-to-hinge vector (sin theta, cos theta) measured from W's +y
 axis towards +x; at theta0 the door is closed, and theta grows as the left door opens.

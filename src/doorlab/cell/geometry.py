@@ -5,7 +5,7 @@ task constants cannot drift apart); the arc's end angle and L7's pitch are the p
 constants. Frames: see :mod:`doorlab.cell.frames`. The arc below is the reference of the problem
 set's graded ``calc_p_Q`` and ``calc_R_WL7_ref``: the grader keeps this module out of the
 student's sight (the folder's provided ``InterpolateArc`` is the handout's own, in
-:mod:`doorlab.pset.task_helpers`).
+:mod:`doorlab.pset.handout.task_helpers`).
 
 The handle arc, with tau = t / duration in [0, 1]::
 

@@ -30,7 +30,7 @@ from doorlab.runtime.inputs import quote_text
 def pset(args: argparse.Namespace) -> int:
     """``doorlab pset {init,grade,grade-all,autograder,handout,assignment}``; returns the exit
     code."""
-    from doorlab.pset.folder import init_folder
+    from doorlab.pset.handout.folder import init_folder
 
     if args.pset_command == "init":
         out = init_folder(args.dir, solutions=args.solutions, force=args.force)
@@ -38,7 +38,7 @@ def pset(args: argparse.Namespace) -> int:
         print(f"doorlab pset: wrote {out} ({kind}); grade it with: doorlab pset grade {out}")
         return 0
     if args.pset_command == "assignment":
-        from doorlab.pset.assignment import write_default_assignment
+        from doorlab.pset.rules.assignment import write_default_assignment
 
         out = write_default_assignment(args.out)
         print(
@@ -50,7 +50,7 @@ def pset(args: argparse.Namespace) -> int:
     if args.pset_command == "grade-all":
         return _pset_grade_all(args, assignment)
     if args.pset_command == "autograder":
-        from doorlab.pset.autograder import write_autograder
+        from doorlab.pset.classroom.gradescope import write_autograder
 
         out = write_autograder(args.out, jobs=args.jobs, force=args.force, assignment=assignment)
         print(
@@ -59,8 +59,8 @@ def pset(args: argparse.Namespace) -> int:
         )
         return 0
     if args.pset_command == "handout":
-        from doorlab.pset.grader import load_reference
-        from doorlab.pset.handout import write_handout
+        from doorlab.pset.classroom.handout_zip import write_handout
+        from doorlab.pset.grading.grader import load_reference
 
         reference = None if args.reference is None else load_reference(args.reference)
         out = write_handout(args.out, force=args.force, assignment=assignment, reference=reference)
@@ -75,14 +75,14 @@ def pset(args: argparse.Namespace) -> int:
 def _assignment(path: Path | None):
     if path is None:
         return None
-    from doorlab.pset.assignment import load_assignment
+    from doorlab.pset.rules.assignment import load_assignment
 
     return load_assignment(path)
 
 
 def _pset_grade(args: argparse.Namespace, assignment) -> int:
     """``doorlab pset grade SUBMISSION``: the one intake, the grader, the results file."""
-    from doorlab.pset import grader
+    from doorlab.pset.grading import grader
     from doorlab.runtime.folders import record_written
 
     source = Path(args.dir)
@@ -118,14 +118,14 @@ def _pset_grade(args: argparse.Namespace, assignment) -> int:
 
 def _pset_grade_all(args: argparse.Namespace, assignment) -> int:
     """``doorlab pset grade-all SUBMISSIONS --out DIR``: the class graded, its sheet."""
-    from doorlab.pset import grader
-    from doorlab.pset.batch import GRADES_CSV, grade_class
+    from doorlab.pset.classroom.grade_all import GRADES_CSV, grade_class
+    from doorlab.pset.grading import grader
 
     if args.resume and args.force:
         raise ConfigError("--resume and --force exclude each other")
     if args.only and args.force:
         raise ConfigError("--only and --force exclude each other (--only keeps the others)")
-    from doorlab.pset.class_outputs import Outputs
+    from doorlab.pset.classroom.class_outputs import Outputs
 
     outputs = Outputs(
         exports=tuple(dict.fromkeys(args.export)),
@@ -175,7 +175,7 @@ def _pset_grade_all(args: argparse.Namespace, assignment) -> int:
 
 def _class_left(out: Path) -> str:
     """What an interrupted grade-all left in ``out``: only what is there."""
-    from doorlab.pset.batch import GRADES_CSV
+    from doorlab.pset.classroom.grade_all import GRADES_CSV
 
     try:
         lines = (out / GRADES_CSV).read_text().splitlines()

@@ -567,7 +567,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if interrupt is None:
             name = getattr(e, "name", None) or ""
             if name.startswith("doorlab.") and _students():  # what the handout left out
-                from doorlab.pset.edition import left_out
+                from doorlab.pset.handout.edition import left_out
 
                 print(f"doorlab {args.command}: error: {left_out(name)}", file=sys.stderr)
                 return USAGE_ERROR
@@ -577,8 +577,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _students() -> bool:
-    """Whether this is the students' doorlab (:mod:`doorlab.pset.edition`)."""
-    from doorlab.pset.edition import students
+    """Whether this is the students' doorlab (:mod:`doorlab.pset.handout.edition`)."""
+    from doorlab.pset.handout.edition import students
 
     return students()
 

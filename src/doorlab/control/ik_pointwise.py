@@ -1,6 +1,6 @@
 """Pointwise IK along a path: IK at knot points, each warm-started from the last (task 1's
 reference solution; the problem set's students write their own ``InverseKinPointwise``, so
-the grader keeps this module out of their process's sight: :mod:`doorlab.pset.verdicts`).
+the grader keeps this module out of their process's sight: :mod:`doorlab.pset.rules.verdicts`).
 
 The one-shot IK it solves at each knot is :func:`doorlab.control.ik.solve_ik` (see there for the
 solver and the costs).

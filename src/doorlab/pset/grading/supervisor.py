@@ -1,0 +1,373 @@
+"""The grading supervisor: a grading request in, its results out; every job forked from it.
+
+``python -I -m doorlab.pset.grading.supervisor supervise`` (started by
+:func:`doorlab.pset.grading.grader.grade`; ``serve``: one request per line,
+:class:`doorlab.pset.grading.grader.Supervisor`) reads the grading request as JSON on stdin, decides
+how the student's code is isolated (:func:`doorlab.pset.isolation.choice.prepare`: the student's
+view, or the request's policy where it cannot be built; before any student code runs), makes the
+grading's cgroups (:mod:`doorlab.pset.isolation.cgroups`), imports what the jobs need (pydrake, the
+checks, the episodes) and computes what does not depend on the submission (the controller's plant,
+the grasp configuration, the reference helpers' table) once, then runs the jobs
+(:mod:`doorlab.pset.grading.jobs`), judges them and writes the results as JSON on stdout. Its
+private folders (the submission's copy, the grading's, the prepared view) and the grading's
+cgroups are removed however it ends, a signal included.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from doorlab.pset.grading.jobs import _Jobs
+from doorlab.pset.isolation import sandbox
+
+_EPISODE_ORDER = ("impedance", "velocity", "ik")
+"""The episodes, longest first (closed doors: contact; open doors; the IK's joint-space plan)."""
+
+
+def _order(jobs: set[str]) -> list[str]:
+    """Longest first (episodes), so the processes finish together: the student's episodes
+    (one at a time in the view) alternate with the reference's, then the unit tests."""
+
+    def key(job: str) -> tuple:
+        kind, _, name = job.partition(":")
+        rank = _EPISODE_ORDER.index(name) if name in _EPISODE_ORDER else len(_EPISODE_ORDER)
+        return (kind == "unit", rank, kind != "student", job)
+
+    return sorted(jobs, key=key)
+
+
+def _seed(request: dict, folder: Path, assignment) -> dict:
+    """The grading's seed: ``--seed``'s, or from the assignment's and the graded files'."""
+    from doorlab.pset.rules.assignment import files_digest, grading_seed
+    from doorlab.pset.rules.verdicts import STUDENT_FILES
+
+    digest = files_digest(folder, STUDENT_FILES)
+    if request.get("seed") is not None:
+        return {
+            "grading": int(request["seed"]),
+            "source": "given with --seed",
+            "files_sha256": digest,
+        }
+    return {
+        "grading": grading_seed(assignment.seed, digest),
+        "source": "from the assignment's random seed and your files' SHA-256",
+        "files_sha256": digest,
+    }
+
+
+def _practice(drawn: dict, options: dict[str, dict], reference: dict) -> tuple[dict, dict]:
+    """The students' doorlab grades against the handout's practice table
+    (:mod:`doorlab.pset.handout.edition`): each unit test's expectations and draws, the reference
+    helpers' table, the reference figures (unless given); returns (the random seed's record, the
+    reference)."""
+    from doorlab.pset.handout import edition
+
+    table = edition.practice()
+    for job, settings in options.items():
+        kind, _, name = job.partition(":")
+        settings["seed"] = table["seed"]
+        if kind == "unit":
+            settings["expect"] = table["units"][name]
+        elif kind == "student" and settings.get("helpers", "reference") == "reference":
+            settings["table"] = table["helpers"]
+    source = (
+        "the handout's practice draws (this doorlab holds no answer key: the course's "
+        "grading draws its own from your files)"
+    )
+    drawn = {**drawn, "grading": table["seed"], "source": source}
+    return drawn, reference or table["reference"]
+
+
+def _job_options(specs, assignment, seed: int) -> dict[str, dict]:
+    """Each job's options (:func:`run_job`): the grading seed; an episode's helpers."""
+    from doorlab.pset.rules.verdicts import test_settings
+
+    options: dict[str, dict] = {}
+    for spec in specs:
+        settings = test_settings(assignment, spec)
+        for job in spec.needed_jobs(settings):
+            options.setdefault(job, {"seed": seed})
+            if job.startswith("student:") and spec.helpers:
+                student = spec.uses_student_helpers(settings)
+                options[job]["helpers"] = "student" if student else "reference"
+    return options
+
+
+def supervise(request: dict, prepared: dict | None = None) -> dict:
+    """Runs the request's jobs and returns the Gradescope results (or ``{"grader_error"}``;
+    ``{"reference"}`` for a ``reference_only`` request: the reference episodes' results).
+
+    ``prepared``: a long-lived supervisor's cache of the student's view (prepared once).
+    """
+    from doorlab.errors import ConfigError
+    from doorlab.pset.grading.results import results_from_jobs
+    from doorlab.pset.rules.assignment import Assignment, assignment_from_dict
+    from doorlab.pset.rules.verdicts import TESTS, test_settings
+
+    if request.get("reference_only"):
+        todo = _order({j for t in TESTS for j in t.jobs if j.startswith("reference:")})
+        parallel = max(1, int(request.get("jobs", 2)))
+        return {"reference": _run(None, todo, {}, request, parallel, prepared)[0]}
+    if request.get("files") is not None:
+        import shutil
+
+        folder, tmp = _submission_folder(request["files"])
+        try:
+            return supervise({**request, "files": None, "folder": str(folder)}, prepared)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+            _OWN_FOLDERS.remove(tmp)
+    folder = Path(request["folder"])
+    try:
+        data = request.get("assignment")
+        assignment = assignment_from_dict(data) if data is not None else Assignment()
+    except ConfigError as e:
+        return {"grader_error": f"the assignment: {e}"}
+    only = request.get("only")
+    specs = [t for t in TESTS if only is None or t.name in only]
+    drawn = _seed(request, folder, assignment)
+    options = _job_options(specs, assignment, drawn["grading"])
+    needed = {j for t in specs for j in t.needed_jobs(test_settings(assignment, t))}
+    results: dict[str, dict] = {}
+    reference = request.get("reference") or {}
+    from doorlab.pset.handout import edition
+
+    if edition.students():  # no answer key here: the handout's practice table
+        drawn, reference = _practice(drawn, options, reference)
+    results.update({k: v for k, v in reference.items() if k in needed})
+    todo = _order(needed - set(results))
+    start = time.perf_counter()
+    parallel = max(1, int(request.get("jobs", 2)))
+    ran, isolation = _run(folder, todo, options, request, parallel, prepared)
+    if isinstance(isolation, str):
+        return {"grader_error": isolation}
+    if request.get("network_isolated") and isolation is not None:
+        if not isolation.network_isolated:  # checked before any job ran (see _run)
+            return {"grader_error": _NO_NETWORK_NAMESPACE}
+    cgroup = ran.pop(_CGROUP_KEY, None)
+    results.update(ran)
+    errors = [r["grader_error"] for r in results.values() if "grader_error" in r]
+    if errors:
+        return {"grader_error": errors[0]}
+    elapsed = time.perf_counter() - start
+    out = results_from_jobs(specs, results, elapsed, assignment, drawn, isolation)
+    sandbox_facts = out.get("extra_data", {}).get("sandbox")
+    if isinstance(sandbox_facts, dict) and cgroup is not None:
+        sandbox_facts["cgroup"] = cgroup
+    return out
+
+
+_NO_NETWORK_NAMESPACE = (
+    "this worker would run the student's code without a network namespace (no bubblewrap "
+    "view, not root), so it could reach the cluster: not graded here"
+)
+_CGROUP_KEY = "_cgroup"
+"""Where :func:`_run` puts what the grading's cgroups were (not a job)."""
+
+
+def _run(folder, todo: list[str], options: dict, request: dict, parallel: int, prepared):
+    """Runs ``todo`` in a private folder: (results by job, the isolation or why there is
+    none)."""
+    _warm(todo, options)
+    with tempfile.TemporaryDirectory(prefix="doorlab_grade_") as tmp, _own(tmp):
+        workdir = Path(tmp)
+        os.chmod(workdir, 0o711)
+        os.chdir(workdir)
+        runner = groups = None
+        try:
+            student_jobs = [j for j in todo if not j.startswith("reference:")]
+            isolation = _isolation(request, workdir, prepared) if student_jobs else None
+            if isinstance(isolation, str):
+                return {}, isolation
+            if request.get("network_isolated") and isolation is not None:
+                if not isolation.network_isolated:  # no student code runs: refused
+                    return {}, isolation
+            scale = float(request.get("time_limit_scale", 1.0))
+            groups, cgroup = _grading_groups(isolation)
+            if groups is not None:
+                _OWN_GROUPS.append(groups)
+            runner = _Jobs(folder, workdir, scale, isolation, options, groups)
+            ran = runner.run(todo, parallel)
+            if cgroup is not None:
+                ran[_CGROUP_KEY] = cgroup
+            return ran, isolation
+        finally:
+            if runner is not None:
+                runner.close()
+            sandbox.kill_descendants()
+            if groups is not None:
+                groups.close()
+                _OWN_GROUPS.remove(groups)
+            os.chdir("/")
+
+
+@contextlib.contextmanager
+def _own(folder: str):
+    """``folder`` is this supervisor's while the block runs (:data:`_OWN_FOLDERS`)."""
+    _OWN_FOLDERS.append(folder)
+    try:
+        yield
+    finally:
+        _OWN_FOLDERS.remove(folder)
+
+
+def _submission_folder(files: dict[str, str]):
+    """A fresh stub folder with the request's student files over its stubs (base64), in a
+    private folder of this supervisor's; returns (the folder, its private folder)."""
+    import base64
+
+    from doorlab.pset.handout.folder import init_folder
+    from doorlab.pset.rules.verdicts import STUDENT_FILES
+
+    tmp = tempfile.mkdtemp(prefix="doorlab_submission_")
+    _OWN_FOLDERS.append(tmp)
+    folder = init_folder(Path(tmp) / "pset")
+    for rel, data in files.items():
+        if rel not in STUDENT_FILES:
+            raise ValueError(f"not a student file: {rel!r}")
+        (folder / rel).write_bytes(base64.b64decode(data))
+    return folder, tmp
+
+
+def _grading_groups(isolation):
+    """The grading's cgroups (:mod:`doorlab.pset.isolation.cgroups`) and what the results say of
+    them: (groups or None, description or None without a student process)."""
+    from doorlab.pset.isolation.cgroups import CgroupError, GradingGroups
+
+    setup = None if isolation is None else isolation.cgroup_setup()
+    if setup is None:
+        return None, None
+    if setup.version is None:
+        return None, setup.describe()
+    try:
+        groups = GradingGroups(setup)
+    except CgroupError as e:
+        return None, {"version": None, "why_none": str(e)}
+    return groups, setup.describe()
+
+
+def _warm(todo: list[str], options: dict[str, dict]) -> None:
+    """Imports what the jobs need and computes what does not depend on the submission, once,
+    before the jobs are forked (each would otherwise do it again)."""
+    from doorlab.cell.station import make_controller_plant
+    from doorlab.pset.grading import checks, episodes  # noqa: F401 - pydrake, the checks
+
+    make_controller_plant()
+    plans = [j for j in todo if j in ("student:velocity", "student:impedance")]
+    if plans:
+        episodes.grasp_configuration()
+    helpers = [options.get(j, {}) for j in plans]
+    if any(o.get("helpers", "reference") == "reference" and "table" not in o for o in helpers):
+        from doorlab.pset.grading.answer_key import reference_helper_table
+
+        reference_helper_table()
+
+
+def _isolation(request: dict, workdir: Path, prepared: dict | None = None):
+    """The grading's :class:`~doorlab.pset.isolation.choice.Isolation`, or why there is none (str).
+
+    ``prepared``: a long-lived supervisor's cache (its ``"folder"``: where the student side
+    is built once; the isolation by policy and hardened paths)."""
+    from doorlab.pset.isolation.choice import IsolationError, prepare
+
+    policy, harden = request.get("isolation", "require"), tuple(request.get("harden") or ())
+    if prepared is not None and (policy, harden) in prepared:
+        return prepared[(policy, harden)]
+    where = workdir
+    if prepared is not None:
+        where = Path(tempfile.mkdtemp(prefix="view_", dir=prepared["folder"]))
+        os.chmod(where, 0o711)
+    try:
+        isolation = prepare(where, policy, harden)
+    except (IsolationError, OSError) as e:
+        return str(e)
+    if prepared is not None:
+        prepared[(policy, harden)] = isolation
+    return isolation
+
+
+_OWN_FOLDERS: list[str] = []
+"""This supervisor's private folders (the submission's copy, the grading's, the prepared
+view): removed when it ends, a signal included."""
+_OWN_GROUPS: list = []
+"""The cgroups of the grading running now (:mod:`doorlab.pset.isolation.cgroups`)."""
+
+
+def _on_signal(signum, frame):
+    import shutil
+
+    sandbox.kill_descendants()
+    for groups in _OWN_GROUPS:
+        groups.close()
+    for folder in reversed(_OWN_FOLDERS):
+        shutil.rmtree(folder, ignore_errors=True)
+    os._exit(128 + signum)
+
+
+def _supervisor_setup(*, interrupt: bool = True):
+    """The supervisor's own settings; returns its answer stream (what it prints otherwise,
+    and what Drake prints, goes to stderr). ``interrupt``: Ctrl-C ends it (else its parent,
+    a batch's worker, ends it when the batch is interrupted)."""
+    parent = os.getppid()
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(signum, _on_signal)
+    if not interrupt:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    sandbox.die_with_parent(parent, signal.SIGTERM)
+    sandbox.become_subreaper()
+    sandbox.make_undumpable()
+    answers = os.fdopen(os.dup(1), "w")
+    os.dup2(2, 1)
+    return answers
+
+
+def supervise_main() -> int:
+    """``supervise``: the request on stdin, the results on stdout."""
+    answers = _supervisor_setup()
+    request = json.loads(sys.stdin.read())
+    results = supervise(request)
+    answers.write(json.dumps(results, default=str))
+    answers.flush()
+    return 0
+
+
+def serve_main() -> int:
+    """``serve``: one request per line on stdin, one results line each on stdout, until
+    stdin closes (:class:`doorlab.pset.grading.grader.Supervisor`)."""
+    import shutil
+
+    answers = _supervisor_setup(interrupt=False)
+    prepared = {"folder": tempfile.mkdtemp(prefix="doorlab_supervisor_")}
+    _OWN_FOLDERS.append(prepared["folder"])
+    os.chmod(prepared["folder"], 0o711)
+    try:
+        for line in sys.stdin:
+            results = supervise(json.loads(line), prepared)
+            answers.write(json.dumps(results, default=str) + "\n")
+            answers.flush()
+    finally:
+        shutil.rmtree(prepared["folder"], ignore_errors=True)
+    return 0
+
+
+def main(argv: list[str]) -> int:
+    """``supervise`` (one request on stdin) or ``serve`` (one per line)."""
+    if argv[:1] == ["supervise"]:
+        return supervise_main()
+    if argv[:1] == ["serve"]:
+        return serve_main()
+    print(
+        "usage: python -I -m doorlab.pset.grading.supervisor {supervise | serve}", file=sys.stderr
+    )
+    return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
