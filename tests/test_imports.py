@@ -128,3 +128,87 @@ def test_every_flat_module_is_a_foundation():
     """Only the foundations sit at the top of the package: the rest is in sub-packages."""
     flat = sorted(p.stem for p in PACKAGE_DIR.glob("*.py"))
     assert flat == ["__init__", "config", "config_checks", "constants", "errors", "kuka"]
+
+
+PSET_LAYERS = (
+    ("doorlab.pset",),
+    ("doorlab.pset.rules",),
+    ("doorlab.pset.handout",),
+    ("doorlab.pset.isolation",),
+    ("doorlab.pset.grading",),
+    ("doorlab.pset.classroom",),
+)
+"""The problem set's parts from the bottom up (issue 34): a module of ``doorlab.pset`` imports
+only from its own part and from the parts of lower layers. ``doorlab.pset`` itself is its
+``__init__`` (a docstring). The rules (the graded tests, the assignment, a test's time) are
+what the handout shows, isolation enforces and grading applies; the handout's folder and
+station API are what the student's process runs (the worker, in isolation, imports them); the
+grading drives the isolated student process; the classroom grades a class with all of them.
+The handout's templates are not among them: they are the files of a student's folder (package
+data that ``doorlab pset init`` copies), run from there, and import what such a folder does
+(``test_pset_5a.py`` runs the grader)."""
+PSET_TEMPLATES = "doorlab.pset.handout.templates"
+
+
+def pset_part_of(module: str) -> str:
+    """The part of PSET_LAYERS a module of the problem set belongs to:
+    ``doorlab.pset.grading.jobs`` -> ``doorlab.pset.grading``."""
+    return ".".join(module.split(".")[:3])
+
+
+def test_the_problem_sets_imports_only_go_down_its_layers():
+    layer = {part: i for i, parts in enumerate(PSET_LAYERS) for part in parts}
+    graph = {
+        m: t
+        for m, t in import_graph().items()
+        if part_of(m) == "doorlab.pset" and not m.startswith(PSET_TEMPLATES + ".")
+    }
+    assert [m for m in graph if pset_part_of(m) not in layer] == [], "a part missing from LAYERS"
+    upward = [
+        f"{a} -> {b}"
+        for a, targets in graph.items()
+        for b in targets
+        if part_of(b) == "doorlab.pset"
+        and pset_part_of(a) != pset_part_of(b)
+        and layer[pset_part_of(b)] >= layer[pset_part_of(a)]
+    ]
+    assert upward == [], "imports that do not go down the layers:\n" + "\n".join(sorted(upward))
+    # the walk sees the layers: the worker runs the handout's API, the grader uses the rules
+    assert "doorlab.pset.handout.station_api" in graph["doorlab.pset.isolation.worker"]
+    assert "doorlab.pset.rules.verdicts" in graph["doorlab.pset.grading.grader"]
+    assert "doorlab.pset.grading.grader" in graph["doorlab.pset.classroom.grade_all"]
+
+
+def test_the_problem_set_is_all_in_its_sub_packages():
+    """``doorlab/pset/`` holds only its ``__init__`` and one folder per part of PSET_LAYERS."""
+    pset = PACKAGE_DIR / "pset"
+    assert sorted(p.name for p in pset.glob("*.py")) == ["__init__.py"]
+    folders = sorted(p.name for p in pset.iterdir() if p.is_dir() and p.name != "__pycache__")
+    assert folders == sorted(part.rsplit(".", 1)[1] for (part,) in PSET_LAYERS[1:])
+
+
+def test_the_problem_sets_packages_import_nothing():
+    """The packages' ``__init__`` are docstrings: importing one module of a part loads nothing
+    else of it (the student's view holds a few modules of some parts)."""
+    for package in [p for (p,) in PSET_LAYERS]:
+        init = PACKAGE_DIR.parent / Path(*package.split(".")) / "__init__.py"
+        body = ast.parse(init.read_text()).body
+        assert len(body) == 1 and isinstance(body[0], ast.Expr), package  # the docstring
+        assert len(ast.get_docstring(ast.parse(init.read_text())) or "") > 200, package
+
+
+def test_no_two_modules_of_the_problem_set_are_named_a_letter_apart():
+    """``view.py`` beside ``views.py`` was one (issue 34): a name says what a module holds."""
+
+    def one_edit_apart(a: str, b: str) -> bool:
+        if abs(len(a) - len(b)) > 1:
+            return False
+        if len(a) == len(b):
+            return sum(x != y for x, y in zip(a, b, strict=True)) <= 1
+        short, long = sorted((a, b), key=len)
+        return any(long[:i] + long[i + 1 :] == short for i in range(len(long)))
+
+    names = sorted({m.rsplit(".", 1)[1] for m in import_graph() if m.startswith("doorlab.pset.")})
+    assert len(names) > 40
+    close = [(a, b) for i, a in enumerate(names) for b in names[i + 1 :] if one_edit_apart(a, b)]
+    assert close == []
