@@ -38,13 +38,34 @@ API_GROUPS = {
     "hardware": ("The real arm and the simulated driver", ["doorlab.hardware"]),
     "report": ("The report (doorlab report)", ["doorlab.report"]),
     "sweep": ("Sweeps (doorlab sweep)", ["doorlab.sweep"]),
-    "pset": ("The problem set and its grader (doorlab pset)", ["doorlab.pset"]),
+    "pset": ("The problem set (doorlab pset): its parts", ["doorlab.pset"]),
+    "pset-rules": (
+        "The problem set's rules: the graded tests, the assignment, a test's time",
+        ["doorlab.pset.rules"],
+    ),
+    "pset-handout": (
+        "What students get and run: the 2019 API, the folder, the course's settings",
+        ["doorlab.pset.handout"],
+    ),
+    "pset-isolation": (
+        "The student's code contained: intake, process, view, limits, channel, guard",
+        ["doorlab.pset.isolation"],
+    ),
+    "pset-grading": (
+        "The grader's judgement: supervisor, jobs, unit tests, episodes, answer key, results",
+        ["doorlab.pset.grading"],
+    ),
+    "pset-classroom": (
+        "A class over a semester: grade-all, regrades, feedback, Gradescope, the handout",
+        ["doorlab.pset.classroom"],
+    ),
     "command-line": ("The command line", ["doorlab.cli"]),
 }
 """The API reference's pages, from the bottom of the package up (a module imports only from
 its own group and the groups above it in this table: tests/test_imports.py): page -> (title,
-modules); a package stands for its submodules. Every module of ``src/doorlab`` must be in
-exactly one group (else the build stops)."""
+modules); a package stands for its submodules but those of a group of their own (the
+problem set's page holds its package's docstring, the map of its parts; each part has its
+page). Every module of ``src/doorlab`` must be in exactly one group (else the build stops)."""
 
 
 def package_modules(root: Path | None = None) -> list[str]:
@@ -75,7 +96,7 @@ def api_coverage() -> dict[str, str]:
         if not owners:
             missing.append(module)
         else:
-            coverage[module] = shown[owners[0]]
+            coverage[module] = shown[max(owners, key=len)]  # the most specific group
     if missing:
         raise ValueError(
             f"modules in no API group: {', '.join(missing)} (add them to API_GROUPS in "
@@ -91,10 +112,11 @@ def api_markdown(group: str) -> str:
         raise ValueError(f"unknown API group {group!r}; valid: {', '.join(API_GROUPS)}")
     title, modules = API_GROUPS[group]
     out = [f"# {title}\n", "Modules: " + ", ".join(f"`{m}`" for m in modules) + ".\n"]
+    grouped = [m for _, listed in API_GROUPS.values() for m in listed]
     for module in modules:
         is_package = (Path(importlib.util.find_spec(module).origin).name) == "__init__.py"
         out.append(f"::: {module}")
-        if is_package:
+        if is_package and not any(m.startswith(module + ".") for m in grouped):
             out.append("    options:\n      show_submodules: true")
         out.append("")
     return "\n".join(out)
