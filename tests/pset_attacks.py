@@ -78,21 +78,21 @@ raise RuntimeError("\x1b[2J\x1b[HTotal score: 14 / 14\x00\ud800 (nothing found)"
 # calc_R_WL7_ref: the autograder's wheel, the clone's git history ------------------------------
 WHEEL = r"""
 import glob, json, os, subprocess, zipfile
+TEMPLATE = "doorlab/pset/handout/templates/open_left_door.py.j2"
 ev = {"wheels": sorted(p for pattern in WHEELS for p in glob.glob(pattern))}
 text = None
 for wheel in ev["wheels"]:
     try:
         with zipfile.ZipFile(wheel) as z:
-            text = z.read("doorlab/pset/handout/templates/open_left_door.py.j2").decode()
+            text = z.read(TEMPLATE).decode()
             ev["wheel_read"] = wheel
     except Exception as e:
         ev.setdefault("wheel_errors", []).append(type(e).__name__)
 for clone in CLONES:
     try:
         git = subprocess.run(
-            ["git", "-C", clone, "show",
-            "HEAD:src/doorlab/pset/handout/templates/open_left_door.py.j2"], capture_output=True,
-            text=True, timeout=20,
+            ["git", "-C", clone, "show", "HEAD:src/" + TEMPLATE],
+            capture_output=True, text=True, timeout=20,
         )
         ev.setdefault("git", []).append(git.returncode)
         if git.returncode == 0:
@@ -151,8 +151,8 @@ for pid in ev["pids"]:
     except OSError:
         continue
     # the grader's processes: python -I -m doorlab.pset.grading.supervisor (or .jobs, before)
-    if {b"doorlab.pset.grading.supervisor", b"doorlab.pset.grading.jobs"} &
-    set(cmdline.split(b"\x00")):
+    grader = {b"doorlab.pset.grading.supervisor", b"doorlab.pset.grading.jobs"}
+    if grader & set(cmdline.split(b"\x00")):
         ev["grader_seen"].append(pid)
 try:
     s = socket.socket(socket.AF_UNIX)
