@@ -151,10 +151,10 @@ def _in_view(tmp: Path, code: str, *args: str) -> subprocess.CompletedProcess:
             text=True,
             timeout=120,
             env={"PATH": "/usr/bin"},
-            pass_fds=(seccomp,),
+            pass_fds=(seccomp_fd,),
         )
     finally:
-        os.close(seccomp)
+        os.close(seccomp_fd)
 
 
 @pytest.fixture
