@@ -39,7 +39,7 @@ ev = {"roots": [r for r in ROOTS if os.path.exists(r)], "hits": []}
 signs = {  # a line of each reference solution
     "laws.py": "def velocity_law", "ik_pointwise.py": "def pointwise_ik",
     "geometry.py": "def p_WQ_ref", "verdicts.py": "def hidden_modules",
-    "results.py": "def results_from_jobs",
+    "scoring.py": "def results_from_jobs",
     "open_left_door.py": "return p_WQ - p_WC_handle", "open_left_door.py.j2": "solutions",
 }
 seen = 0

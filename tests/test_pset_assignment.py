@@ -19,7 +19,7 @@ import pytest
 from doorlab.cli.parser import main
 from doorlab.pset.classroom import gradescope
 from doorlab.pset.grading.grader import TESTS, grade
-from doorlab.pset.grading.results import results_from_jobs
+from doorlab.pset.grading.scoring import results_from_jobs
 from doorlab.pset.handout.folder import STUDENT_FILES, init_folder
 from doorlab.pset.rules.assignment import (
     Assignment,

@@ -26,7 +26,7 @@ from doorlab.pset.classroom.regrade import Step, changed_tests, plan_step
 from doorlab.pset.classroom.roster import Submission, read_metadata_entries
 from doorlab.pset.grading.grader import pretty_format_json_results
 from doorlab.pset.grading.rescore import NeedsGrading, rejudge, settings_change
-from doorlab.pset.grading.results import results_from_jobs
+from doorlab.pset.grading.scoring import results_from_jobs
 from doorlab.pset.handout.course import COURSE_FILE, course_yaml, load_course
 from doorlab.pset.handout.folder import render_folder
 from doorlab.pset.isolation.worker import import_failure

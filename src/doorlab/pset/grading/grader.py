@@ -371,7 +371,7 @@ def grade_taken(
     from importlib.metadata import version
 
     from doorlab import __version__
-    from doorlab.pset.grading.results import results_not_graded
+    from doorlab.pset.grading.scoring import results_not_graded
     from doorlab.pset.rules.verdicts import TESTS
 
     if intake.refused is not None:

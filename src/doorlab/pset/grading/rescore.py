@@ -2,7 +2,7 @@
 
 Every grading stores in its results (``extra_data``) the settings it graded with
 (``settings``: :meth:`doorlab.pset.rules.assignment.Assignment.to_dict`), the student's episodes'
-figures or failures (``episodes``, :func:`doorlab.pset.grading.results.stored_episodes`), the
+figures or failures (``episodes``, :func:`doorlab.pset.grading.scoring.stored_episodes`), the
 reference episodes' figures (``reference``) and each unit test's verdict (its entry of
 ``tests``). From them, against another assignment (:func:`settings_change`):
 
@@ -10,7 +10,7 @@ reference episodes' figures (``reference``) and each unit test's verdict (its en
   same verdicts at the new points;
 - an episode's margins changed, or the reference episodes: **re-judged**, the same figures
   against the new bounds (the same judges as a grading:
-  :func:`doorlab.pset.grading.results.judge_test`);
+  :func:`doorlab.pset.grading.scoring.judge_test`);
 - the random seed (other unit-test inputs) or an episode's helpers (another simulation)
   changed, or the results hold no stored figures (an older doorlab): it must be **graded**
   again (:class:`NeedsGrading` says why).
@@ -24,7 +24,7 @@ import copy
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
-from doorlab.pset.grading.results import judge_test, results_not_graded
+from doorlab.pset.grading.scoring import judge_test, results_not_graded
 from doorlab.pset.rules import verdicts
 
 ACTIONS = ("keep", "rescore", "rejudge", "grade")

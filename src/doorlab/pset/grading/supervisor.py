@@ -107,7 +107,7 @@ def supervise(request: dict, prepared: dict | None = None) -> dict:
     ``prepared``: a long-lived supervisor's cache of the student's view (prepared once).
     """
     from doorlab.errors import ConfigError
-    from doorlab.pset.grading.results import results_from_jobs
+    from doorlab.pset.grading.scoring import results_from_jobs
     from doorlab.pset.rules.assignment import Assignment, assignment_from_dict
     from doorlab.pset.rules.verdicts import TESTS, test_settings
 

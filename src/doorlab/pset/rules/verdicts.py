@@ -1,6 +1,6 @@
 """The graded tests and their verdicts: what each test needs and how it is judged, and what
 the student's process must not see (the Gradescope results from the jobs' figures:
-:mod:`doorlab.pset.grading.results`).
+:mod:`doorlab.pset.grading.scoring`).
 
 Thresholds of the episodes are relative to doorlab's reference solution simulated in the same
 grading; each margin says why it is what it is.
@@ -346,7 +346,7 @@ GRADER_MODULES = {
         for name in (
             "grading.grader",
             "rules.verdicts",
-            "grading.results",
+            "grading.scoring",
             "grading.checks",
             "grading.episodes",
             "grading.jobs",

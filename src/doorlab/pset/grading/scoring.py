@@ -1,7 +1,7 @@
-"""The Gradescope results of a grading, from the jobs' figures: each test judged
-(:data:`doorlab.pset.rules.verdicts.TESTS`' judges) at the assignment's points and visibility, every
-output cleaned and capped, and what the grading stored to re-judge it (``extra_data``). In the
-grader's supervisor, the trusted side (:mod:`doorlab.pset.grading.jobs`).
+"""A grading's scoring: each test judged on the jobs' figures (the judges of
+:data:`doorlab.pset.rules.verdicts.TESTS`) at the assignment's points and visibility, and the
+Gradescope results (every output cleaned and capped; in ``extra_data`` what the grading stored
+to re-judge it). In the grader's supervisor, the trusted side (:mod:`doorlab.pset.grading.jobs`).
 """
 
 from __future__ import annotations
