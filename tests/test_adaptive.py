@@ -37,6 +37,7 @@ def adaptive_case(yaw_deg: float):
     return row, result, case_scenario(Scenario(), "adaptive", yaw)
 
 
+@pytest.mark.slow
 def test_opens_the_closed_door_with_no_yaw_error_gently(episode):
     """No yaw error: open >= 39 deg at the arc's end, handle held, peak arc contact torque
     <= 2x the velocity plan's (the plan that knows the arc exactly)."""
@@ -48,6 +49,7 @@ def test_opens_the_closed_door_with_no_yaw_error_gently(episode):
     assert row.peak_contact_torque_arc_Nm <= 2.0 * velocity.peak_external_torque_arc_Nm
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("yaw_deg", ACCEPTANCE_YAW_ERRORS_DEG)
 def test_opens_the_door_whatever_the_yaw_error(yaw_deg):
     """Unknown hinge (yaw error up to +-10 deg moves it up to 4.7 cm): the door is open >= 39
@@ -61,6 +63,7 @@ def test_opens_the_door_whatever_the_yaw_error(yaw_deg):
     assert row.hinge_estimate_error_m < HINGE_TOLERANCE
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("yaw_deg", [-10.0, 10.0])
 def test_hinge_estimate_converges_and_the_plan_stops_at_its_target(yaw_deg):
     """The hinge estimate's error shrinks from when the fit is first trusted to the end of
@@ -75,6 +78,7 @@ def test_hinge_estimate_converges_and_the_plan_stops_at_its_target(yaw_deg):
     assert math.degrees(-result.door_angles[-1, 0]) <= scenario.adaptive.target_angle + 1.0
 
 
+@pytest.mark.slow
 def test_running_estimates_are_logged_and_round_trip(tmp_path):
     """The plan's named per-tick estimates land in EpisodeResult.plan_log at episode times
     within the arc plan's window, and survive save/load bit for bit."""
@@ -93,6 +97,7 @@ def test_running_estimates_are_logged_and_round_trip(tmp_path):
         assert loaded.plan_log[name].tobytes() == column.tobytes(), name
 
 
+@pytest.mark.slow
 def test_episodes_without_a_plan_log_load_with_an_empty_one(tmp_path, episode):
     """The problem set's plans record nothing: their plan_log is empty and stays so."""
     result = episode("velocity", "closed")[1]

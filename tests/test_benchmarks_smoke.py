@@ -12,6 +12,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 import doorlab
 
 REPO = Path(__file__).resolve().parents[1]
@@ -38,6 +40,7 @@ def _run(*args: str) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow
 def test_quick_run_writes_positive_metrics(tmp_path):
     """--quick --only tick/velocity ik/10_knots exits 0 and saves positive medians, min, max."""
     out = tmp_path / "quick.json"
@@ -58,6 +61,7 @@ def test_quick_run_writes_positive_metrics(tmp_path):
     assert "tick/velocity" in proc.stdout  # the table
 
 
+@pytest.mark.slow
 def test_compare_against_itself_has_no_regression(tmp_path):
     """--compare with a previous file prints new/old ratios (same metrics, so no 'new' rows)."""
     old = tmp_path / "old.json"
@@ -77,6 +81,7 @@ def test_bad_arguments_exit_2_with_one_line(tmp_path):
         assert not (tmp_path / "x.json").exists()
 
 
+@pytest.mark.slow
 def test_the_python_variant_replays_the_episode_it_is_compared_with():
     """design/*'s python variant (the Python runner replaying the recorded commands) must
     simulate the very episode it times against: the same joint trajectory and door, bit for

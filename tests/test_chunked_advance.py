@@ -34,6 +34,7 @@ def _short(controller: str) -> Scenario:
     return scenario
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("controller", ["ik", "velocity"])
 def test_chunks_give_the_logs_of_one_call_bit_for_bit(controller, monkeypatch):
     """IK (C++ systems only) and the velocity plan (a Python runner): the default chunk and an

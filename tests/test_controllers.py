@@ -29,6 +29,7 @@ def test_registry_is_the_configs_list_of_controllers():
         get_controller("pid")
 
 
+@pytest.mark.slow
 def test_more_knots_give_smaller_radial_error_with_doors_open(episode):
     """Free-space arc, IK with 2, 5 and 10 knots: max and RMS radial errors fall."""
     metrics = [episode("ik", "open", n)[3] for n in (2, 5, 10)]
@@ -40,6 +41,7 @@ def test_more_knots_give_smaller_radial_error_with_doors_open(episode):
     assert maxima[0] > 0.01
 
 
+@pytest.mark.slow
 def test_velocity_plan_beats_ik_with_10_knots_and_is_more_uniform(episode):
     """The problem set's hint: the velocity plan's max radial error is below IK's (10 knots) and
     its error is more uniform along the arc (lower RMS and lower spread)."""
@@ -55,6 +57,7 @@ def test_velocity_plan_beats_ik_with_10_knots_and_is_more_uniform(episode):
     assert spread[1] < spread[0]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("controller, knots", [("ik", 10), ("velocity", None)])
 def test_position_plans_open_the_closed_door_by_the_arcs_end(episode, controller, knots):
     """Doors closed, default inner loop: by the arc's end (t = 21 s) the door is open at least
@@ -67,6 +70,7 @@ def test_position_plans_open_the_closed_door_by_the_arcs_end(episode, controller
     assert m.status == "ok"
 
 
+@pytest.mark.slow
 def test_ik_plan_with_closed_doors_feels_the_door(episode):
     """IK (10 knots) with the doors closed: the arm feels the door during the arc."""
     _, result, _, _ = episode("ik", "closed", 10)
@@ -74,6 +78,7 @@ def test_ik_plan_with_closed_doors_feels_the_door(episode):
     assert np.max(np.abs(result.tau_external[arc])) > 0.05
 
 
+@pytest.mark.slow
 def test_impedance_plan_trails_the_arc_but_holds_the_handle(episode):
     """Doors closed, default (damped) inner loop: q_ref = q leaves the impedance plan's J^T F
     against the joint damping, so the door trails the plan (less open at the arc's end than
@@ -89,6 +94,7 @@ def test_impedance_plan_trails_the_arc_but_holds_the_handle(episode):
     assert impedance.door_opening_arc_end_rad > math.radians(20)  # trails, not stuck
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("doors", ["open", "closed"])
 def test_impedance_plan_runs_under_the_original_inverse_dynamics_loop(episode, doors):
     """With the motors' reflected inertia the original station's ID-PID loop runs the problem set's
@@ -101,6 +107,7 @@ def test_impedance_plan_runs_under_the_original_inverse_dynamics_loop(episode, d
         assert m.door_opening_arc_end_rad >= math.radians(38.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("controller", CONTROLLERS)
 def test_free_space_arc_touches_nothing(episode, controller):
     """Doors open: nothing touches the arm during the arc (zero contact torque)."""
@@ -109,6 +116,7 @@ def test_free_space_arc_touches_nothing(episode, controller):
     assert np.max(np.abs(result.tau_external[arc])) < 1e-9
 
 
+@pytest.mark.slow
 def test_impedance_plan_lags_in_free_space(episode):
     """q_ref = q leaves only J^T F against the inner loop's damping Dq, so the impedance
     plan trails the reference: its free-space error is many times the velocity plan's."""
@@ -117,6 +125,7 @@ def test_impedance_plan_lags_in_free_space(episode):
     assert impedance.max_radial_error_m > 10 * velocity.max_radial_error_m
 
 
+@pytest.mark.slow
 def test_joint_speeds_stay_within_the_data_sheet(episode):
     """No controller drives a joint faster than its data-sheet limit."""
     for controller in CONTROLLERS:
@@ -124,6 +133,7 @@ def test_joint_speeds_stay_within_the_data_sheet(episode):
             assert not episode(controller, doors)[3].speed_limit_exceeded
 
 
+@pytest.mark.slow
 def test_same_command_twice_gives_identical_logs_and_metrics():
     """Determinism: two runs of one scenario give bit-identical logs and equal metrics."""
     scenario = Scenario(controller="impedance", doors="closed")

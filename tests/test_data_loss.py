@@ -125,6 +125,7 @@ def test_run_force_refuses_the_home_folder_and_the_root(user):
     assert user.clean()
 
 
+@pytest.mark.slow
 def test_run_force_replaces_only_doorlabs_unchanged_files(user, pristine):
     """A run folder doorlab wrote: an edited or an added file stops --force (named, kept);
     unchanged, --force replaces it whole, with a fresh manifest."""
@@ -149,6 +150,7 @@ def test_run_force_replaces_only_doorlabs_unchanged_files(user, pristine):
     assert user.clean()
 
 
+@pytest.mark.slow
 def test_run_force_through_a_link_leaves_the_link_and_no_old_folder(user, pristine):
     """``run --out LINK --force``: the folder the link names is replaced, the link stays a
     link to it, and no ``.partial.old`` is left (beside the link or the folder)."""
@@ -163,6 +165,7 @@ def test_run_force_through_a_link_leaves_the_link_and_no_old_folder(user, pristi
     assert user.clean()
 
 
+@pytest.mark.slow
 def test_pset_init_force_never_replaces_a_students_edits(user):
     """``pset init DIR --force`` over a student's folder: refused naming the edited file, which
     is kept; over an untouched one (Python's bytecode caches aside) it replaces the folder."""
@@ -183,6 +186,7 @@ def test_pset_init_force_never_replaces_a_students_edits(user):
     assert user.clean()
 
 
+@pytest.mark.slow
 def test_sweep_force_and_resume_keep_a_users_page_and_figures(user, pristine):
     """A user's ``figures/my.png`` and edited ``index.html`` in a sweep folder stop both
     ``--force`` and ``--resume`` (named, kept); an untouched sweep folder is replaced."""
@@ -211,6 +215,7 @@ def _staging_exists(work: Path, name: str):
     return lambda: any(work.glob(f".{name}.*.partial"))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("signum", "code"),
     [(signal.SIGTERM, 143), (signal.SIGINT, 130), (signal.SIGHUP, 129)],
@@ -233,6 +238,7 @@ def test_a_signal_during_a_run_leaves_no_staging_folder(user, signum, code):
     assert not (user.work / "out").exists() and user.clean()
 
 
+@pytest.mark.slow
 def test_sigterm_stops_an_ik_episode_of_cpp_systems_only(user):
     """IK has no Python in its episode: the chunked advance still lets SIGTERM in."""
     outcome = interrupt_doorlab(
@@ -248,6 +254,7 @@ def test_sigterm_stops_an_ik_episode_of_cpp_systems_only(user):
     assert not (user.work / "ik").exists() and user.clean()
 
 
+@pytest.mark.slow
 def test_a_paced_run_stops_on_ctrl_c(user):
     """``--realtime 1e-9`` is refused (it would never end); at the slowest rate accepted,
     Ctrl-C still ends the run at once (Drake sleeps in C++ between the chunks)."""
@@ -282,6 +289,7 @@ def _assert_umask_modes(folder: Path, umask: int) -> None:
         assert mode == expected, (rel, oct(mode), oct(expected))
 
 
+@pytest.mark.slow
 def test_folders_and_files_follow_the_umask(user, pristine):
     """With umask 002 (a course group's), the pset folder, a run and a sweep (its table, page
     and figures) are group-writable: folders 0775, files 0664 (not tempfile's private

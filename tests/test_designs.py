@@ -70,6 +70,7 @@ def both_designs() -> dict[str, tuple[dict, dict]]:
         return {name: (new.result(), old.result()) for name, (new, old) in futures.items()}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", COMPARED)
 def test_metrics_equal_the_old_design(both_designs, name):
     """Status, handle, door angles, radial and orientation errors agree within tolerance."""

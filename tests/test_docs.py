@@ -101,6 +101,7 @@ def _section(page_html: str, anchor: str) -> str:
     return page_html[match.start() : end.start() if end else len(page_html)]
 
 
+@pytest.mark.slow
 def test_every_page_of_the_nav_is_built(site: Path):
     import yaml
 
@@ -127,6 +128,7 @@ def _commands(parser: argparse.ArgumentParser, words: tuple[str, ...] = ("doorla
                 yield from _commands(sub, (*words, name))
 
 
+@pytest.mark.slow
 def test_every_cli_command_and_option_is_in_the_reference(site: Path):
     """Each command has its section, and each of its options is named in it, in code."""
     from doorlab.cli.parser import build_parser
@@ -272,6 +274,7 @@ def test_exit_codes_outputs_and_logs_are_in_the_reference(site: Path):
         assert f"<code>plan_log.{name}</code>" in logs, name
 
 
+@pytest.mark.slow
 def test_a_run_folder_holds_only_documented_files(site: Path, tmp_path: Path):
     """A real (short) run's folder: every file it holds is listed in the reference."""
     from report_fixtures import short_scenario
@@ -419,6 +422,7 @@ def _chromium(binary: str, profile: Path, *args: str) -> subprocess.CompletedPro
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "page, title",
     [

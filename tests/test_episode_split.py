@@ -48,6 +48,7 @@ CASES = [(name, "closed") for name in REGISTRY] + [("velocity", "open"), ("imped
 """Every controller with the doors closed; the two feedback plans in free space too."""
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("controller, doors", CASES)
 def test_split_episode_is_bit_identical_to_mains(controller, doors):
     """Every logged channel equals main's, exactly."""

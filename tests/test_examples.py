@@ -49,6 +49,7 @@ def _stream_text(cell) -> str:
     return "".join(o.get("text", "") for o in cell.outputs if o.output_type == "stream")
 
 
+@pytest.mark.slow
 def test_notebook_executes_without_errors(tmp_path, monkeypatch):
     """Every cell runs without error, the plots render as PNG, the metrics table has numbers."""
     nbformat = pytest.importorskip("nbformat")

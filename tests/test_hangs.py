@@ -172,6 +172,7 @@ SCHEDULER_TIMEOUT_S = 1.0
 """--scheduler-timeout in these tests (the default 10 s would only make them slower)."""
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["silent", "garbage"])
 @pytest.mark.parametrize("command", ["sweep", "report"])
 def test_a_server_that_is_no_scheduler_is_one_line_within_its_timeout(user, kind, command):
@@ -235,6 +236,7 @@ SHORT_SET = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("signum", "code", "settle_s"),
     [(signal.SIGINT, 130, 0.0), (signal.SIGTERM, 143, 4.0)],
@@ -269,6 +271,7 @@ def test_a_signal_to_a_reports_workers_leaves_nothing(user, signum, code, settle
     assert not (work / "rep").exists() and _clean(user)
 
 
+@pytest.mark.slow
 def test_sigterm_to_a_sweeps_workers_keeps_its_table(user):
     """SIGTERM mid-sweep: exit 143, the message says what the folder holds (a table, empty
     here: no run had finished), no worker traceback, no temporary files."""

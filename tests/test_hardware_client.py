@@ -47,6 +47,7 @@ def run(driver: FakeDriver, tmp_path, scenario=None, **kwargs):
     )
 
 
+@pytest.mark.slow
 def test_a_completed_run_writes_the_simulated_runs_folder(tmp_path):
     """Same files and channels as a simulated run; the hinge angles absent, the estimate there."""
     driver = FakeDriver(Q0)
@@ -66,6 +67,7 @@ def test_a_completed_run_writes_the_simulated_runs_folder(tmp_path):
     assert metrics["link"]["commands"] == len(driver.commands)
 
 
+@pytest.mark.slow
 def test_every_command_answers_a_status_and_none_comes_early(tmp_path):
     """One command per valid status after the start, each with that status's utime, each with
     7 joints and 7 torques; the first no sooner than 0.3 s after the first status; statuses
@@ -82,6 +84,7 @@ def test_every_command_answers_a_status_and_none_comes_early(tmp_path):
     assert metrics["link"]["skipped_statuses"] == 0  # the start waited them out
 
 
+@pytest.mark.slow
 def test_runs_are_deterministic_on_the_fake_driver(tmp_path):
     """The same driver, the same commands, bit for bit."""
     a, b = FakeDriver(Q0), FakeDriver(Q0)
@@ -180,6 +183,7 @@ def test_ctrl_c_and_sigterm_stop_commanding_and_write_the_folder(tmp_path, signu
     assert EpisodeResult.load(tmp_path / "run" / "log.npz").t[-1] <= 2.0
 
 
+@pytest.mark.slow
 def test_a_command_ready_too_late_is_dropped(tmp_path):
     """A client descheduled between a status and its answer (here: its clock jumps 8 ms while
     it computes the 500th answer) does not send that stale command; the next status gets one."""

@@ -11,6 +11,7 @@ from doorlab.episode.metrics import Kinematics, handle_distance
 from doorlab.hardware.estimates import door_angle_estimate, handle_held, held_width
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("controller", ["velocity", "impedance"])
 def test_the_estimate_follows_the_true_hinge_within_the_grasps_slack(episode, controller):
     """Geometric bound per sample: the estimate turns with Q, the door with its handle; Q
@@ -35,6 +36,7 @@ def test_the_estimate_follows_the_true_hinge_within_the_grasps_slack(episode, co
     assert np.degrees(error.max()) < 0.5
 
 
+@pytest.mark.slow
 def test_open_doors_and_empty_fingers_are_not_held(episode):
     """With the doors open the fingers close on nothing: no estimate; a width below the
     midpoint of the grasp setpoint and the handle's 10 mm ends the held interval."""

@@ -211,6 +211,7 @@ def compare(controller: str, metrics, facts, gt: GroundTruth, log: EpisodeResult
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("controller", "delay_ms"),
     [(c, d) for c in ("velocity", "impedance") for d in (0.0, 1.5, 3.0)],
@@ -249,6 +250,7 @@ def test_any_client_within_the_period_gets_the_same_episode(
     pytest.fail(f"late commands the host does not explain: {measured}; door {door:+.3f} deg")
 
 
+@pytest.mark.slow
 def test_a_client_slower_than_the_period_acts_a_cycle_later(alone, lcm_url, tmp_path):  # noqa: F811
     """Answers held 6 ms, past the 5 ms period: every command is applied a cycle later than
     kuka_driver's timing (all counted late in driver.json; two cycles only where a status or
@@ -286,6 +288,7 @@ def test_a_client_slower_than_the_period_acts_a_cycle_later(alone, lcm_url, tmp_
     assert abs(door) > 1e-6  # a different episode
 
 
+@pytest.mark.slow
 def test_the_driver_killed_mid_arc_stops_the_client_within_0_2_s(alone, lcm_url, tmp_path):  # noqa: F811
     """SIGKILL the driver in the arc: the client exits 7 within 0.2 s of the last status, with
     the folder written (status driver_lost) and no command after that status."""
@@ -357,6 +360,7 @@ def test_no_driver_is_exit_7_within_the_wait_and_writes_nothing(alone, lcm_url, 
     assert not any(tmp_path.iterdir())
 
 
+@pytest.mark.slow
 def test_a_command_over_a_limit_is_never_sent(alone, lcm_url, tmp_path):  # noqa: F811
     """A position-gap bound the move's first steps break: exit 8 before the command is sent;
     every command a listener saw passes the limits against the status it answers, and none

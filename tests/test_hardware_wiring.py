@@ -55,6 +55,7 @@ def memq_runs():
     return {c: run_on_memq(preset(c)) for c in ("velocity", "impedance")}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("controller", ["velocity", "impedance"])
 def test_commands_and_statuses_round_trip(memq_runs, controller):
     """One command per status from the start on, echoing its utime, 7 joints and 7 torques;
@@ -72,6 +73,7 @@ def test_commands_and_statuses_round_trip(memq_runs, controller):
     assert np.all(np.diff(record.command_utime) == 5000)  # no status missed
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("controller", ["velocity", "impedance"])
 def test_two_processes_and_one_are_the_same_episode_bit_for_bit(memq_runs, controller):
     """Every command applied at the cycle after its status (none late); each cycle's status
@@ -101,6 +103,7 @@ def test_two_processes_and_one_are_the_same_episode_bit_for_bit(memq_runs, contr
     assert ratio.max() < 1.0
 
 
+@pytest.mark.slow
 def test_the_run_repeats_bit_for_bit():
     """Two runs on memq:// send the same commands and log the same channels."""
     scenario = preset("velocity", arc=2.0)
@@ -116,6 +119,7 @@ def test_the_run_repeats_bit_for_bit():
         np.testing.assert_array_equal(getattr(a.result, name), getattr(b.result, name))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("controller", ["ik", "adaptive"])
 def test_every_controller_runs_on_the_real_cells_path(controller):
     """The other two controllers of the registry (velocity and impedance above) run through

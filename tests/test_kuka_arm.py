@@ -127,6 +127,7 @@ def test_kukas_damping_in_n_m_s_per_rad():
     assert np.all(dq / doorlab > 4.0)  # damping 1.0 is 5-10x doorlab's zeta = 0.1
 
 
+@pytest.mark.slow
 def test_the_external_torque_stop_in_one_process():
     """The door's hinge damped at 1e5 N m s/rad, the gripper squeezing hard (kp 4000 N/m, up
     to 80 N: the default grip slips at about a newton), the IK plan drags the handle along
@@ -191,6 +192,7 @@ def test_every_command_takes_the_preset(argv, tmp_path, capsys):
     assert "timeline.arc_duration" in err and "\n" not in err.strip()
 
 
+@pytest.mark.slow
 def test_a_preset_run_from_the_command_line(tmp_path):
     """``doorlab run --config examples/kuka_arm.yaml`` runs the arm in one process and writes
     its folder (the arc cut short)."""

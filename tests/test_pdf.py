@@ -20,6 +20,7 @@ from doorlab.cli.parser import main
 from doorlab.runtime import pdf
 
 
+@pytest.mark.slow
 def test_report_page_prints_to_a_pdf_with_pages(tmp_path: Path):
     try:
         pdf.find_chromium()

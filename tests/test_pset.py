@@ -144,6 +144,7 @@ def test_init_refuses_a_bad_destination(tmp_path, capsys):
 # The 2019 notebook's own cells, and the solutions' full marks ------------------------------
 
 
+@pytest.mark.slow
 def test_notebook_cells_run_unchanged_in_a_solutions_folder(notebook_cells, solutions_run):
     folder, proc = solutions_run
     # setup, 2 meshcat cells, 3 tasks x (simulate + 4 analysis cells), 3 plots, the grader
@@ -181,6 +182,7 @@ def test_solutions_score_full_marks_with_fresh_references(solutions_run):
 # Stubs, wrong implementations, exceptions, NaN, endless loops ------------------------------
 
 
+@pytest.mark.slow
 def test_stubs_score_zero_without_crashing(tmp_path, reference, capsys):
     """`doorlab pset grade` on the untouched stubs (reusing the reference episodes)."""
     reference_file = tmp_path / "earlier_results.json"
@@ -197,6 +199,7 @@ def test_stubs_score_zero_without_crashing(tmp_path, reference, capsys):
         assert "NotImplementedError" in t["output"], t
 
 
+@pytest.mark.slow
 def test_two_disjoint_mistakes_lose_exactly_their_tests(tmp_path_factory, reference):
     """IK ignores `duration` (knots at 0..10 s) and the impedance plan uses K_v = 10 N/m: the
     IK unit test fails but the IK episode (duration 10 s) passes; the impedance unit test and
@@ -224,6 +227,7 @@ def test_two_disjoint_mistakes_lose_exactly_their_tests(tmp_path_factory, refere
     assert "FAILED door opened" in _output(results, EPISODE["impedance"])
 
 
+@pytest.mark.slow
 def test_calc_p_Q_without_the_handle_offset_costs_its_own_point_only(tmp_path_factory, reference):
     """calc_p_Q returns the arc point itself (absolute, not relative to the start): by
     default the task 2 and 3 episodes run doorlab's helpers, so only calc_p_Q's unit test
@@ -255,6 +259,7 @@ def test_calc_p_Q_without_the_handle_offset_costs_its_own_point_only(tmp_path_fa
         assert "calc_R_WL7_ref, which failed" not in text, text
 
 
+@pytest.mark.slow
 def test_velocity_with_the_error_sign_flipped_fails_its_tests(tmp_path_factory, reference):
     folder = _wrong_folder(
         tmp_path_factory,
@@ -273,6 +278,7 @@ def test_velocity_with_the_error_sign_flipped_fails_its_tests(tmp_path_factory, 
     assert _failed(results) == {vel, EPISODE["velocity"]}, pretty(results)
 
 
+@pytest.mark.slow
 def test_orientation_axis_left_in_L7_and_wrong_yaw_fail_their_unit_tests(
     tmp_path_factory, reference
 ):
@@ -297,6 +303,7 @@ def test_orientation_axis_left_in_L7_and_wrong_yaw_fail_their_unit_tests(
     assert "roll-pitch-yaw" in _output(results, UNIT["calc_R_WL7_ref"])
 
 
+@pytest.mark.slow
 def test_exception_and_nan_fail_only_their_tests(tmp_path_factory, reference):
     """The velocity plan returns NaN, the impedance plan divides by zero: their tests fail
     with the cause in the output; the grader and the other tests carry on."""
@@ -326,6 +333,7 @@ def test_exception_and_nan_fail_only_their_tests(tmp_path_factory, reference):
     assert "non-finite" in _output(results, EPISODE["velocity"])
 
 
+@pytest.mark.slow
 def test_an_endless_loop_hits_the_time_limit_only(tmp_path_factory):
     folder = _wrong_folder(
         tmp_path_factory,
@@ -345,6 +353,7 @@ def test_an_endless_loop_hits_the_time_limit_only(tmp_path_factory):
     assert "time limit" in _output(results, UNIT["calc_R_WL7_ref"])
 
 
+@pytest.mark.slow
 def test_using_the_wrong_argument_fails_the_unit_test_naming_it(tmp_path_factory):
     """The inputs tell the arguments apart: the velocity plan starting from q_cmd instead of
     the measured q_iiwa, the impedance plan adding damping from v_iiwa, and the IK aiming
@@ -416,6 +425,7 @@ def pretty(results: dict) -> str:
     )
 
 
+@pytest.mark.slow
 def test_our_notebook_runs_in_the_solutions_folder(solutions_run):
     """The notebook `init` writes: every code cell but the last (the grader, run above) runs."""
     folder, _ = solutions_run

@@ -134,6 +134,7 @@ def test_margins_and_points_change_the_verdicts():
     assert "margin 3.00 deg" in results["tests"][1]["output"]
 
 
+@pytest.mark.slow
 def test_points_visibility_and_seed_reach_results_json(tmp_path, reference, capsys):
     """`doorlab pset grade --assignment` on the stubs (reference reused): every test's points
     and visibility, the top-level visibility, plain text, numbers; `--seed` is recorded."""
@@ -186,6 +187,7 @@ def test_a_changed_margin_or_points_changes_the_zip_and_its_digest(tmp_path):
     assert parse_assignment(digest(margin)[1].decode()) == margin  # the zip grades with it
 
 
+@pytest.mark.slow
 def test_a_margin_from_the_file_reaches_the_episode_s_verdict(tmp_path, reference):
     """The key's IK episode passes with the default margin and fails with none: its
     feasible IK (any pose within the +-1 mm box) errs more than the reference's along the
@@ -232,6 +234,7 @@ def _without_times(data):
     return data
 
 
+@pytest.mark.slow
 def test_the_same_submission_grades_the_same_and_a_seed_replays(tmp_path):
     """Graded twice: the same results but for times. The same files with a comment added
     draw other inputs, and `seed=` (--seed) replays the first grading's exactly."""

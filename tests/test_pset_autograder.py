@@ -240,6 +240,7 @@ def test_autograder_refuses_bad_destinations_and_leaves_nothing_half_written(
 # run_autograder --------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_setup_check_accepts_the_installed_wheel_and_rejects_another_doorlab(root, tmp_path):
     python = root / "doorlab-venv" / "bin" / "python"
     where = subprocess.run(
@@ -299,6 +300,7 @@ def test_setup_check_accepts_the_installed_wheel_and_rejects_another_doorlab(roo
     assert not (other / "results" / "results.json").exists()
 
 
+@pytest.mark.slow
 def test_run_autograder_gives_a_correct_submission_full_marks(root):
     _submit(root, lambda d: init_folder(d, solutions=True))
     proc = _run(root, *JOBS)
@@ -319,6 +321,7 @@ def test_run_autograder_gives_a_correct_submission_full_marks(root):
     assert results["extra_data"]["autograder"]["digest"] == settings["digest"]
 
 
+@pytest.mark.slow
 def test_run_autograder_gives_the_stubs_zero(root, reference_args):
     _submit(root, init_folder)
     proc = _run(root, *JOBS, *reference_args, "--seed", "7")  # a recorded grading's seed
@@ -370,6 +373,7 @@ def _cheating_submission(folder: Path) -> None:
         path.write_text(_CHEAT + path.read_text())
 
 
+@pytest.mark.slow
 def test_run_autograder_gives_a_cheating_submission_zero(root, reference_args):
     _submit(root, _cheating_submission)
     proc = _run(root, *JOBS, *reference_args)
@@ -379,6 +383,7 @@ def test_run_autograder_gives_a_cheating_submission_zero(root, reference_args):
     assert results["score"] == 0, proc.stdout
 
 
+@pytest.mark.slow
 def test_run_autograder_without_a_submission_says_so(root):
     shutil.rmtree(root / "submission", ignore_errors=True)
     shutil.rmtree(root / "results", ignore_errors=True)
@@ -408,6 +413,7 @@ def _attacks(root: Path, key: Path | None):
     return make
 
 
+@pytest.mark.slow
 def test_run_autograder_gives_issue_24_s_attacks_zero(root, reference_args, tmp_path):
     """As root, with bubblewrap: the stubs trying the issue's attacks (the zip's wheel in
     the autograder's source, a world-readable solved folder, the clone's git, reload,
@@ -449,6 +455,7 @@ def fallback_root(zip_path):
     shutil.rmtree(public, ignore_errors=True)
 
 
+@pytest.mark.slow
 def test_run_autograder_falls_back_to_another_user_and_hides_the_grader(
     fallback_root, reference_args
 ):

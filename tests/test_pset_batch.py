@@ -279,6 +279,7 @@ def _alive_in(session: int) -> bool:
     return False
 
 
+@pytest.mark.slow
 def test_ctrl_c_leaves_a_consistent_sheet_and_resume_grades_each_submission_once(resumed):
     first = resumed["first"]
     assert first["code"] == 130, first["err"][-2000:]
@@ -315,6 +316,7 @@ def test_ctrl_c_leaves_a_consistent_sheet_and_resume_grades_each_submission_once
     assert not [p for p in resumed["out"].iterdir() if "partial" in p.name]
 
 
+@pytest.mark.slow
 def test_the_sheet_holds_the_expected_scores_names_and_statuses(klass, resumed):
     _, expected, _ = klass
     rows = {row["submission"]: row for row in resumed["rows"]}
@@ -348,6 +350,7 @@ def test_the_sheet_holds_the_expected_scores_names_and_statuses(klass, resumed):
     assert float(rows["submission_109"]["impedance_episode"]) == 0  # K_v = 10: the door stays
 
 
+@pytest.mark.slow
 def test_each_submission_graded_alone_gives_its_row(klass, resumed):
     """grade_submission on each submission folder of the export (the one intake, as
     ``doorlab pset grade`` runs it; two gradings at a time): the row of the class's sheet,
@@ -376,6 +379,7 @@ def test_each_submission_graded_alone_gives_its_row(klass, resumed):
         assert batch == results, sid
 
 
+@pytest.mark.slow
 def test_the_class_graded_again_on_a_dask_cluster_gives_the_identical_sheet(
     klass, resumed, tmp_path
 ):
@@ -546,6 +550,7 @@ def test_an_existing_folder_needs_resume_or_force_and_keeps_what_doorlab_did_not
     assert "holds no submission" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_grading_the_grader_fails_is_a_row_and_resume_grades_it_again(klass, tmp_path):
     """A grading whose supervisor fails (here: an isolation policy it does not know) is the
     row of its submission with status error and the message, no results file, exit code 1;

@@ -3,11 +3,12 @@
 Each attack of the issue is rebuilt from the untouched stubs, in a class graded by
 ``grade-all --jobs 2`` beside honest submissions (the answer key), against the session's
 reference episodes (``pset_fixtures.reference``): a submission that forks until EAGAIN, on and
-off for most of a minute, beside 6 honest ones; a submission whose 50 busy children share a
-0.5-CPU group with an honest one. The honest ones keep full marks and the status ``graded``:
-each grading is a cgroup of its own (:mod:`doorlab.pset.isolation.cgroups`), its views' processes
-bounded by their own ``pids.max``, its CPU share its own. Tests that make cgroups run as root
-on a machine whose cgroups this user may write (they skip, saying why, elsewhere).
+off for half a minute, beside 6 honest ones; a submission whose 50 busy children share a
+0.5-CPU group with an honest one. The honest ones, graded while the attack lasts, keep full
+marks and the status ``graded``: each grading is a cgroup of its own
+(:mod:`doorlab.pset.isolation.cgroups`), its views' processes bounded by their own
+``pids.max``, its CPU share its own. Tests that make cgroups run as root on a machine whose
+cgroups this user may write (they skip, saying why, elsewhere).
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ needs_cgroups = pytest.mark.skipif(
 
 FORK_CYCLER = r"""
 import errno, json, os, signal, time
-ev = {"eagain": 0, "most": 0, "rounds": 0}
+ev = {"eagain": 0, "most": 0, "rounds": 0, "start": time.time()}
 end = time.monotonic() + SECONDS
 while time.monotonic() < end:  # on: fork until the kernel refuses, hold; off: let them go
     children = []
@@ -52,21 +53,26 @@ while time.monotonic() < end:  # on: fork until the kernel refuses, hold; off: l
                 ev["eagain"] += 1
             break
         if pid == 0:
-            time.sleep(1.5)
+            time.sleep(1.0)
             os._exit(0)
         children.append(pid)
     ev["most"] = max(ev["most"], len(children))
     ev["rounds"] += 1
     for pid in children:
         os.waitpid(pid, 0)
-    time.sleep(0.5)
+    time.sleep(0.3)
+ev["end"] = time.time()
 print("EVIDENCE forks " + json.dumps(ev))
 raise NotImplementedError("calc_p_Q: forked until EAGAIN")
 """
 """calc_p_Q: forks until the kernel refuses (EAGAIN), on and off for SECONDS."""
+FORK_SECONDS = 30
+"""How long the fork cycler cycles [s]: over 15 rounds of 1.5 s or so, and longer than the
+honest submissions' grading beside it (one grading: their files are identical)."""
 
 BUSY_CHILDREN = r"""
 import json, os, time
+start = time.time()
 children = []
 for _ in range(CHILDREN):
     pid = os.fork()
@@ -75,11 +81,13 @@ for _ in range(CHILDREN):
             pass
     children.append(pid)
 time.sleep(SECONDS)
-print("EVIDENCE busy " + json.dumps({"children": len(children)}))
+ev = {"children": len(children), "start": start, "end": time.time()}
+print("EVIDENCE busy " + json.dumps(ev))
 raise NotImplementedError("CalcTorqueCommand: busy children")
 """
 """The impedance plan's CalcTorqueCommand (the first call of the first test a grading runs,
-its impedance episode): CHILDREN processes that spin for SECONDS, then it fails."""
+its impedance episode): CHILDREN processes that spin for SECONDS, then it fails (the
+evidence: when they started and stopped, on the machine's clock)."""
 
 
 @pytest.fixture(scope="module")
@@ -113,7 +121,7 @@ def _rows(out: Path) -> dict[str, dict]:
 def test_six_honest_submissions_beside_a_fork_cycler_keep_full_marks(tmp_path, reference):
     """The fork cycler hits its own view's limit (EAGAIN) again and again while 6 honest
     submissions are graded on the other worker: every one of them 14 and graded."""
-    export = _class(tmp_path, 6, (FORK_CYCLER, {"SECONDS": 45}))
+    export = _class(tmp_path, 6, (FORK_CYCLER, {"SECONDS": FORK_SECONDS}))
     out = tmp_path / "out"
     outcome = grade_class(export, out, reference=reference, jobs=2)
     rows = _rows(out)
@@ -128,7 +136,10 @@ def test_six_honest_submissions_beside_a_fork_cycler_keep_full_marks(tmp_path, r
     assert 50 <= forks["most"] <= cgroups.VIEW_TASKS, forks
     assert results["extra_data"]["sandbox"]["cgroup"]["version"] == SETUP.version
     assert outcome.errors == 0
-    print(f"the fork cycler: {forks}")
+    # The honest ones were graded while it cycled (identical files: one grading, copied).
+    honest_done = max((out / f"honest_{i}" / RESULTS_JSON).stat().st_mtime for i in range(6))
+    assert honest_done < forks["end"], (honest_done - forks["start"], forks)
+    print(f"the fork cycler: {forks}; the honest ones done {honest_done - forks['start']:.1f} s in")
 
 
 DASK_PATCH = r"""
@@ -153,6 +164,7 @@ raise NotImplementedError("calc_p_Q: no scheduler reached")
 """calc_p_Q: finds the Dask scheduler's address and connects to it (to Client.run a patch)."""
 
 
+@pytest.mark.slow
 def test_the_student_s_code_cannot_reach_a_tls_cluster_and_nothing_connects_without_its_key(
     tmp_path, reference
 ):
@@ -213,6 +225,12 @@ def test_a_cluster_whose_workers_would_not_isolate_the_network_is_refused():
     assert check_workers(Worker(view), "require") == view
 
 
+BUSY_SECONDS = 80
+"""How long the attacker's 50 children spin [s]: longer than an honest grading takes at
+a quarter of a CPU (its share of the half CPU beside the attacker), far below the time
+limit of the attacker's own episode (150 s), so that it ends by itself."""
+
+
 def _half_a_cpu(name: str) -> cgroups.Group:
     """A cgroup of 0.5 CPU (a quota: as in a Gradescope container), below this process's."""
     base = cgroups.Group(SETUP, {k: Path(v) for k, v in SETUP.bases.items()})
@@ -231,11 +249,13 @@ def test_an_honest_submission_beside_50_busy_children_in_half_a_cpu_keeps_full_m
     tmp_path, reference
 ):
     """``grade-all --jobs 2`` in a group of 0.5 CPU: the attacker's first test starts 50
-    processes that spin for 140 s, nearly its episode's limit; the honest submission, graded
-    meanwhile, gets its grading's share of the half CPU (each grading is a cgroup with the
-    same weight) and is 14 and graded. (Before, it had 2 of 52 shares of the half CPU for
-    those 140 s, and its own first episode, 150 s, did not answer in time: 12/14.)"""
-    busy = (BUSY_CHILDREN, {"CHILDREN": 50, "SECONDS": 140})
+    processes that spin for BUSY_SECONDS; the honest submission, graded meanwhile, gets its
+    grading's share of the half CPU (each grading is a cgroup with the same weight): it is 14
+    and graded, and its whole grading ended while the 50 children spun. (Before, it had 2 of
+    52 shares of the half CPU while they spun, about 0.02 CPU: its grading, some 8 CPU-s,
+    could not have ended within BUSY_SECONDS, and with the children spinning for 140 s its
+    first episode, 150 s, did not answer in time: 12/14.)"""
+    busy = (BUSY_CHILDREN, {"CHILDREN": 50, "SECONDS": BUSY_SECONDS})
     export = _class(tmp_path, 1, busy, where="impedance")
     out = tmp_path / "out"
     reference_file = tmp_path / "reference.json"
@@ -263,12 +283,20 @@ def test_an_honest_submission_beside_50_busy_children_in_half_a_cpu_keeps_full_m
     assert rows["attacker"]["status"] == "graded", rows["attacker"]
     results = json.loads((out / "attacker" / RESULTS_JSON).read_text())
     impedance = next(t for t in results["tests"] if t["name"].startswith("Task 3 episode"))
-    # Its own failure: it ends by itself, or its test's time runs out (its 50 children took
-    # its view's share of the CPU from its own main process, which they starve).
-    assert impedance["score"] == 0 and (
-        "busy children" in impedance["output"] or "time limit" in impedance["output"]
-    ), impedance["output"]
-    print(f"the class used {used:.1f} CPU-s in the 0.5-CPU group")
+    # Its own failure: it ends by itself (its 50 children took its view's share of the CPU
+    # from its own main process, which they starve, yet it sleeps, then raises).
+    assert impedance["score"] == 0 and "busy children" in impedance["output"], impedance["output"]
+    busy = evidence(results)["busy"]
+    assert busy["children"] == 50
+    # The honest grading was graded under the attack: its results were written (the grading's
+    # last step) before the children stopped spinning.
+    honest_done = (out / "honest_0" / RESULTS_JSON).stat().st_mtime
+    assert honest_done < busy["end"], (honest_done - busy["start"], busy)
+    print(
+        f"the class used {used:.1f} CPU-s in the 0.5-CPU group; the honest grading ended "
+        f"{honest_done - busy['start']:.1f} s after the children started, "
+        f"{busy['end'] - honest_done:.1f} s before they stopped"
+    )
 
 
 CLOCK = r"""
@@ -285,6 +313,7 @@ print(json.dumps({"wall": clock.wall(), "waited": clock.waited(), "starved": clo
 """
 
 
+@pytest.mark.slow
 @needs_cgroups
 @pytest.mark.parametrize("mode", ["busy", "sleep"])
 def test_a_test_s_time_is_what_it_had_and_starvation_is_the_grader_s_error(tmp_path, mode):
@@ -335,6 +364,7 @@ raise NotImplementedError("calc_p_Q: slept")
 """
 
 
+@pytest.mark.slow
 def test_a_supervisor_ended_by_sigterm_leaves_no_folder_behind(tmp_path, monkeypatch):
     """A batch worker's supervisor ends with its worker (SIGTERM, as a Dask worker's end or
     Ctrl-C of grade-all brings): the grading is the grader's error, and nothing of it is left
@@ -377,6 +407,7 @@ def test_a_supervisor_ended_by_sigterm_leaves_no_folder_behind(tmp_path, monkeyp
     assert left == [], left
 
 
+@pytest.mark.slow
 @needs_cgroups
 def test_a_trusted_process_killed_as_by_the_oom_killer_is_the_grader_s_error(tmp_path):
     """A trusted job process killed by SIGKILL from outside (what the kernel's OOM killer

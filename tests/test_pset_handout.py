@@ -81,6 +81,7 @@ def _run(argv: list[str], *, cwd: Path, env: dict, timeout: float) -> subprocess
     return proc
 
 
+@pytest.mark.slow
 def test_from_the_handout_alone_install_the_notebook_and_grade(handout_zip, tmp_path):
     require_index()
     student = tmp_path / "student"

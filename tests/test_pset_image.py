@@ -37,6 +37,7 @@ def _pins(text: str) -> dict[str, str]:
     return pins
 
 
+@pytest.mark.slow
 def test_setup_sh_installs_the_pinned_versions_only_and_creates_the_user(tmp_path):
     require_index()
     zips = []

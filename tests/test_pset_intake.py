@@ -176,6 +176,7 @@ def test_file_names_shown_are_clean_and_the_unused_list_is_capped(tmp_path):
     assert len(taken.summary()) < 3000
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("shape", ["deep", "many", "big"])
 def test_over_a_bound_a_results_file_names_the_bound(tmp_path, shape, request):
     """1,100 nested folders, 30,000 files, and (in a zip) more than the total size: `doorlab
@@ -272,6 +273,7 @@ def test_pset_grade_and_run_autograder_take_the_same_files(tmp_path, recorded_gr
     capsys.readouterr()
 
 
+@pytest.mark.slow
 def test_both_paths_grade_a_missing_file_the_same(tmp_path):
     """Real gradings (the reference episodes reused): two of the key's files uploaded flat,
     robot_plans.py missing, through `doorlab pset grade` and `run_autograder`: the same
@@ -302,6 +304,7 @@ def test_both_paths_grade_a_missing_file_the_same(tmp_path):
     )
 
 
+@pytest.mark.slow
 def test_pset_grade_takes_a_zip_and_writes_its_results_beside_it(tmp_path, capsys):
     """`doorlab pset grade SUBMISSION.zip`: the stubs zipped (reference episodes reused):
     NAME_results.json beside the zip, the three files taken from it, 0 points."""

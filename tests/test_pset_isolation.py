@@ -255,6 +255,7 @@ def _fake_bwrap(folder: Path) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_without_bwrap_or_namespaces_pset_grade_refuses_before_any_student_code(
     work, capsys, monkeypatch
 ):
@@ -345,6 +346,7 @@ def _leftovers(mark: str) -> list[str]:
     ]
 
 
+@pytest.mark.slow
 def test_issue_24_attacks_from_the_stubs_score_zero_through_pset_grade(
     public, reference_file, capfd
 ):
@@ -442,6 +444,7 @@ raise NotImplementedError("calc_p_Q: found " + " ".join(ev["hits"]))
     return victim, attacker
 
 
+@pytest.mark.slow
 def test_one_submission_never_sees_another_graded_beside_it(public, reference_file):
     """Two folders graded at the same time: the attacker's code reads every file of its
     view and /proc for the victim's secret (in its code and its results file): its results
@@ -523,6 +526,7 @@ raise NotImplementedError("calc_p_Q: nothing found")
 """
 
 
+@pytest.mark.slow
 def test_each_test_gets_a_fresh_view_whose_first_process_is_out_of_reach(
     public, reference_file, tmp_path
 ):
@@ -614,6 +618,7 @@ def _cli(
     )
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not AS_ROOT, reason="as root: the separate user without a view")
 def test_insecure_grades_without_the_view_as_another_user_and_says_so(
     public, system_venv, reference_file
@@ -706,6 +711,7 @@ raise NotImplementedError("calc_p_Q: no .pth written")
 """
 
 
+@pytest.mark.slow
 def test_as_an_ordinary_user_the_venv_is_never_writable_from_the_student_s_view(
     public, user_venv, reference_file
 ):
@@ -760,6 +766,7 @@ def test_as_an_ordinary_user_the_venv_is_never_writable_from_the_student_s_view(
     assert json.loads(proc.stdout.strip().splitlines()[-1]) == 0
 
 
+@pytest.mark.slow
 def test_as_an_ordinary_user_without_namespaces_the_grader_refuses(public, user_venv):
     """bwrap refusing namespaces (the kernel's answer without unprivileged user
     namespaces): `pset grade` stops with one line; --insecure too, since the student's code
@@ -777,6 +784,7 @@ def test_as_an_ordinary_user_without_namespaces_the_grader_refuses(public, user_
         assert not (folder / "test_results.json").exists()
 
 
+@pytest.mark.slow
 def test_a_student_s_self_check_without_namespaces_grades_and_says_so(
     public, user_venv, reference_file
 ):

@@ -149,6 +149,7 @@ class JSONDecodeError(ValueError):
 """
 
 
+@pytest.mark.slow
 def test_a_json_py_in_the_folder_changes_nothing_through_test_pset_5a(tmp_path, reference):
     """The folder's own grader script (`python3 test_pset_5a.py`, the notebook's last cell)
     with a forging json.py next to it: 0, and the script does not import it."""
@@ -173,6 +174,7 @@ def test_a_json_py_in_the_folder_changes_nothing_through_test_pset_5a(tmp_path, 
     assert "forged" not in out.read_text()
 
 
+@pytest.mark.slow
 def test_a_doorlab_package_in_the_folder_shadows_nothing(tmp_path, reference):
     """doorlab/pset/isolation/worker.py, doorlab/pset/grading/jobs.py and the other modules
     of a grading (and their packages) in the submission, each writing full
@@ -211,6 +213,7 @@ os._exit(0)
         assert "NotImplementedError" in t["output"], t
 
 
+@pytest.mark.slow
 def test_forging_from_inside_the_student_process_scores_zero(tmp_path):
     """One forgery per function: write results to every file and descriptor then
     os._exit(0); an atexit hook doing the same; patching json, doorlab.pset.grading.checks and the
@@ -293,6 +296,7 @@ return np.zeros(7)
 # Every way a student process can end, and garbage ---------------------------------------
 
 
+@pytest.mark.slow
 def test_every_way_out_is_that_tests_failure_only(tmp_path, reference):
     """os._exit(3), SIGABRT, killing its parent and itself, garbage on the channel, a
     segfault: each fails its own test with the cause in its message; the episode that does
@@ -354,6 +358,7 @@ def test_every_way_out_is_that_tests_failure_only(tmp_path, reference):
     assert "SIGSEGV" in tests[UNIT["IiwaTaskSpaceImpedancePlan.CalcTorqueCommand"]]["output"]
 
 
+@pytest.mark.slow
 def test_wrong_shapes_and_garbage_in_an_episode_fail_it_without_crashing(tmp_path, reference):
     """A plan that answers 50 ticks, then returns 3 values and writes garbage on the
     channel; the worker patched to answer malformed objects: the episode and the unit test
@@ -405,6 +410,7 @@ IiwaTaskSpaceVelocityPlan.CalcPositionCommand = _after_50_ticks
 # What outlives a test -------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_detached_and_pipe_holding_processes_are_dead_when_grading_returns(tmp_path, reference):
     """At import, the student's code starts a double-forked, setsid'd process that waits,
     then rewrites the results file with full marks (a file it could write: world-writable),
@@ -447,6 +453,7 @@ def test_detached_and_pipe_holding_processes_are_dead_when_grading_returns(tmp_p
 # Limits -----------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_memory_file_output_and_time_limits_hold_and_results_stay_small(tmp_path, reference):
     """3 GiB of memory, a 1 GiB file, 300 MiB on stderr and a 20 MB exception message, one
     per function, graded in a separate process: each its own test's failure with the limit
@@ -501,6 +508,7 @@ def test_memory_file_output_and_time_limits_hold_and_results_stay_small(tmp_path
 # The honesty boundary ---------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_doorlab_reference_solutions_are_out_of_reach(tmp_path):
     """Each function takes doorlab's solution another way: rendering the --solutions files,
     reading the templates, doorlab's pointwise IK, doorlab.control.laws, importlib on
@@ -582,6 +590,7 @@ return plans.impedance_law(self.Jv_WL7q, err_xyz)
 # A correct folder with innocent helpers ----------------------------------------------------
 
 
+@pytest.mark.slow
 def test_a_correct_folder_with_helpers_named_like_the_grader_s_modules_scores_full(
     tmp_path, reference
 ):
@@ -647,6 +656,7 @@ def _run_sandboxed(tmp_path: Path, code: str, **limits) -> tuple[int, str]:
     return code_, collector.text()
 
 
+@pytest.mark.slow
 def test_sandbox_limits_memory_files_and_processes(tmp_path):
     code, out = _run_sandboxed(
         tmp_path,

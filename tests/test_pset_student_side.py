@@ -39,6 +39,7 @@ def _images(cell) -> int:
     return sum("image/png" in o.get("data", {}) for o in cell.outputs)
 
 
+@pytest.mark.slow
 def test_the_notebooks_plot_cells_show_each_figure_once(tmp_path, monkeypatch):
     """The folder's setup cell, its tracking-plot cell and its three joint-log cells run in a
     real kernel in a stub folder, on synthetic logs: every plotting cell shows one figure
@@ -95,6 +96,7 @@ def test_InterpolateYawAngle_returns_the_RotationMatrix_its_docstring_names(tmp_
         np.testing.assert_allclose(R.matrix(), expected.matrix(), atol=1e-12)
 
 
+@pytest.mark.slow
 def test_the_pset_extra_gives_the_jupyter_notebook_the_folder_readme_runs():
     pset = [r for r in metadata.requires("doorlab") or [] if 'extra == "pset"' in r]
     assert any(r.startswith("notebook") for r in pset), pset

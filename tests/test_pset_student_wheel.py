@@ -120,6 +120,7 @@ def handout(tmp_path_factory) -> Path:
     return write_handout(out, reference=pset_fixtures.reference())
 
 
+@pytest.mark.slow
 def test_the_full_doorlab_holds_the_key_the_check_looks_for(tmp_path):
     """The check can fail: the instructor's wheel (the autograder's) holds all of it."""
     _, data = wheel.wheel_bytes()
@@ -133,6 +134,7 @@ def test_the_full_doorlab_holds_the_key_the_check_looks_for(tmp_path):
     assert any("Jv_WL7q.T @ F" in f for f in found) and any("template" in f for f in found)
 
 
+@pytest.mark.slow
 def test_the_handout_s_wheel_holds_no_answer_key(handout, tmp_path):
     """The students' wheel: none of the left-out files, nothing of the key in what is left,
     the handout's stub folder and its practice table added."""

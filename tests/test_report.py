@@ -118,6 +118,7 @@ def test_format_number_gives_three_significant_digits():
     assert format_number(None) == "n/a"
 
 
+@pytest.mark.slow
 def test_page_embeds_every_image_and_fetches_nothing(report):
     """Every <img> is a base64 PNG data URI; no URL, script or external stylesheet."""
     _, page, _ = report
@@ -130,6 +131,7 @@ def test_page_embeds_every_image_and_fetches_nothing(report):
     assert '<link rel="stylesheet"' not in page
 
 
+@pytest.mark.slow
 def test_metrics_table_has_one_row_per_run_with_units(report):
     """The metrics table has one row per run folder and units in its headers."""
     folder, page, metrics = report
@@ -207,6 +209,7 @@ def test_page_quotes_the_six_questions_and_links_the_runs(report):
     assert f'href="runs/{SHORT_RUNS[-1]}/replay.html"' in page
 
 
+@pytest.mark.slow
 def test_run_report_reports_a_failed_experiment_and_keeps_the_others(tmp_path: Path):
     """jobs=2 with one invalid experiment: exit 1, an error row, the valid run still written."""
     broken = short_scenario()
@@ -247,6 +250,7 @@ def test_run_report_rejects_bad_arguments(tmp_path: Path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_run_report_on_a_dask_cluster(tmp_path: Path):
     """run_report through a real Dask LocalCluster (one worker process on loopback): the worker
     ships the run folder back, so the report holds the same files as a local run writes."""

@@ -212,6 +212,7 @@ def _freeze_percent(run_dir: Path) -> float:
     return 100 * float(np.max(np.abs(tau) / external_torque_limits()))
 
 
+@pytest.mark.slow
 def test_the_section_prints_the_folders_metrics():
     """A row per case with its folder's numbers (L7's orientation error too); the real runs'
     peak |external torque| against kuka_driver's limits from their logs; the figures embedded;
@@ -244,6 +245,7 @@ def test_the_section_prints_the_folders_metrics():
     assert [r["run"] for r in summary["on_the_arm"]] == [case.run for case, _ in grid]
 
 
+@pytest.mark.slow
 def test_each_plan_gets_a_verdict_over_its_band():
     """Per plan (the four controllers, the tuned plans) a row per model of the band, the
     nominal first, with its folder's numbers; the verdict follows the rows: "opens under

@@ -74,6 +74,7 @@ def render_check(page: str, tmp_path: Path) -> dict:
     return json.loads(match.group(1).replace("&quot;", '"').replace("&amp;", "&"))
 
 
+@pytest.mark.slow
 def test_every_image_and_table_renders_in_chromium(tmp_path: Path):
     """In headless Chromium every embedded image decodes and every table renders with rows."""
     if chromium() is None:

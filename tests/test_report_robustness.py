@@ -59,6 +59,7 @@ def test_robustness_cases_keep_the_base_physics():
     assert all(s.station.time_step == 5e-4 for _, s in new)
 
 
+@pytest.mark.slow
 def test_section_prints_the_folders_metrics_and_embeds_its_figures():
     """One table row per case with the run's own numbers, both figures embedded and saved,
     a finding per controller, the failed run's status; the section's runs stay out of the
@@ -103,6 +104,7 @@ def test_section_prints_the_folders_metrics_and_embeds_its_figures():
     assert FAILED_ERROR not in section  # the table shows the status; the run folder the error
 
 
+@pytest.mark.slow
 def test_failing_robustness_runs_do_not_fail_the_report(tmp_path: Path, monkeypatch):
     """A robustness run that fails (here: rejected by validate() in the worker) shows in the
     section and leaves the exit code at 0; robustness=False writes no section."""

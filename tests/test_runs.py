@@ -50,6 +50,7 @@ def run_folder(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_run_folder_is_complete(run_folder):
     """metrics.json has every documented key; the plots, replay and scenario are there."""
     metrics = json.loads((run_folder / "metrics.json").read_text())
@@ -63,6 +64,7 @@ def test_run_folder_is_complete(run_folder):
     assert not list(run_folder.parent.glob(".*partial*"))
 
 
+@pytest.mark.slow
 def test_log_reloads_with_named_channels(run_folder):
     """log.npz holds the named arrays; EpisodeResult.load gives them back, consistent with
     metrics.json (final door angle, arc window within the logged time)."""
@@ -103,6 +105,7 @@ def test_failure_while_writing_leaves_no_folder(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_cli_run_prints_the_measured_figures(tmp_path, capsys):
     """doorlab run exits 0 and its summary shows the numbers written to metrics.json."""
     out = tmp_path / "ik"
@@ -117,6 +120,7 @@ def test_cli_run_prints_the_measured_figures(tmp_path, capsys):
     assert not (out / "replay.html").exists()
 
 
+@pytest.mark.slow
 def test_a_run_needs_no_network(tmp_path):
     """The station builds and runs in a process with no network at all (a fresh network
     namespace: only a down loopback), as on a machine without drake_models."""
@@ -132,6 +136,7 @@ def test_a_run_needs_no_network(tmp_path):
     assert json.loads((tmp_path / "offline" / "metrics.json").read_text())["status"] == "ok"
 
 
+@pytest.mark.slow
 def test_a_handle_yanked_too_fast_slips_and_is_reported(tmp_path, capsys):
     """Opening the closed door in 2 s instead of 10: the door's inertia and damping pry the
     weakly held fingers open (PD grip of 200 N/m x 5 mm = 1 N), the handle slips out, and
@@ -148,6 +153,7 @@ def test_a_handle_yanked_too_fast_slips_and_is_reported(tmp_path, capsys):
     assert "slipped" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_a_failed_simulation_is_a_diverged_run(tmp_path, monkeypatch, capsys):
     """When the physics fails, the folder holds metrics.json with status diverged and the
     error, and the CLI exits 5 (the failure itself is tested in test_simulation)."""
@@ -166,6 +172,7 @@ def test_a_failed_simulation_is_a_diverged_run(tmp_path, monkeypatch, capsys):
     assert sorted(p.name for p in out.iterdir()) == [MANIFEST_NAME, "metrics.json"]
 
 
+@pytest.mark.slow
 def test_a_cupboard_out_of_reach_is_an_ik_failure(tmp_path, capsys):
     """Cupboard moved 1.6 m further away: the grasp IK fails, the run ends ik_failed with
     the residual in metrics.json, exit code 6, and nothing was simulated."""
@@ -177,6 +184,7 @@ def test_a_cupboard_out_of_reach_is_an_ik_failure(tmp_path, capsys):
     assert sorted(p.name for p in out.iterdir()) == [MANIFEST_NAME, "metrics.json"]
 
 
+@pytest.mark.slow
 def test_adaptive_run_folder_has_its_estimates(tmp_path):
     """An adaptive run (short timeline, doors closed) writes the plan's per-tick estimates
     into log.npz, the hinge estimate error into metrics.json and its plot as PNG."""

@@ -80,6 +80,7 @@ def rate(messages, period: float, window: float = 0.5) -> float:
     return 1.0 / (period * wall_per_sim)
 
 
+@pytest.mark.slow
 def test_protocol_over_the_bus(alone, lcm_url, tmp_path):  # noqa: F811
     """Statuses decode with every field filled at 200 Hz (WSG 20 Hz); a client answering each
     status is applied at the next cycle (kuka_driver's) and reported by the status after it,
@@ -187,6 +188,7 @@ def test_protocol_over_the_bus(alone, lcm_url, tmp_path):  # noqa: F811
     assert truth.q_measured[-1, 0] == pytest.approx(1e-4 * n_answered, abs=2e-4)
 
 
+@pytest.mark.slow
 def test_start_guard_aborts(alone, lcm_url, tmp_path):  # noqa: F811
     """A command right after the first status aborts the driver (exit 1) before it acts:
     the statuses stop, and the ground truth never saw the command."""
@@ -212,6 +214,7 @@ def test_start_guard_aborts(alone, lcm_url, tmp_path):  # noqa: F811
     assert np.all(truth.q_commanded[:, 0] == 0.0) and np.all(truth.tau_feedforward == 0)
 
 
+@pytest.mark.slow
 def test_utime_warmup_and_sigint(alone, lcm_url):  # noqa: F811
     """--utime-warmup: utime -1 for the first 200 statuses (1 s), then the time in us;
     Ctrl-C (SIGINT) ends it with exit 130."""

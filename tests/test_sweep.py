@@ -223,6 +223,7 @@ def test_bad_command_line_is_exit_2(tmp_path: Path, capsys, argv, expected):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_an_unreachable_scheduler_is_exit_2_and_writes_nothing(tmp_path, capsys, monkeypatch):
     import doorlab.runtime.executor
 
@@ -253,6 +254,7 @@ def test_an_exception_in_a_run_is_a_row(monkeypatch):
 # Real sweeps.
 
 
+@pytest.mark.slow
 def test_table_has_a_row_per_run_with_metrics_and_failures(local_sweep):
     spec_path, out, table = local_sweep
     runs = plan_runs(load_spec(spec_path))
@@ -277,6 +279,7 @@ def test_table_has_a_row_per_run_with_metrics_and_failures(local_sweep):
     assert (out / "index.html").is_file() and not list(out.glob(".*.tmp"))
 
 
+@pytest.mark.slow
 def test_same_rows_on_a_dask_local_cluster(local_sweep, tmp_path: Path):
     """A real LocalCluster (scheduler + 2 worker processes on loopback) through --scheduler
     gives the local run's rows: the same scenarios, bit-identical metrics (a scenario fully
@@ -300,6 +303,7 @@ def test_same_rows_on_a_dask_local_cluster(local_sweep, tmp_path: Path):
     assert "Dask cluster" in (out / "index.html").read_text()
 
 
+@pytest.mark.slow
 def test_resume_runs_only_the_missing_runs(local_sweep, tmp_path: Path):
     spec_path, out, table = local_sweep
     folder = tmp_path / "resume"
@@ -317,6 +321,7 @@ def test_resume_runs_only_the_missing_runs(local_sweep, tmp_path: Path):
     )
 
 
+@pytest.mark.slow
 def test_ctrl_c_leaves_the_finished_runs_and_resume_completes(local_sweep, tmp_path: Path):
     """SIGINT while the last run simulates: exit 130, a table of exactly the finished runs;
     --resume then runs only that run, and the others keep their rows (the short episode's
@@ -381,6 +386,7 @@ def test_run_sweep_api_returns_the_table_without_writing(tmp_path: Path, monkeyp
     assert not list(tmp_path.iterdir())
 
 
+@pytest.mark.slow
 def test_sweep_page_renders_in_chromium(local_sweep, tmp_path: Path):
     """The sweep page is self-contained and renders in headless Chromium: every embedded plot
     decodes, every table has rows; one plot per axis, a heatmap for the pair of grid axes."""
@@ -401,6 +407,7 @@ def test_sweep_page_renders_in_chromium(local_sweep, tmp_path: Path):
     assert result["empty_tables"] == []
 
 
+@pytest.mark.slow
 def test_page_of_random_samples_marks_failures_without_simulating(tmp_path: Path):
     """A page from a hand-made table (random draws of two axes, no heatmaps): every run is a
     table row, runs without metrics and runs not ok are marked, nothing is simulated."""
