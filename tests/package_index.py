@@ -51,10 +51,15 @@ def fresh_venv(path: Path) -> Path:
     return path / "bin" / "python"
 
 
-def pip_install(python: Path, *args: str, cwd: Path | None = None) -> None:
-    """``python -m pip install ARGS`` (pip's cache reused); fails the test with pip's tail."""
+def pip_install(python: Path, *args: str, cwd: Path | None = None, compile: bool = True) -> None:
+    """``python -m pip install ARGS`` (pip's cache reused); fails the test with pip's tail.
+
+    ``compile=False``: ``--no-compile``, no ``.pyc`` written for the thousands of modules of
+    drake, matplotlib and Jupyter; Python compiles what it imports. For a test that is not
+    about the installed tree's files."""
+    flags = [] if compile else ["--no-compile"]
     proc = subprocess.run(
-        [str(python), "-m", "pip", "install", "--quiet", *args],
+        [str(python), "-m", "pip", "install", "--quiet", *flags, *args],
         cwd=cwd,
         capture_output=True,
         text=True,
