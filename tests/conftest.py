@@ -1,10 +1,11 @@
 """Shared fixtures: full episodes are expensive (~3-5 s each), so each is run once per session.
 
 The suite runs on pytest-xdist's workers (``addopts`` in pyproject.toml; a worker per core and
-one more, below), a test file per worker at a time. A test's real-time section (``with alone():``: LCM processes paced
-to the wall clock, with tolerances derived from their latency) runs alone: the other workers
-finish the test they are in and wait (a lock shared by the run's workers, below), so a
-real-time run never shares the cores with a simulation running as fast as it can.
+one more, below), a test file per worker at a time. A test's real-time section (``with
+alone():``: LCM processes paced to the wall clock, with tolerances derived from their latency)
+runs alone: the other workers finish the test they are in and wait (a lock shared by the
+run's workers, below), so a real-time run never shares the cores with a simulation running as
+fast as it can.
 """
 
 from __future__ import annotations
