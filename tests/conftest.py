@@ -1,11 +1,10 @@
 """Shared fixtures: full episodes are expensive (~3-5 s each), so each is run once per session.
 
-The suite runs on pytest-xdist's workers (``addopts`` in pyproject.toml; a worker per core and
-one more, below), a test file per worker at a time. A test's real-time section (``with
-alone():``: LCM processes paced to the wall clock, with tolerances derived from their latency)
-runs alone: the other workers finish the test they are in and wait (a lock shared by the
-run's workers, below), so a real-time run never shares the cores with a simulation running as
-fast as it can.
+The suite runs on pytest-xdist's workers (``addopts`` in pyproject.toml: one per core), a test
+file per worker at a time. A test's real-time section (``with alone():``: LCM processes paced
+to the wall clock, with tolerances derived from their latency) runs alone: the other workers
+finish the test they are in and wait (a lock shared by the run's workers, below), so a
+real-time run never shares the cores with a simulation running as fast as it can.
 """
 
 from __future__ import annotations
@@ -22,16 +21,6 @@ import pytest
 from shared_cache import RUN_DIR_ENV, run_dir
 
 os.environ.setdefault("MPLBACKEND", "Agg")
-
-
-def pytest_xdist_auto_num_workers(config: pytest.Config) -> int | None:
-    """``-n auto``: one worker more than the cores this process may use. Much of the suite
-    waits rather than computes (attacks that sleep, a class graded in a half-CPU group,
-    subprocesses starting, Chromium, pip): on 2 cores, 2 workers kept 1.4 of them busy on
-    average (1,358 CPU-s in a 973 s run). ``PYTEST_XDIST_AUTO_NUM_WORKERS`` still wins."""
-    if os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS"):
-        return None
-    return len(os.sched_getaffinity(0)) + 1
 
 
 def pytest_configure(config: pytest.Config) -> None:

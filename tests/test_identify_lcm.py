@@ -73,8 +73,14 @@ def test_identify_over_lcm_recovers_what_it_was_not_told(alone, lcm_url, tmp_pat
         assert 0 < entry["tolerance"] <= bound
 
     # A command that missed its cycle (the host) acts a cycle late: a fit may then miss its
-    # tolerance; that, on a loaded host, skips with the measurements.
-    with host.excuse(f"{late} commands late or dropped") if late else contextlib.nullcontext():
+    # tolerance; that skips with the measurements on a loaded host, or where the run shows the
+    # host's hand as test_hardware_two_process.py's host_explains does (a stale answer dropped:
+    # a status or its answer descheduled; the driver behind real time).
+    stale, rate = fits["stale_commands_dropped"], facts["realtime_rate"]
+    explained = [f"{stale} stale answers dropped"] if stale else []
+    explained += [f"the driver's real-time rate {rate:.4f}"] if rate < 0.999 else []
+    excuse = host.excuse(f"{late} commands late or dropped", ", ".join(explained))
+    with excuse if late else contextlib.nullcontext():
         for joint in (int(j) - 1 for j in JOINTS.split(",")):
             name = f"iiwa_joint_{joint + 1}"
             check(fits["damping"][name], TRUE_DAMPING[joint], 0.05 * TRUE_DAMPING[joint])
