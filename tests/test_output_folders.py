@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+from pathlib import Path
 
 import pytest
 
@@ -19,6 +20,7 @@ from doorlab.runtime.folders import (
     discard_output,
     foreign_file,
     prepare_output,
+    private_folder,
     read_manifest,
     record_written,
     remove_written,
@@ -148,6 +150,47 @@ def test_a_signal_during_the_swap_is_raised_after_it(tmp_path):
         assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+@pytest.mark.parametrize("when", ["made", "removing"])
+def test_ctrl_c_as_a_private_folder_is_made_or_removed_leaves_nothing(tmp_path, monkeypatch, when):
+    """Ctrl-C right after ``mkdtemp`` (before anything knows the folder) or in the middle of
+    its removal (after a first entry went): the folder is gone all the same, then Ctrl-C is
+    raised (CI: a grade-all interrupted at such a moment left a student's files in TMPDIR,
+    as ``tempfile.TemporaryDirectory`` does)."""
+    monkeypatch.setattr(folders.tempfile, "tempdir", str(tmp_path))
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    real_mkdtemp, real_rmtree = folders.tempfile.mkdtemp, folders.shutil.rmtree
+
+    def mkdtemp_then_ctrl_c(**kwargs):
+        made = real_mkdtemp(**kwargs)
+        os.kill(os.getpid(), signal.SIGINT)
+        return made
+
+    def ctrl_c_midway(path, ignore_errors=False):
+        entries = sorted(Path(path).iterdir())
+        entries[0].unlink()  # a first entry removed, then the signal lands
+        os.kill(os.getpid(), signal.SIGINT)
+        real_rmtree(path, ignore_errors=ignore_errors)
+
+    try:
+        if when == "made":
+            monkeypatch.setattr(folders.tempfile, "mkdtemp", mkdtemp_then_ctrl_c)
+        with pytest.raises(KeyboardInterrupt):
+            with private_folder("doorlab_submission_") as folder:
+                for name in ("a.py", "b.py"):
+                    (folder / name).write_text("student's code")
+                if when == "removing":
+                    monkeypatch.setattr(folders.shutil, "rmtree", ctrl_c_midway)
+        assert list(tmp_path.iterdir()) == []
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    monkeypatch.undo()
+    with pytest.raises(ValueError):  # the body's own exception: removed, then raised
+        with private_folder("doorlab_test_") as folder:
+            (folder / "a.py").write_text("x")
+            raise ValueError
+    assert not folder.exists()
 
 
 def test_staging_folders_left_by_a_caller_are_removed_at_exit(tmp_path):

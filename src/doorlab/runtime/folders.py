@@ -345,6 +345,31 @@ def staged_output(out_dir: Path, *, force: bool, label: str | None = None) -> It
         discard_output(staging)
 
 
+@contextmanager
+def private_folder(prefix: str) -> Iterator[Path]:
+    """A private temporary folder (``tempfile``'s, mode 0700) for the ``with`` block, removed
+    when it ends, however it ends: its creation and its removal are not cut short by a
+    signal (``tempfile.TemporaryDirectory`` leaves its folder when Ctrl-C lands between
+    ``mkdtemp`` and its finalizer, or in the middle of its ``rmtree``), and a folder the
+    block did not get to remove is removed at exit.
+
+    Raises:
+        OutputError: the temporary folder cannot be made.
+    """
+    folder: Path | None = None
+    try:
+        with deferred_signals():  # a signal here is raised once the folder is known
+            try:
+                folder = Path(tempfile.mkdtemp(prefix=prefix))
+            except OSError as e:
+                raise OutputError(f"cannot make a temporary folder: {e.strerror or e}") from None
+            _staged.add(folder)
+        yield folder
+    finally:
+        if folder is not None:
+            discard_output(folder)
+
+
 @atexit.register
 def _remove_staged() -> None:
     """The last way out: staging folders a caller neither committed nor discarded."""

@@ -26,6 +26,7 @@ from pathlib import Path
 
 from doorlab.pset.grading.jobs import _Jobs
 from doorlab.pset.isolation import sandbox
+from doorlab.runtime.interrupts import deferred_signals
 
 _EPISODE_ORDER = ("impedance", "velocity", "ik")
 """The episodes, longest first (closed doors: contact; open doors; the IK's joint-space plan)."""
@@ -116,14 +117,9 @@ def supervise(request: dict, prepared: dict | None = None) -> dict:
         parallel = max(1, int(request.get("jobs", 2)))
         return {"reference": _run(None, todo, {}, request, parallel, prepared)[0]}
     if request.get("files") is not None:
-        import shutil
-
-        folder, tmp = _submission_folder(request["files"])
-        try:
+        with _own_folder("doorlab_submission_") as tmp:
+            folder = _submission_folder(request["files"], Path(tmp))
             return supervise({**request, "files": None, "folder": str(folder)}, prepared)
-        finally:
-            shutil.rmtree(tmp, ignore_errors=True)
-            _OWN_FOLDERS.remove(tmp)
     folder = Path(request["folder"])
     try:
         data = request.get("assignment")
@@ -176,7 +172,7 @@ def _run(folder, todo: list[str], options: dict, request: dict, parallel: int, p
     """Runs ``todo`` in a private folder: (results by job, the isolation or why there is
     none)."""
     _warm(todo, options)
-    with tempfile.TemporaryDirectory(prefix="doorlab_grade_") as tmp, _own(tmp):
+    with _own_folder("doorlab_grade_") as tmp:
         workdir = Path(tmp)
         os.chmod(workdir, 0o711)
         os.chdir(workdir)
@@ -208,32 +204,44 @@ def _run(folder, todo: list[str], options: dict, request: dict, parallel: int, p
             os.chdir("/")
 
 
+def _new_own_folder(prefix: str) -> str:
+    """A fresh private folder, this supervisor's (:data:`_OWN_FOLDERS`) from the moment it
+    exists: a signal between its creation and its registration would leave it behind."""
+    with deferred_signals():
+        folder = tempfile.mkdtemp(prefix=prefix)
+        _OWN_FOLDERS.append(folder)
+    return folder
+
+
 @contextlib.contextmanager
-def _own(folder: str):
-    """``folder`` is this supervisor's while the block runs (:data:`_OWN_FOLDERS`)."""
-    _OWN_FOLDERS.append(folder)
+def _own_folder(prefix: str):
+    """A fresh private folder of this supervisor's for the block, removed when it ends (its
+    removal not cut short by a signal, which :func:`_on_signal` handles right after)."""
+    import shutil
+
+    folder = _new_own_folder(prefix)
     try:
-        yield
+        yield folder
     finally:
-        _OWN_FOLDERS.remove(folder)
+        with deferred_signals():
+            shutil.rmtree(folder, ignore_errors=True)
+            _OWN_FOLDERS.remove(folder)
 
 
-def _submission_folder(files: dict[str, str]):
-    """A fresh stub folder with the request's student files over its stubs (base64), in a
-    private folder of this supervisor's; returns (the folder, its private folder)."""
+def _submission_folder(files: dict[str, str], tmp: Path) -> Path:
+    """A fresh stub folder in ``tmp`` (a private folder of this supervisor's) with the
+    request's student files (base64) over its stubs; returns the folder."""
     import base64
 
     from doorlab.pset.handout.folder import init_folder
     from doorlab.pset.rules.verdicts import STUDENT_FILES
 
-    tmp = tempfile.mkdtemp(prefix="doorlab_submission_")
-    _OWN_FOLDERS.append(tmp)
-    folder = init_folder(Path(tmp) / "pset")
+    folder = init_folder(tmp / "pset")
     for rel, data in files.items():
         if rel not in STUDENT_FILES:
             raise ValueError(f"not a student file: {rel!r}")
         (folder / rel).write_bytes(base64.b64decode(data))
-    return folder, tmp
+    return folder
 
 
 def _grading_groups(isolation):
@@ -344,8 +352,7 @@ def serve_main() -> int:
     import shutil
 
     answers = _supervisor_setup(interrupt=False)
-    prepared = {"folder": tempfile.mkdtemp(prefix="doorlab_supervisor_")}
-    _OWN_FOLDERS.append(prepared["folder"])
+    prepared = {"folder": _new_own_folder("doorlab_supervisor_")}
     os.chmod(prepared["folder"], 0o711)
     try:
         for line in sys.stdin:

@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import os
 import stat
-import tempfile
 import unicodedata
 import zipfile
 from collections import deque
@@ -427,14 +426,11 @@ def graded_copy(source: str | Path) -> Iterator[tuple[Path, Intake]]:
             cannot be written.
     """
     from doorlab.pset.handout.folder import init_folder
+    from doorlab.runtime.folders import private_folder
 
     source = Path(source)
     if not source.exists():
         raise OutputError(f"{source} does not exist")
-    try:
-        tmp = tempfile.TemporaryDirectory(prefix="doorlab_submission_")
-    except OSError as e:
-        raise OutputError(f"cannot make a temporary folder: {e.strerror or e}") from None
-    with tmp:
-        folder = init_folder(Path(tmp.name) / "pset")
+    with private_folder("doorlab_submission_") as tmp:
+        folder = init_folder(tmp / "pset")
         yield folder, take_submission(source, folder)
