@@ -73,6 +73,8 @@ in, measured)."""
 
 BUSY_CHILDREN = r"""
 import json, os, time
+if control_period != 0.005:  # the unit test's draws: not the episode, fail at once
+    raise NotImplementedError("CalcTorqueCommand: busy children in the episode only")
 start = time.time()
 children = []
 for _ in range(CHILDREN):
@@ -88,7 +90,10 @@ raise NotImplementedError("CalcTorqueCommand: busy children")
 """
 """The impedance plan's CalcTorqueCommand (the first call of the first test a grading runs,
 its impedance episode): CHILDREN processes that spin for SECONDS, then it fails (the
-evidence: when they started and stopped, on the machine's clock)."""
+evidence: when they started and stopped, on the machine's clock). The unit test's calls
+(control_period other than the episode's 0.005 s) fail at once: a second dose of spinning
+there would only lengthen the attacker's grading (up to the unit test's 60 s limit) after
+the honest one, which is what the test measures, has ended."""
 
 
 @pytest.fixture(scope="module")
