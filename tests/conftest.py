@@ -11,9 +11,11 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import json
 import os
 import shutil
 import tempfile
+import time
 from functools import cache
 from pathlib import Path
 
@@ -142,14 +144,44 @@ def alone(request):
         if lock is None:
             yield
             return
+        asked = time.monotonic()
         lock.alone()
+        began = time.monotonic()
         try:
             yield
         finally:
             lock.release()
             lock.shared()
+            _record_section(request.node.nodeid, began - asked, time.monotonic() - began)
 
     return section
+
+
+SECTIONS_FILE = "alone_sections.jsonl"
+"""In the run's folder: each real-time section's wait for the lock and its length [s]."""
+
+
+def _record_section(test: str, waited: float, ran: float) -> None:
+    with open(run_dir() / SECTIONS_FILE, "a") as f:
+        f.write(json.dumps({"test": test, "waited": waited, "alone": ran}) + "\n")
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
+    """What the real-time sections cost the run: while one waits for the lock (the other
+    workers finishing the test they are in) and while it runs, its worker and then the
+    others are idle (docs/development.md, "Which tests to run when")."""
+    folder = run_dir()
+    path = None if folder is None else folder / SECTIONS_FILE
+    if hasattr(config, "workerinput") or path is None or not path.is_file():
+        return
+    rows = [json.loads(line) for line in path.read_text().splitlines()]
+    waited = sum(r["waited"] for r in rows)
+    longest = max(rows, key=lambda r: r["waited"])
+    terminalreporter.write_line(
+        f"real-time sections: {len(rows)}, {sum(r['alone'] for r in rows):.0f} s alone, "
+        f"{waited:.0f} s waiting for the other workers' tests (longest {longest['waited']:.0f} s, "
+        f"{longest['test']})"
+    )
 
 
 @cache
