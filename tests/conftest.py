@@ -19,6 +19,7 @@ import time
 from functools import cache
 from pathlib import Path
 
+import file_order
 import pytest
 from shared_cache import RUN_DIR_ENV, run_dir
 
@@ -31,6 +32,51 @@ def pytest_configure(config: pytest.Config) -> None:
     if not hasattr(config, "workerinput") and RUN_DIR_ENV not in os.environ:
         config._doorlab_run_dir = tempfile.mkdtemp(prefix="doorlab-pytest-")
         os.environ[RUN_DIR_ENV] = config._doorlab_run_dir
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption(
+        "--record-durations",
+        action="store_true",
+        help="write each file's measured time to tests/durations.json (tests/file_order.py: "
+        "the order the files are handed to the workers)",
+    )
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The files in tests/file_order.py's order (the same on every worker: computed from the
+    collection and durations.json only); the tests of a file keep theirs."""
+    realtime = {item.path.name for item in items if "alone" in getattr(item, "fixturenames", ())}
+    durations = file_order.read_durations()
+    rank = {
+        name: i
+        for i, name in enumerate(
+            file_order.file_order({i.path.name for i in items}, realtime, durations)
+        )
+    }
+    items.sort(key=lambda item: rank[item.path.name])
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    times = _RECORDED.get("times")
+    if times is not None:
+        name = report.nodeid.split("::")[0].rsplit("/", 1)[-1]
+        times[name] = times.get(name, 0.0) + report.duration
+
+
+_RECORDED: dict[str, dict[str, float]] = {}
+"""With --record-durations, in the main process: the times measured so far by file [s]."""
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    if session.config.getoption("record_durations") and not hasattr(session.config, "workerinput"):
+        _RECORDED["times"] = {}
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    times = _RECORDED.pop("times", None)
+    if times:  # the files this run measured replace theirs; the others are kept
+        file_order.write_durations({**file_order.read_durations(), **times})
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
