@@ -105,3 +105,47 @@ def test_a_signal_in_a_finalizer_is_not_lost(signum, weakref_callback):
     assert name == ("KeyboardInterrupt" if signum == signal.SIGINT else "Interrupted")
     assert int(number) == int(signum)
     assert float(waited) < 30.0  # ~0.01 s in fact; the defect is "never" (60 s, or forever)
+
+
+_CTRL_C_WHILE_SPAWNING = r"""
+import os, signal, threading, time
+import multiprocessing.util as util
+from doorlab.runtime.executor import LocalExecutor
+from doorlab.runtime.interrupts import install_signal_handlers
+
+install_signal_handlers()
+threading.Thread(target=time.sleep, args=(60,), daemon=True).start()  # SIGINT not blocked
+real = util.spawnv_passfds
+
+
+def spawn_then_ctrl_c(path, args, passfds):
+    pid = real(path, args, passfds)
+    if any("spawn_main" in str(a) for a in args):  # a worker, before its parent writes to it
+        os.kill(os.getpid(), signal.SIGINT)  # lands on the other thread: the main one blocks it
+        time.sleep(0.1)  # Python runs the handler in the main thread meanwhile
+    return pid
+
+
+util.spawnv_passfds = spawn_then_ctrl_c
+executor = LocalExecutor(1)
+try:
+    executor.submit(int)
+    time.sleep(5)
+    print("not raised", flush=True)
+except KeyboardInterrupt:
+    print("KeyboardInterrupt", flush=True)
+    executor.stop()
+"""
+
+
+def test_ctrl_c_while_a_worker_is_spawned_is_raised_once_it_is_known():
+    """Ctrl-C that lands on another thread while a worker is being started (the main thread's
+    signal mask does not stop Python from running the handler there): raised once the worker
+    is started and its pool knows it, which stops it; the worker prints nothing (before the
+    fix it read a closed pipe and printed an EOFError traceback: CI, test_hangs)."""
+    proc = subprocess.run(
+        [sys.executable, "-c", _CTRL_C_WHILE_SPAWNING], capture_output=True, text=True, timeout=120
+    )
+    assert proc.stdout.strip() == "KeyboardInterrupt", (proc.stdout, proc.stderr)
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr and "Error" not in proc.stderr, proc.stderr

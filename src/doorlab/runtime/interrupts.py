@@ -97,22 +97,30 @@ def spawning_workers() -> Iterator[None]:
     the whole process group, and both are this process's to handle. multiprocessing's
     resource tracker, started here if it is not running, keeps them blocked for good (it
     already ignores SIGINT and SIGTERM; a hang-up would kill it and leave its parent
-    warning). A signal that arrives meanwhile is held, not lost: it is delivered when the
-    block ends.
+    warning).
+
+    The mask is the calling thread's: a signal sent to the process can still land on another
+    of its threads (a pool's manager thread, a progress bar's), and Python then runs its
+    handler in the main thread all the same. Raised there, between a worker's start and the
+    preparation data its parent writes to it, the worker was left reading a closed pipe and
+    printed an ``EOFError`` traceback. So the block also holds the handlers back
+    (:func:`deferred_signals`): a signal that arrives meanwhile is raised once the workers
+    are started and known to their pool, which then stops them.
     """
     if not hasattr(signal, "pthread_sigmask"):  # pragma: no cover - not POSIX
         yield
         return
     from multiprocessing import resource_tracker
 
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, _BORN_BLOCKED)
-    try:
-        resource_tracker.ensure_running()
-        # ensure_running unblocks SIGINT and SIGTERM after starting the tracker: again.
-        signal.pthread_sigmask(signal.SIG_BLOCK, _BORN_BLOCKED)
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+    with deferred_signals():
+        previous = signal.pthread_sigmask(signal.SIG_BLOCK, _BORN_BLOCKED)
+        try:
+            resource_tracker.ensure_running()
+            # ensure_running unblocks SIGINT and SIGTERM after starting the tracker: again.
+            signal.pthread_sigmask(signal.SIG_BLOCK, _BORN_BLOCKED)
+            yield
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def worker_signals() -> None:
