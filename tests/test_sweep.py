@@ -50,6 +50,10 @@ SPEC = {
 """Four runs: two ik_failed (cupboard out of reach, no simulation) and two short episodes."""
 
 
+LONG_EXTRA_S = 150.0
+"""The Ctrl-C test's long run's extra time [s]."""
+
+
 def write_spec(folder: Path, data: dict, name: str = "spec.yaml") -> Path:
     path = folder / name
     path.write_text(yaml.safe_dump(data))
@@ -327,8 +331,10 @@ def test_ctrl_c_leaves_the_finished_runs_and_resume_completes(local_sweep, tmp_p
     --resume then runs only that run, and the others keep their rows (the short episode's
     equal to the local sweep's run of the same scenario)."""
     _, _, local = local_sweep
-    # Runs in order (one worker): two ik_failed, the short episode, a long one (40 s more).
-    axes = {"station.cupboard_position": [FAR, HOME], "timeline.extra_time": [0.5, 40.0]}
+    # Runs in order (one worker): two ik_failed, the short episode, a long one (150 s more:
+    # it simulates for ~5 s on an idle machine, the window in which this test must see the
+    # third row and its Ctrl-C reach the sweep; 40 s more, 1.6 s of it, was once missed in CI).
+    axes = {"station.cupboard_position": [FAR, HOME], "timeline.extra_time": [0.5, LONG_EXTRA_S]}
     spec_path = write_spec(tmp_path, {**SPEC, "axes": axes})
     out = tmp_path / "out"
     command = [sys.executable, "-m", "doorlab.cli", "sweep", str(spec_path), "--out", str(out)]
@@ -362,7 +368,9 @@ def test_ctrl_c_leaves_the_finished_runs_and_resume_completes(local_sweep, tmp_p
     done = read_table(out)
     assert list(done["run"]) == [0, 1, 2, 3]
     pd.testing.assert_frame_equal(done.iloc[:3], table)  # kept as they were, not re-run
-    assert done["sim_time_s"].iloc[3] == pytest.approx(done["sim_time_s"].iloc[2] + 39.5)
+    assert done["sim_time_s"].iloc[3] == pytest.approx(
+        done["sim_time_s"].iloc[2] + LONG_EXTRA_S - 0.5
+    )
     # The short episode is the local sweep's run with the same scenario (same key, metrics).
     row = done.iloc[[2]].drop(columns=["run", "timeline.extra_time"])
     match = local[local["key"] == row["key"].iloc[0]].drop(columns=["run", "velocity.kv"])
