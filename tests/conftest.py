@@ -1,26 +1,26 @@
 """Shared fixtures: full episodes are expensive (~3-5 s each), so each is run once per session.
 
 The suite runs on pytest-xdist's workers (``addopts`` in pyproject.toml: one per core), a test
-file per worker at a time. A test's real-time section (``with alone():``: LCM processes paced
-to the wall clock, with tolerances derived from their latency) runs alone: the other workers
-finish the test they are in and wait (a lock shared by the run's workers, below), so a
-real-time run never shares the cores with a simulation running as fast as it can.
+file per worker at a time. A test's real-time section (``with realtime():``: LCM processes
+paced to the wall clock, with tolerances derived from their latency) runs beside nothing but
+other real-time sections: the other workers finish the ordinary test they are in and wait, or
+run a real-time section of their own meanwhile (a lock shared by the run's workers, below),
+so a real-time run never shares the cores with a simulation running as fast as it can.
 """
 
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import json
 import os
 import shutil
 import tempfile
 import time
 from functools import cache
-from pathlib import Path
 
 import file_order
 import pytest
+from run_lock import RunLock, read_waits
 from shared_cache import RUN_DIR_ENV, run_dir
 
 os.environ.setdefault("MPLBACKEND", "Agg")
@@ -46,7 +46,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """The files in tests/file_order.py's order (the same on every worker: computed from the
     collection and durations.json only); the tests of a file keep theirs."""
-    realtime = {item.path.name for item in items if "alone" in getattr(item, "fixturenames", ())}
+    realtime = {item.path.name for item in items if "realtime" in getattr(item, "fixturenames", ())}
     durations = file_order.read_durations()
     rank = {
         name: i
@@ -86,52 +86,29 @@ def pytest_unconfigure(config: pytest.Config) -> None:
         os.environ.pop(RUN_DIR_ENV, None)
 
 
-class _RunLock:
-    """Under xdist, a lock shared by the run's workers: every test holds it shared; a test's
-    real-time section (the ``alone`` fixture) holds it alone.
-
-    The turnstile, taken before the main lock and dropped once that is held, makes a section
-    that waits for the main lock also stop new tests from taking it shared, so it gets it as
-    soon as the tests in progress end. A worker waits for the main lock only while holding
-    the turnstile and for the turnstile only while holding nothing: no deadlock.
-    """
-
-    def __init__(self, folder: Path):
-        self._lock = open(folder / "tests.lock", "a")  # held for the session
-        self._turnstile = open(folder / "turnstile.lock", "a")
-
-    def _take(self, mode: int) -> None:
-        fcntl.flock(self._turnstile, fcntl.LOCK_EX)
-        fcntl.flock(self._lock, mode)
-        fcntl.flock(self._turnstile, fcntl.LOCK_UN)
-
-    def shared(self) -> None:
-        self._take(fcntl.LOCK_SH)
-
-    def alone(self) -> None:
-        self.release()
-        self._take(fcntl.LOCK_EX)
-
-    def release(self) -> None:
-        fcntl.flock(self._lock, fcntl.LOCK_UN)
-
-
-def _run_lock(config: pytest.Config) -> _RunLock | None:
+def _run_lock(config: pytest.Config) -> RunLock | None:
     """This worker's lock (None when not under xdist: then nothing else runs)."""
     folder = run_dir()
     if not hasattr(config, "workerinput") or folder is None:
         return None
     if not hasattr(config, "_doorlab_run_lock"):
-        config._doorlab_run_lock = _RunLock(folder)
+        config._doorlab_run_lock = RunLock(folder, config.workerinput["workerid"])
     return config._doorlab_run_lock
+
+
+def _is_realtime(item: pytest.Item) -> bool:
+    """Whether the test has real-time sections (the ``realtime`` fixture)."""
+    return "realtime" in getattr(item, "fixturenames", ())
 
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None):
-    """Setup, call and teardown of each test (module fixtures included) hold the lock shared."""
+    """Setup, call and teardown of each test (module fixtures included) in the lock: an
+    ordinary test as one, a test with real-time sections as a light one (``realtime``, but
+    for its ``with heavy():`` blocks; tests/run_lock.py)."""
     lock = _run_lock(item.config)
     if lock is not None:
-        lock.shared()
+        lock.realtime() if _is_realtime(item) else lock.test()
     try:
         yield
     finally:
@@ -180,53 +157,87 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
 
 
 @pytest.fixture
-def alone(request):
-    """``with alone(): ...``: a real-time section (LCM processes paced to the wall clock,
-    tolerances derived from their latency) that runs while no other worker runs a test."""
-    lock = _run_lock(request.config)
+def realtime(request):
+    """``with realtime(): ...``: a real-time section (LCM processes paced to the wall clock,
+    tolerances derived from their latency). A test that asks for this fixture runs, setup to
+    teardown, while no other worker runs an ordinary test: only light work and other
+    real-time sections beside it (tests/run_lock.py); its heavy work (a simulation running
+    flat out) goes in ``with heavy():`` blocks. The sections are timed for the run's summary."""
 
     @contextlib.contextmanager
     def section():
-        if lock is None:
-            yield
-            return
-        asked = time.monotonic()
-        lock.alone()
         began = time.monotonic()
         try:
             yield
         finally:
-            lock.release()
-            lock.shared()
-            _record_section(request.node.nodeid, began - asked, time.monotonic() - began)
+            if run_dir() is not None:
+                _record_section(request.node.nodeid, began, time.monotonic())
 
     return section
 
 
-SECTIONS_FILE = "alone_sections.jsonl"
-"""In the run's folder: each real-time section's wait for the lock and its length [s]."""
+@pytest.fixture
+def heavy(request):
+    """``with heavy(): ...`` in a test with real-time sections: a block that runs as an
+    ordinary test (after the other workers' real-time sections in progress, none beside it);
+    a plain block in any other test."""
+    lock = _run_lock(request.config)
+
+    @contextlib.contextmanager
+    def block():
+        if lock is None or not _is_realtime(request.node):
+            yield
+            return
+        lock.release()
+        lock.test()
+        try:
+            yield
+        finally:
+            lock.release()
+            lock.realtime()
+
+    return block
 
 
-def _record_section(test: str, waited: float, ran: float) -> None:
+SECTIONS_FILE = "realtime_sections.jsonl"
+"""In the run's folder: each real-time section's start and end (``time.monotonic()``, the same
+clock in every worker) [s]."""
+
+
+def _record_section(test: str, began: float, ended: float) -> None:
     with open(run_dir() / SECTIONS_FILE, "a") as f:
-        f.write(json.dumps({"test": test, "waited": waited, "alone": ran}) + "\n")
+        f.write(json.dumps({"test": test, "began": began, "ended": ended}) + "\n")
+
+
+def _covered(intervals: list[tuple[float, float]]) -> float:
+    """The length of the union of the intervals [s]."""
+    total, end = 0.0, -float("inf")
+    for a, b in sorted(intervals):
+        if b > end:
+            total += b - max(a, end)
+            end = b
+    return total
 
 
 def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
-    """What the real-time sections cost the run: while one waits for the lock (the other
-    workers finishing the test they are in) and while it runs, its worker and then the
-    others are idle (docs/development.md, "Which tests to run when")."""
+    """What the real-time sections cost the run: how long they ran, side by side or not, and
+    how long workers waited for their turn (idle: an ordinary test waits for the real-time
+    ones in progress, a real-time test for the ordinary ones) (docs/development.md)."""
     folder = run_dir()
     path = None if folder is None else folder / SECTIONS_FILE
     if hasattr(config, "workerinput") or path is None or not path.is_file():
         return
     rows = [json.loads(line) for line in path.read_text().splitlines()]
-    waited = sum(r["waited"] for r in rows)
-    longest = max(rows, key=lambda r: r["waited"])
+    summed = sum(r["ended"] - r["began"] for r in rows)
+    covered = _covered([(r["began"], r["ended"]) for r in rows])
+    waits = read_waits(folder)
+    waited = {
+        kind: sum(w["waited"] for w in waits if w["for"] == kind) for kind in ("test", "realtime")
+    }
     terminalreporter.write_line(
-        f"real-time sections: {len(rows)}, {sum(r['alone'] for r in rows):.0f} s alone, "
-        f"{waited:.0f} s waiting for the other workers' tests (longest {longest['waited']:.0f} s, "
-        f"{longest['test']})"
+        f"real-time sections: {len(rows)}, {summed:.0f} s in all, {covered:.0f} s of the run's "
+        f"wall time; workers idle waiting for their turn: {waited['test']:.0f} s before ordinary "
+        f"tests, {waited['realtime']:.0f} s before real-time ones"
     )
 
 

@@ -1,10 +1,12 @@
 """Telling a loaded host from a defect in the real-time tests.
 
-A real-time section (LCM processes paced to the wall clock, ``with alone():``) needs the CPU
-when it asks for it; the ``alone`` fixture keeps the suite's other workers out, but not the
-machine's other users. :class:`HostWatch` measures what they took during the section: the
-machine's busy CPU time (``/proc/stat``) minus that of this test process and the children it
-waited for (the driver, the client), as an average number of cores. A timing assertion
+A real-time section (LCM processes paced to the wall clock, ``with realtime():``) needs the
+CPU when it asks for it; the ``realtime`` fixture keeps the suite's ordinary tests out (other
+workers' real-time sections may run beside it: the suite's own choice, light by design), but
+not the machine's other users. :class:`HostWatch` measures what they took during the section:
+the machine's busy CPU time (``/proc/stat``) minus that of this test process and the children
+it waited for (the driver, the client) and minus the suite's other workers and their processes
+(:func:`suite_workers_s`), as an average number of cores. A timing assertion
 inside ``with host.excuse(what):`` that fails on a host whose other processes used
 :data:`LOADED_CORES` or more skips the test with that measurement and the failed figure (the
 driver's rate, the statuses missed, the client's watchdog): the host could not keep real
@@ -36,12 +38,64 @@ def _own_s() -> float:
     return t.user + t.system + t.children_user + t.children_system
 
 
+def _process_table() -> dict[int, tuple[int, float]]:
+    """{pid: (parent pid, CPU time of the process and of its children it waited for [s])}."""
+    tick = os.sysconf("SC_CLK_TCK")
+    table = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            text = (entry / "stat").read_text()
+        except OSError:
+            continue
+        fields = text[text.rindex(")") + 2 :].split()  # after the command's name
+        # fields[1] is the ppid; utime, stime, cutime, cstime are fields[11:15]
+        table[int(entry.name)] = (int(fields[1]), sum(float(x) for x in fields[11:15]) / tick)
+    return table
+
+
+def _workers() -> set[int]:
+    """The pids of the suite's other pytest-xdist workers (conftest.py's state file)."""
+    import json
+
+    from run_lock import STATE_FILE
+    from shared_cache import run_dir
+
+    folder = run_dir()
+    try:
+        slots = json.loads((folder / STATE_FILE).read_text()) if folder else {}
+    except (OSError, ValueError):
+        return set()
+    return {int(pid) for pid, _ in slots.values()} - {os.getpid()}
+
+
+def suite_workers_s() -> float:
+    """The CPU time [s] of the suite's other workers and of every process under them, so far:
+    during a real-time section they run only real-time sections of their own. A process's
+    time stays counted when it ends (its parent's children's time takes it over)."""
+    roots = _workers()
+    if not roots:
+        return 0.0
+    table = _process_table()
+    children: dict[int, list[int]] = {}
+    for pid, (ppid, _) in table.items():
+        children.setdefault(ppid, []).append(pid)
+    total, todo = 0.0, [pid for pid in roots if pid in table]
+    while todo:
+        pid = todo.pop()
+        total += table[pid][1]
+        todo += children.get(pid, [])
+    return total
+
+
 class HostWatch:
     """Measures the other processes' CPU use from its creation to :meth:`stop` (or to the
     first :meth:`excuse`)."""
 
     def __init__(self) -> None:
         self._busy0, self._own0, self._wall0 = _machine_busy_s(), _own_s(), os.times().elapsed
+        self._suite0 = suite_workers_s()
         self.other_cores: float | None = None
 
     def stop(self) -> float:
@@ -49,6 +103,7 @@ class HostWatch:
         if self.other_cores is None:
             wall = max(os.times().elapsed - self._wall0, 1e-6)
             other = (_machine_busy_s() - self._busy0) - (_own_s() - self._own0)
+            other -= suite_workers_s() - self._suite0
             self.other_cores = max(0.0, other / wall)
         return self.other_cores
 
@@ -81,7 +136,7 @@ class HostWatch:
 
 @contextlib.contextmanager
 def host_watch() -> Iterator[HostWatch]:
-    """``with alone(), host_watch() as host, <processes>:``: a :class:`HostWatch` over the
+    """``with realtime(), host_watch() as host, <processes>:``: a :class:`HostWatch` over the
     section (started before its processes, stopped after they were waited for)."""
     host = HostWatch()
     try:

@@ -51,10 +51,10 @@ def identify(url: str, out: Path, *extra: str) -> subprocess.Popen:
 
 
 @pytest.mark.slow
-def test_identify_over_lcm_recovers_what_it_was_not_told(alone, lcm_url, tmp_path):  # noqa: F811
+def test_identify_over_lcm_recovers_what_it_was_not_told(realtime, lcm_url, tmp_path):  # noqa: F811
     out, gt = tmp_path / "identified", tmp_path / "gt"
     config = ["--config", str(truth_file(tmp_path))]
-    with alone(), host_watch() as host, sim_driver_process(lcm_url, *config, out=gt) as driver:
+    with realtime(), host_watch() as host, sim_driver_process(lcm_url, *config, out=gt) as driver:
         run = identify(lcm_url, out, "--repeats", "1", "--joints", JOINTS)
         stdout, stderr = run.communicate(timeout=300)
         code, _, driver_err = stop(driver)
@@ -117,12 +117,12 @@ def _wait_for_motion(url: str, seconds: float) -> None:
 
 
 @pytest.mark.slow
-def test_identifys_ways_out_leave_complete_folders(alone, lcm_url, tmp_path):  # noqa: F811
+def test_identifys_ways_out_leave_complete_folders(realtime, lcm_url, tmp_path):  # noqa: F811
     """The driver killed mid-move: identify stops commanding at its watchdog and exits 7;
     SIGTERM to identify: exit 143. Each folder holds fit.json (its status), the raw log and
     the segments, and no identified.yaml."""
     lost, stopped = tmp_path / "lost", tmp_path / "stopped"
-    with alone(), sim_driver_process(lcm_url) as driver:
+    with realtime(), sim_driver_process(lcm_url) as driver:
         run = identify(lcm_url, lost, "--joints", "7")
         _wait_for_motion(lcm_url, 30.0)
         driver.kill()
@@ -131,7 +131,7 @@ def test_identifys_ways_out_leave_complete_folders(alone, lcm_url, tmp_path):  #
         exited = time.monotonic() - killed
     assert run.returncode == 7, stdout + stderr
     assert exited < 5.0  # the watchdog (50 ms) and the folder, not a hang
-    with alone(), sim_driver_process(lcm_url) as driver:
+    with realtime(), sim_driver_process(lcm_url) as driver:
         run = identify(lcm_url, stopped, "--joints", "7")
         _wait_for_motion(lcm_url, 30.0)
         run.send_signal(signal.SIGTERM)

@@ -3,9 +3,12 @@ fails on a loaded host, and fails when the host was not loaded."""
 
 from __future__ import annotations
 
+import json
+import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 from realtime_host import LOADED_CORES, HostWatch
@@ -39,3 +42,52 @@ def test_another_process_s_cpu_counts_as_load():
     finally:
         burner.kill()
         burner.wait()
+
+
+def _cpu_s(pid: int) -> float:
+    """A process's CPU time so far [s] (/proc/PID/stat's utime and stime)."""
+    text = Path(f"/proc/{pid}/stat").read_text()
+    fields = text[text.rindex(")") + 2 :].split()
+    return (float(fields[11]) + float(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def test_the_suite_s_other_workers_do_not_count_as_load(tmp_path, monkeypatch):
+    """The suite's other workers (conftest.py's state file) and the processes under them run
+    only real-time sections while this one runs: a core one of them burns (in a child) is
+    not the host's load. Two watches over the same second, one told of that worker and one
+    not, differ by what that child used meanwhile (whatever else the host runs)."""
+    from shared_cache import RUN_DIR_ENV
+
+    worker = subprocess.Popen(  # a worker whose child burns a core for 5 s
+        [
+            sys.executable,
+            "-c",
+            "import subprocess, sys\n"
+            "subprocess.run([sys.executable, '-c', "
+            "'import time\\nt = time.time()\\nwhile time.time() < t + 5: pass'])",
+        ]
+    )
+    told, untold = tmp_path / "told", tmp_path / "untold"
+    told.mkdir()
+    untold.mkdir()
+    (told / "tests.state.json").write_text(json.dumps({"gw9": [worker.pid, "realtime"]}))
+    try:
+        time.sleep(0.5)  # started and burning
+        (child,) = Path(f"/proc/{worker.pid}/task/{worker.pid}/children").read_text().split()
+        burned = _cpu_s(int(child))
+        monkeypatch.setenv(RUN_DIR_ENV, str(told))
+        with_worker = HostWatch()
+        monkeypatch.setenv(RUN_DIR_ENV, str(untold))
+        without = HostWatch()
+        start = time.monotonic()
+        time.sleep(1.0)
+        without.stop()
+        monkeypatch.setenv(RUN_DIR_ENV, str(told))
+        with_worker.stop()
+        burned = (_cpu_s(int(child)) - burned) / (time.monotonic() - start)
+        difference = without.other_cores - with_worker.other_cores
+        assert burned > 0.3, burned  # it ran (a core, or its share of a loaded host's)
+        assert abs(difference - burned) < 0.15, (difference, burned, with_worker.describe())
+    finally:
+        worker.kill()  # its child ends by itself
+        worker.wait()

@@ -81,7 +81,7 @@ def rate(messages, period: float, window: float = 0.5) -> float:
 
 
 @pytest.mark.slow
-def test_protocol_over_the_bus(alone, lcm_url, tmp_path):  # noqa: F811
+def test_protocol_over_the_bus(realtime, lcm_url, tmp_path):  # noqa: F811
     """Statuses decode with every field filled at 200 Hz (WSG 20 Hz); a client answering each
     status is applied at the next cycle (kuka_driver's) and reported by the status after it,
     the last command is held; SIGTERM (exit 143) writes a ground truth that the statuses match
@@ -101,7 +101,7 @@ def test_protocol_over_the_bus(alone, lcm_url, tmp_path):  # noqa: F811
             sent.append((k, status.utime))
 
     listener.handlers.append(answer)
-    with alone(), host_watch() as host, sim_driver_process(lcm_url, out=out) as driver:
+    with realtime(), host_watch() as host, sim_driver_process(lcm_url, out=out) as driver:
         listener.wait_for(IIWA_STATUS_CHANNEL, timeout=STARTUP_TIMEOUT)
         listener.poll(0.35)  # the client waits out the driver's 0.25 s start guard
         answering[0] = True
@@ -189,12 +189,12 @@ def test_protocol_over_the_bus(alone, lcm_url, tmp_path):  # noqa: F811
 
 
 @pytest.mark.slow
-def test_start_guard_aborts(alone, lcm_url, tmp_path):  # noqa: F811
+def test_start_guard_aborts(realtime, lcm_url, tmp_path):  # noqa: F811
     """A command right after the first status aborts the driver (exit 1) before it acts:
     the statuses stop, and the ground truth never saw the command."""
     listener = listener_for(lcm_url)
     out = tmp_path / "gt"
-    with alone(), sim_driver_process(lcm_url, out=out) as driver:
+    with realtime(), sim_driver_process(lcm_url, out=out) as driver:
         listener.wait_for(IIWA_STATUS_CHANNEL, timeout=STARTUP_TIMEOUT)
         q = Q_HOME.copy()
         q[0] = 0.3
@@ -215,11 +215,11 @@ def test_start_guard_aborts(alone, lcm_url, tmp_path):  # noqa: F811
 
 
 @pytest.mark.slow
-def test_utime_warmup_and_sigint(alone, lcm_url):  # noqa: F811
+def test_utime_warmup_and_sigint(realtime, lcm_url):  # noqa: F811
     """--utime-warmup: utime -1 for the first 200 statuses (1 s), then the time in us;
     Ctrl-C (SIGINT) ends it with exit 130."""
     listener = listener_for(lcm_url)
-    with alone(), host_watch() as host, sim_driver_process(lcm_url, "--utime-warmup") as driver:
+    with realtime(), host_watch() as host, sim_driver_process(lcm_url, "--utime-warmup") as driver:
         listener.wait_for(IIWA_STATUS_CHANNEL, timeout=STARTUP_TIMEOUT)
         statuses = listener.messages[IIWA_STATUS_CHANNEL]
         listener.poll(5.0, lambda: statuses[-1][1].utime >= 1_100_000)
