@@ -15,8 +15,11 @@ import json
 import os
 import shutil
 import tempfile
+import threading
 import time
+from collections.abc import Callable
 from functools import cache
+from typing import TypeVar
 
 import file_order
 import pytest
@@ -24,6 +27,7 @@ from run_lock import RunLock, read_waits
 from shared_cache import RUN_DIR_ENV, run_dir
 
 os.environ.setdefault("MPLBACKEND", "Agg")
+T = TypeVar("T")
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -43,10 +47,20 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     )
 
 
+REALTIME_FILES = "realtime_files.json"
+"""In the run's folder: the names of the files with real-time tests, written by the workers'
+collections for the scheduler (:func:`pytest_xdist_make_scheduler`)."""
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """The files in tests/file_order.py's order (the same on every worker: computed from the
     collection and durations.json only); the tests of a file keep theirs."""
-    realtime = {item.path.name for item in items if "realtime" in getattr(item, "fixturenames", ())}
+    realtime = {item.path.name for item in items if _is_realtime(item)}
+    folder = run_dir()
+    if hasattr(config, "workerinput") and folder is not None:  # for the scheduler
+        partial = folder / f".{REALTIME_FILES}.{config.workerinput['workerid']}"
+        partial.write_text(json.dumps(sorted(realtime)))
+        os.replace(partial, folder / REALTIME_FILES)
     durations = file_order.read_durations()
     rank = {
         name: i
@@ -55,6 +69,29 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         )
     }
     items.sort(key=lambda item: rank[item.path.name])
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log):
+    """``--dist loadfile`` with the real-time files in bins (tests/file_order.py): a bin is
+    one unit of work, each other file one, in the collection's order."""
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    class RealtimeBins(LoadFileScheduling):
+        bins: dict[str, str] | None = None
+
+        def _split_scope(self, nodeid: str) -> str:
+            scope = super()._split_scope(nodeid)
+            if self.bins is None:  # called once every worker's collection is in
+                path = run_dir() / REALTIME_FILES
+                realtime = json.loads(path.read_text()) if path.is_file() else []
+                durations = file_order.read_durations()
+                self.bins = file_order.realtime_bins(realtime, durations, self.numnodes)
+            return self.bins.get(scope.rsplit("/", 1)[-1], scope)
+
+    return RealtimeBins(config, log)
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
@@ -103,9 +140,9 @@ def _is_realtime(item: pytest.Item) -> bool:
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None):
-    """Setup, call and teardown of each test (module fixtures included) in the lock: an
-    ordinary test as one, a test with real-time sections as a light one (``realtime``, but
-    for its ``with heavy():`` blocks; tests/run_lock.py)."""
+    """Setup, call and teardown of each test (module fixtures included) in the lock
+    (tests/run_lock.py): as an ordinary test, or as a real-time one (the ``realtime``
+    fixture)."""
     lock = _run_lock(item.config)
     if lock is not None:
         lock.realtime() if _is_realtime(item) else lock.test()
@@ -160,9 +197,9 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
 def realtime(request):
     """``with realtime(): ...``: a real-time section (LCM processes paced to the wall clock,
     tolerances derived from their latency). A test that asks for this fixture runs, setup to
-    teardown, while no other worker runs an ordinary test: only light work and other
-    real-time sections beside it (tests/run_lock.py); its heavy work (a simulation running
-    flat out) goes in ``with heavy():`` blocks. The sections are timed for the run's summary."""
+    teardown, while no other worker runs an ordinary test: only other real-time tests beside
+    it (tests/run_lock.py). Its work outside the sections must be light (one thread, a second
+    or so), or go through ``heavy``. The sections are timed for the run's summary."""
 
     @contextlib.contextmanager
     def section():
@@ -176,27 +213,34 @@ def realtime(request):
     return section
 
 
-@pytest.fixture
-def heavy(request):
-    """``with heavy(): ...`` in a test with real-time sections: a block that runs as an
-    ordinary test (after the other workers' real-time sections in progress, none beside it);
-    a plain block in any other test."""
-    lock = _run_lock(request.config)
+def run_at_idle_priority(call: Callable[[], T]) -> T:
+    """``call()`` in a thread of Linux's idle scheduling class (``SCHED_IDLE``): it runs only
+    on a core that no other process wants, so a real-time section's processes, woken, take
+    the core at once. Returns its result or raises its exception."""
+    box: dict = {}
 
-    @contextlib.contextmanager
-    def block():
-        if lock is None or not _is_realtime(request.node):
-            yield
-            return
-        lock.release()
-        lock.test()
+    def target() -> None:
         try:
-            yield
-        finally:
-            lock.release()
-            lock.realtime()
+            if hasattr(os, "SCHED_IDLE"):
+                os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))  # this thread only
+            box["value"] = call()
+        except BaseException as e:  # handed to the caller
+            box["error"] = e
 
-    return block
+    thread = threading.Thread(target=target, name="heavy")
+    thread.start()
+    thread.join()
+    if "error" in box:
+        raise box["error"]
+    return box["value"]
+
+
+@pytest.fixture
+def heavy():
+    """``heavy(call)``: a real-time test's heavy work (a one-process episode running flat
+    out), at idle priority (:func:`run_at_idle_priority`) so that it never delays a real-time
+    section running beside it; returns ``call()``."""
+    return run_at_idle_priority
 
 
 SECTIONS_FILE = "realtime_sections.jsonl"
@@ -221,8 +265,7 @@ def _covered(intervals: list[tuple[float, float]]) -> float:
 
 def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
     """What the real-time sections cost the run: how long they ran, side by side or not, and
-    how long workers waited for their turn (idle: an ordinary test waits for the real-time
-    ones in progress, a real-time test for the ordinary ones) (docs/development.md)."""
+    how long workers waited for their turn (idle: tests/run_lock.py) (docs/development.md)."""
     folder = run_dir()
     path = None if folder is None else folder / SECTIONS_FILE
     if hasattr(config, "workerinput") or path is None or not path.is_file():

@@ -2,11 +2,14 @@
 
 Ordinary tests run beside each other; tests with real-time sections (the ``realtime``
 fixture: LCM processes paced to the wall clock, tolerances derived from their latency) run
-beside each other; never one of each. A real-time test needs the CPU the moment its
+beside each other; never one of each. A real-time section needs the CPU the moment its
 processes wake; each uses a fraction of a core (a driver and a client at 200 Hz), so two of
-them on two workers share the cores well, while a simulation running flat out beside them
-would delay their wake-ups. A real-time test is light but for its ``with heavy():`` blocks,
-which run as ordinary tests.
+them on two workers share the cores well, and so does a real-time test's light work outside
+its sections (reading logs, a comparison), while an ordinary test (a class graded by several
+processes, a simulation per core) would delay their wake-ups. A real-time test's heavy work
+(a one-process episode running flat out) runs at idle priority (conftest's ``heavy``): it
+gets a core only when no section's process wants it (a simulation at normal priority beside
+two sections made statuses 10 ms late on two cores).
 
 Each worker has a slot in a small state file (its pid and what it does: ``test``,
 ``realtime``, or ``waiting`` to run real-time), read and written under an ``flock``; a worker

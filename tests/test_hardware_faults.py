@@ -1,8 +1,11 @@
 """``doorlab run --hardware`` against ``doorlab sim-driver`` as two processes on loopback
 multicast (a port of each test's own, tests/lcm_fixtures.py), in real time: the ways a run on
-the arm stops. The driver killed in the arc (the client's status watchdog: exit 7 within
-0.2 s), no driver at all (exit 7 within its ``--wait``, nothing written), and a command over
-a limit (exit 8 before it is sent). (test_hardware_two_process.py: the episode itself.)
+the arm goes wrong. A client slower than kuka_driver's 5 ms period (its answers held 6 ms:
+each command acts a cycle later, the driver counts them all late, and the door ends
+elsewhere: the test prints how far; test_hardware_two_process.py: any client within the
+period gets the one-process episode), the driver killed in the arc (the client's status
+watchdog: exit 7 within 0.2 s), no driver at all (exit 7 within its ``--wait``, nothing
+written), and a command over a limit (exit 8 before it is sent).
 
 The killed driver's run has a short timeline (hold 0.2 s, move 2 s with the position-gap
 limit relaxed to 80 ms, grasp 0.5 s): what is timed is the arc's, killed 1.5 s into it.
@@ -28,6 +31,14 @@ from lcm_fixtures import (  # noqa: F401
     stop,
 )
 from realtime_host import host_watch
+from test_hardware_two_process import (
+    HOST_MARGIN_MS,
+    PERIOD_MS,
+    compare,
+    host_explains,
+    one_process,
+    run_arm_pair,
+)
 
 from doorlab.cell.safety import SafetyLimits, check_command
 from doorlab.config import Scenario, validate
@@ -73,6 +84,46 @@ def follow(process: subprocess.Popen, bus: BusListener, timeout: float = 120.0) 
             pytest.fail("the client did not finish")
         bus.lcm.HandleSubscriptions(1)
     return time.monotonic()
+
+
+@pytest.mark.slow
+def test_a_client_slower_than_the_period_acts_a_cycle_later(realtime, heavy, lcm_url, tmp_path):  # noqa: F811
+    """Answers held 6 ms, past the 5 ms period: every command is applied a cycle later than
+    kuka_driver's timing (all counted late in driver.json; two cycles only where a status or
+    an answer came that late), a different episode; the test prints what the 5 ms more of
+    delay does to the impedance plan's door."""
+    reference = one_process("impedance", heavy)
+    code, stderr, metrics, facts, gt, log = run_arm_pair(
+        lcm_url, tmp_path, "impedance", 6.0, realtime
+    )
+    if code == 7:
+        pytest.skip(f"the host did not keep real time: {stderr.strip()}")
+    assert code == 0, stderr
+    door, radial, door_two, door_one = compare("impedance", reference, gt, log)
+    explained, measured = host_explains(metrics, facts, 6.0)
+    print(
+        f"impedance, answers held 6 ms: door {door_two:.3f} deg at the arc's end against "
+        f"{door_one:.3f} in one process ({door:+.3f} deg), max radial error "
+        f"{radial * 1e3:+.3f} mm; {measured}"
+    )
+    applied, late = facts["iiwa_commands_applied"], facts["iiwa_commands_late"]
+    if applied <= 0.95 * metrics["link"]["commands"]:  # commands superseded or dropped
+        if explained:  # a starved host: statuses late by seconds make answers stale
+            pytest.skip(f"the host could not keep real time ({measured})")
+        pytest.fail(f"{applied} of {metrics['link']['commands']} commands applied: {measured}")
+    if late < applied:
+        # An answer 6 ms after its status is never on time, unless the driver itself fell
+        # behind (its cycle read the bus late): the host's.
+        if explained:
+            pytest.skip(f"the host could not keep real time ({measured})")
+        pytest.fail(f"{applied - late} commands on time though held 6 ms: {measured}")
+    if facts["iiwa_command_cycles_late_max"] > 1:
+        # Two cycles late only when the status came late or the answer took longer still:
+        # then it reached the driver after the second cycle too.
+        link = metrics["link"]
+        slowest = link["answer_max_ms"] + link["status_lateness_max_ms"]
+        assert slowest >= 2 * PERIOD_MS - HOST_MARGIN_MS, f"more than a cycle late: {measured}"
+    assert abs(door) > 1e-6  # a different episode
 
 
 @pytest.mark.slow

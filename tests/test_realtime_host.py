@@ -91,3 +91,17 @@ def test_the_suite_s_other_workers_do_not_count_as_load(tmp_path, monkeypatch):
     finally:
         worker.kill()  # its child ends by itself
         worker.wait()
+
+
+def test_heavy_work_runs_at_idle_priority_and_hands_back_its_result():
+    """conftest's ``heavy``: the call runs in a thread of the idle scheduling class (a
+    real-time section's processes take the core from it at once), returns its value, raises
+    its exception; the calling thread keeps its own class."""
+    import os
+
+    from conftest import run_at_idle_priority
+
+    assert run_at_idle_priority(lambda: os.sched_getscheduler(0)) == os.SCHED_IDLE
+    assert os.sched_getscheduler(0) == os.SCHED_OTHER
+    with pytest.raises(ZeroDivisionError):
+        run_at_idle_priority(lambda: 1 // 0)
