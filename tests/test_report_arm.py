@@ -127,19 +127,22 @@ def test_an_identified_base_keeps_its_arm_on_the_arm():
 
 def _fake_metrics(case, k: int) -> dict:
     """Hand-written metrics of a case the fixture does not run: numbers it knows (on the
-    arm: the IK plan never opens the door, the adaptive plan always does, the others from
-    the 15th case on)."""
-    door = 30.0 + k  # deg
+    arm: the IK plan never opens the door and always keeps the handle, the adaptive plan
+    always opens it, the tuned impedance plan never does and loses the handle but with the
+    link-side damping, the others open it from the 15th case on)."""
+    door, held = 30.0 + k, True  # deg
     if case.condition == "arm" and case.controller == "ik":
         door = 20.0
     elif case.condition == "arm" and case.controller == "adaptive":
         door = 45.0
+    elif case.condition == "arm" and case.controller == "impedance" and case.tuned:
+        door, held = 25.0, case.model.startswith("damping_link")
     return {
         "controller": case.controller,
         "doors": "closed",
-        "status": "ok",
+        "status": "ok" if held else "slipped",
         "door_opening_arc_end_rad": math.radians(door),
-        "handle_held": True,
+        "handle_held": held,
         "slip_time_s": None,
         "max_radial_error_m": 1e-3 * (1 + k),
         "max_orientation_error_rad": math.radians(1 + k),
@@ -246,14 +249,37 @@ def test_the_section_prints_the_folders_metrics():
 
 
 @pytest.mark.slow
+def _outcome(metrics: dict) -> str:
+    """A run's outcome from its metrics, as the verdicts define it."""
+    from doorlab.studies.robustness import OPEN_THRESHOLD_DEG
+
+    door = metrics.get("door_opening_arc_end_rad")
+    held = metrics.get("handle_held")
+    if (
+        metrics["status"] == "ok"
+        and bool(held)
+        and door is not None
+        and math.degrees(door) >= OPEN_THRESHOLD_DEG
+    ):
+        return "opens"
+    if metrics["status"] not in ("ok", "slipped"):
+        return "stopped"
+    if held is False or metrics["status"] == "slipped":
+        return "loses_the_handle"
+    return "falls_short"
+
+
+@pytest.mark.slow
 def test_each_plan_gets_a_verdict_over_its_band():
     """Per plan (the four controllers, the tuned plans) a row per model of the band, the
-    nominal first, with its folder's numbers; the verdict follows the rows: "opens under
-    every plausible model" when every run opened, "does not open" when none did, otherwise
-    "uncertain" naming the parameters whose models flip it (the fixture's hand-written doors,
-    30 + k deg, open for the later cases only, so every verdict occurs)."""
+    nominal first, with its folder's numbers; the verdict follows the runs' outcomes (opens,
+    keeps the handle short of open, loses the handle, stopped): "opens under every plausible
+    model" when every run opened, "does not open" when none did and all did the same
+    instead, otherwise "uncertain" naming the parameters whose models change the outcome,
+    saying that it never opens the door where none did (the fixture's hand-written doors,
+    30 + k deg, open for the later cases only, and a tuned impedance plan that loses the
+    handle but with the link-side damping: every verdict occurs)."""
     from doorlab.report.experiments import ARM_PARAMETERS, arm_model_names, arm_model_parameters
-    from doorlab.studies.robustness import OPEN_THRESHOLD_DEG
 
     folder, grid = arm_report()
     section = _section((folder / "index.html").read_text(encoding="utf-8"))
@@ -272,39 +298,38 @@ def test_each_plan_gets_a_verdict_over_its_band():
     for (controller, tuned), entry, sentence in zip(plans, summary, sentences, strict=True):
         band = {c.model: r for c, r in on_arm if (c.controller, c.tuned) == (controller, tuned)}
         assert entry["models"] == list(arm_model_names())
-        opened = []
-        for model in arm_model_names():
-            metrics = json.loads((Path(band[model].run_dir) / "metrics.json").read_text())
-            door = metrics.get("door_opening_arc_end_rad")
-            opened.append(
-                metrics["status"] == "ok"
-                and bool(metrics.get("handle_held"))
-                and door is not None
-                and math.degrees(door) >= OPEN_THRESHOLD_DEG
-            )
-        assert entry["opened"] == opened
-        if all(opened):
+        outcomes = [
+            _outcome(json.loads((Path(band[model].run_dir) / "metrics.json").read_text()))
+            for model in arm_model_names()
+        ]
+        assert entry["outcomes"] == outcomes
+        assert entry["opened"] == [o == "opens" for o in outcomes]
+        if set(outcomes) == {"opens"}:
             expected = "opens"
             assert "opens the door under every plausible model" in sentence
-        elif not any(opened):
+        elif len(set(outcomes)) == 1:
             expected = "does_not_open"
             assert "does not open the door under any plausible model" in sentence
         else:
             expected = "uncertain"
-            by_model = dict(zip(arm_model_names(), opened, strict=True))
+            by_model = dict(zip(arm_model_names(), outcomes, strict=True))
             flips = [  # a corner counts when neither of its models alone does what it does
                 m
                 for m, o in by_model.items()
-                if o != opened[0] and not any(by_model[p] == o for p in m.split("+") if "+" in m)
+                if o != outcomes[0] and not any(by_model[p] == o for p in m.split("+") if "+" in m)
             ]
             parameters = {p for m in flips for p in arm_model_parameters(m)}
             assert set(entry["depends_on"]) == parameters
             assert all(ARM_PARAMETERS[p] in sentence for p in parameters)
+            never = "does not open the door under any plausible model, and what it does instead"
+            assert (never in sentence) == ("opens" not in outcomes), sentence
+            if "opens" not in outcomes:
+                seen.add("uncertain, never opens")
         assert entry["verdict"] == expected
         seen.add(expected)
         doors = [d for d in entry["door_arc_end_deg"] if d is not None]
         assert f"{format_number(min(doors))}" in sentence
-    assert seen == {"opens", "does_not_open", "uncertain"}, seen
+    assert seen == {"opens", "does_not_open", "uncertain", "uncertain, never opens"}, seen
 
 
 def test_the_answer_explains_the_impedance_plan_with_the_models_numbers():

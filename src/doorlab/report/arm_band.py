@@ -2,13 +2,20 @@
 the tuned plans of :data:`doorlab.report.experiments.ARM_TUNING`) run on the arm preset and
 under each other plausible model of the arm (:func:`doorlab.report.experiments.arm_model_names`).
 
-A plan "opens the door under every plausible model" when every run of its band opened it
+Each run has an outcome (:attr:`doorlab.report.arm_page.ArmRow.outcome`): it opens the door
 (status ok, at least :data:`doorlab.studies.robustness.OPEN_THRESHOLD_DEG` at the arc's end,
-the handle held), "does not open the door under any plausible model" when none did, and is
-"uncertain: depends on X" otherwise, X the parameters of the models whose verdict differs
-from the nominal's. With each: the door at the arc's end, Q's max radial error, L7's max
-orientation error and the freeze margin (1 - the largest |external torque| over kuka_driver's
-limit, on the estimate the driver sees) over the band. Every number is read from the runs.
+the handle held), keeps the handle with the door short of that, loses the handle, or is
+stopped (a safety stop, the driver's freeze). A plan "opens the door under every plausible
+model" when every run of its band opened it; it "does not open the door under any plausible
+model" when no run did and every run did the same instead (lost the handle, say); and it is
+"uncertain: depends on X" otherwise, X the parameters of the models whose outcome differs
+from the nominal's, whether that is opening the door or, when no model opens it, what it does
+instead (a plan that keeps the handle under one damping model and loses it under another
+behaves differently on the arm, and which it will do is not known until the arm is
+identified). With each: the door at the arc's end, Q's max radial error, L7's max
+orientation error and the freeze margin (1 - the largest |external torque| over
+kuka_driver's limit, on the estimate the driver sees) over the band. Every number is read
+from the runs.
 """
 
 from __future__ import annotations
@@ -57,24 +64,30 @@ class PlanBand:
     @property
     def verdict(self) -> str:
         """One of :data:`VERDICTS`."""
-        opened = [row.opened for _, row in self.rows]
-        if all(opened):
+        outcomes = {row.outcome for _, row in self.rows}
+        if outcomes == {"opens"}:
             return "opens"
-        if not any(opened):
+        if len(outcomes) == 1:
             return "does_not_open"
         return "uncertain"
 
+    @property
+    def opens_anywhere(self) -> bool:
+        """Whether any model of the band opens the door."""
+        return any(row.opened for _, row in self.rows)
+
     def flips(self) -> list[tuple[str, Any]]:
-        """The models that change the nominal's verdict: each one-parameter model that does,
-        and each corner whose verdict neither of its models gives alone (an interaction)."""
-        nominal = self.nominal.opened
-        opened = {model: row.opened for model, row in self.rows}
+        """The models whose outcome differs from the nominal's: each one-parameter model
+        that does, and each corner whose outcome neither of its models gives alone (an
+        interaction)."""
+        nominal = self.nominal.outcome
+        outcome = {model: row.outcome for model, row in self.rows}
         out = []
         for model, row in self.rows[1:]:
-            if row.opened == nominal:
+            if row.outcome == nominal:
                 continue
             parts = model.split("+")
-            if len(parts) > 1 and any(opened.get(p) == row.opened for p in parts):
+            if len(parts) > 1 and any(outcome.get(p) == row.outcome for p in parts):
                 continue  # one of its models alone does it
             out.append((model, row))
         return out
@@ -123,31 +136,46 @@ def model_label(model: str) -> str:
     return " and ".join(by_name[name].label for name in model.split("+"))
 
 
+OUTCOME_PHRASES = {
+    "opens": "opens the door",
+    "falls_short": "keeps the handle, the door short of open",
+    "loses_the_handle": "loses the handle",
+    "stopped": "is stopped",
+}
+"""How a verdict says what a run did (:data:`doorlab.report.arm_page.OUTCOMES`)."""
+
+
+def _did(row: Any) -> str:
+    phrase = OUTCOME_PHRASES[row.outcome]
+    return f"{phrase} ({row.status})" if row.outcome == "stopped" else phrase
+
+
 def verdict_sentence(band: PlanBand) -> str:
     """The plan's verdict with its band's figures."""
     runs = len(band.rows)
     if band.verdict == "opens":
         head = f"opens the door under every plausible model ({runs} runs)"
     elif band.verdict == "does_not_open":
-        head = f"does not open the door under any plausible model ({runs} runs)"
+        head = (
+            f"does not open the door under any plausible model ({runs} runs; it "
+            f"{OUTCOME_PHRASES[band.nominal.outcome]} under every one)"
+        )
     else:
         names = " and ".join(ARM_PARAMETERS[p] for p in band.depends_on)
         flips = band.flips()
-        alone = [model_label(m) for m, _ in flips if "+" not in m]
-        together = [model_label(m) for m, _ in flips if "+" in m]
-        other = "not" if band.nominal.opened else "it does"
-        parts = []
-        if alone:
-            parts.append(f"{other} with {'; '.join(alone)}")
-        if together:
-            parts.append(f"{other} with {'; '.join(together)} together")
-        head = (
-            f"is uncertain: it depends on {names} (it "
-            + ("opens" if band.nominal.opened else "does not open")
-            + " on the nominal model, "
-            + ", and ".join(parts)
-            + ")"
-        )
+        alone = [(model_label(m), row) for m, row in flips if "+" not in m]
+        together = [(model_label(m), row) for m, row in flips if "+" in m]
+        parts = [f"on the nominal model it {_did(band.nominal)}"]
+        parts += [f"with {label} it {_did(row)}" for label, row in alone]
+        parts += [f"with {label} together it {_did(row)}" for label, row in together]
+        why = f"it depends on {names} (" + "; ".join(parts) + ")"
+        if band.opens_anywhere:
+            head = f"is uncertain: {why}"
+        else:
+            head = (
+                "does not open the door under any plausible model, and what it does instead "
+                f"is uncertain: {why}"
+            )
     stops = [
         f"{model_label(m)}: {row.status}"
         for m, row in band.rows
@@ -198,7 +226,7 @@ def band_table(bands: Sequence[PlanBand]) -> list[dict]:
                         format_number(1e3 * row.max_radial_error_m),
                         format_number(math.degrees(row.max_orientation_error_rad)),
                         f"{format_number(100 * row.freeze_margin)} ({joint})" if joint else "n/a",
-                        "yes" if row.opened else "no",
+                        _did(row),
                     ],
                 }
             )
@@ -298,6 +326,7 @@ def band_summary(bands: Sequence[PlanBand]) -> list[dict]:
             "models": [model for model, _ in band.rows],
             "runs": [row.case.run for _, row in band.rows],
             "opened": [row.opened for _, row in band.rows],
+            "outcomes": [row.outcome for _, row in band.rows],
             "door_arc_end_deg": finite(band.values("door_arc_end_deg")),
             "max_radial_error_m": finite(band.values("max_radial_error_m")),
             "max_orientation_error_rad": finite(band.values("max_orientation_error_rad")),

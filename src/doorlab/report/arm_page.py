@@ -38,6 +38,10 @@ TUNING_TITLES = {
 }
 
 
+OUTCOMES = ("opens", "falls_short", "loses_the_handle", "stopped")
+"""What a run on the arm did (:attr:`ArmRow.outcome`)."""
+
+
 @dataclass(frozen=True)
 class ArmRow:
     """One case's figures (SI units; nan where the run produced none)."""
@@ -68,6 +72,19 @@ class ArmRow:
         return bool(
             self.status == "ok" and self.handle_held and self.door_arc_end_deg >= OPEN_THRESHOLD_DEG
         )
+
+    @property
+    def outcome(self) -> str:
+        """What the run did (one of :data:`OUTCOMES`): opened the door; kept the handle
+        but the door fell short of the threshold; lost the handle (slipped); or was stopped
+        (a safety stop, the driver's freeze, a diverged simulation: its status)."""
+        if self.opened:
+            return "opens"
+        if self.status not in ("ok", "slipped"):
+            return "stopped"
+        if self.handle_held is False or self.status == "slipped":
+            return "loses_the_handle"
+        return "falls_short"
 
 
 def _freeze(folder: Path, limit: float) -> tuple[float, int | None]:
