@@ -746,6 +746,35 @@ def test_output_collector_keeps_both_ends_and_stops_at_the_limit():
     assert text.startswith("start") and text.endswith("end") and len(text) < 400
 
 
+def test_output_written_before_an_answer_is_kept_whether_the_thread_ran_or_not():
+    """What the student's process printed (and flushed) before its answer is in the pipe when
+    the answer arrives: drain() takes it at once, even when the collector's thread has not been
+    scheduled (here it never runs: a starved trusted process on a loaded machine, where the
+    feedback once showed an error without the lines printed before it)."""
+    import threading
+
+    class Starved(sandbox.OutputCollector):
+        def __init__(self, *args, **kwargs):
+            self.release = threading.Event()
+            super().__init__(*args, **kwargs)
+
+        def _run(self) -> None:
+            self.release.wait()
+
+    read_fd, write_fd = os.pipe()
+    collector = Starved(os.fdopen(read_fd, "rb", buffering=0))
+    try:
+        os.write(write_fd, b"EVIDENCE printed before the answer\n")
+        assert collector.text() == ""  # the thread has not read it
+        collector.drain()
+        assert collector.text() == "EVIDENCE printed before the answer\n"
+        collector.drain()  # nothing more: nothing taken twice
+        assert collector.total == len("EVIDENCE printed before the answer\n")
+    finally:
+        os.close(write_fd)
+        collector.release.set()
+
+
 def test_a_grader_environment_the_student_user_cannot_read_is_named_as_such():
     """A student process that died before its greeting because the user it runs as could not
     import the grader's packages (a venv under /root, mode 700: seen in a clone there) is

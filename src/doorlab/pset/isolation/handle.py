@@ -464,6 +464,7 @@ class StudentProcess:
         if traceback:
             parts.append(traceback)
         self.output.join(timeout=0.05 if self._running() else 1.0)
+        self.output.drain()  # what it printed before its answer, whether the thread ran or not
         printed = self.output.text().strip()
         if printed:
             parts.append(f"your code printed ({self.output.total} bytes):\n{printed}")

@@ -42,6 +42,7 @@ import math
 import os
 import pwd
 import resource
+import select
 import signal
 import subprocess
 import threading
@@ -356,6 +357,10 @@ class OutputCollector:
 
     Past ``limit`` bytes it calls ``on_overflow`` once (the caller stops the test) and goes
     on reading and discarding, so a writer never blocks and the memory held stays bounded.
+    :meth:`drain` takes what is in the pipe now, in the caller's thread: the student's process
+    flushes what it printed before it answers, so once an answer is in, that output is in the
+    pipe, and a loaded machine that has not yet scheduled the thread must not lose it (the
+    feedback once showed an error without the lines printed before it).
     """
 
     def __init__(
@@ -367,6 +372,7 @@ class OutputCollector:
         on_overflow: Callable[[], None] | None = None,
     ):
         self._fd = stream.fileno()
+        os.set_blocking(self._fd, False)  # the thread waits in select, then reads what is there
         self._stream = stream
         self.limit = limit
         self._kept = kept
@@ -375,31 +381,57 @@ class OutputCollector:
         self._tail = bytearray()
         self.total = 0
         self.overflowed = False
+        self._lock = threading.Lock()  # one reader at a time: the thread or drain()
+        self._ended = False
         self._thread = threading.Thread(target=self._run, name="student-output", daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
         while True:
             try:
-                chunk = os.read(self._fd, 1 << 16)
-            except OSError:
+                select.select([self._fd], [], [], 0.5)
+            except (OSError, ValueError):
                 break
-            if not chunk:
-                break
-            self.total += len(chunk)
-            if len(self.head) < self._kept:
-                take = self._kept - len(self.head)
-                self.head += chunk[:take]
-                chunk = chunk[take:]
-            if chunk:
-                self._tail += chunk
-                if len(self._tail) > self._kept:
-                    del self._tail[: len(self._tail) - self._kept]
-            if self.total > self.limit and not self.overflowed:
-                self.overflowed = True
-                if self._on_overflow is not None:
-                    self._on_overflow()
+            with self._lock:
+                if self._read_available():
+                    break
         self._stream.close()
+
+    def _read_available(self) -> bool:
+        """Reads what the pipe holds now (under the lock); True at its end (every writer gone)."""
+        if self._ended:
+            return True
+        while True:
+            try:
+                chunk = os.read(self._fd, 1 << 16)
+            except BlockingIOError:
+                return False
+            except OSError:
+                chunk = b""
+            if not chunk:
+                self._ended = True
+                return True
+            self._take(chunk)
+
+    def _take(self, chunk: bytes) -> None:
+        self.total += len(chunk)
+        if len(self.head) < self._kept:
+            take = self._kept - len(self.head)
+            self.head += chunk[:take]
+            chunk = chunk[take:]
+        if chunk:
+            self._tail += chunk
+            if len(self._tail) > self._kept:
+                del self._tail[: len(self._tail) - self._kept]
+        if self.total > self.limit and not self.overflowed:
+            self.overflowed = True
+            if self._on_overflow is not None:
+                self._on_overflow()
+
+    def drain(self) -> None:
+        """Takes what the pipe holds now, at once (see the class)."""
+        with self._lock:
+            self._read_available()
 
     def join(self, timeout: float) -> None:
         """Waits for the end of the output (every writer gone) at most ``timeout`` [s]."""
