@@ -2,10 +2,12 @@
 
 The suite runs on pytest-xdist's workers (``addopts`` in pyproject.toml: one per core), a test
 file per worker at a time. A test's real-time section (``with realtime():``: LCM processes
-paced to the wall clock, with tolerances derived from their latency) runs beside nothing but
-other real-time sections: the other workers finish the ordinary test they are in and wait, or
-run a real-time section of their own meanwhile (a lock shared by the run's workers, below),
-so a real-time run never shares the cores with a simulation running as fast as it can.
+paced to the wall clock, with tolerances derived from their latency) must get a core the
+moment its processes wake. Where they can have real-time priority (tests/realtime_priority.py:
+as root), they do, and ordinary tests run beside them: one worker more than there are cores
+runs the real-time files while the others keep the cores busy. Elsewhere a real-time test
+runs beside nothing but other real-time tests (tests/run_lock.py), on every worker at the
+start of the run.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from typing import TypeVar
 
 import file_order
 import pytest
+import realtime_priority
 from run_lock import RunLock, read_waits
 from shared_cache import RUN_DIR_ENV, run_dir
 
@@ -71,10 +74,23 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     items.sort(key=lambda item: rank[item.path.name])
 
 
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int | None:
+    """``-n auto``: a worker per core, and one more to run the real-time files where their
+    paced processes have real-time priority (they use a fraction of a core, mostly waiting on
+    the wall clock, while the others keep the cores busy). PYTEST_XDIST_AUTO_NUM_WORKERS, if
+    set, is pytest-xdist's to read."""
+    if os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS"):
+        return None
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return (cores or 1) + (1 if realtime_priority.problem() is None else 0)
+
+
 @pytest.hookimpl(tryfirst=True)
 def pytest_xdist_make_scheduler(config: pytest.Config, log):
     """``--dist loadfile`` with the real-time files in bins (tests/file_order.py): a bin is
-    one unit of work, each other file one, in the collection's order."""
+    one unit of work, each other file one, in the collection's order. At real-time priority
+    one bin (one worker runs them all, beside the others' ordinary tests), else a bin per
+    worker (every worker runs them at the start, beside nothing else)."""
     if config.getvalue("dist") != "loadfile":
         return None
     from xdist.scheduler import LoadFileScheduling
@@ -88,7 +104,8 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log):
                 path = run_dir() / REALTIME_FILES
                 realtime = json.loads(path.read_text()) if path.is_file() else []
                 durations = file_order.read_durations()
-                self.bins = file_order.realtime_bins(realtime, durations, self.numnodes)
+                bins = 1 if realtime_priority.problem() is None else self.numnodes
+                self.bins = file_order.realtime_bins(realtime, durations, bins)
             return self.bins.get(scope.rsplit("/", 1)[-1], scope)
 
     return RealtimeBins(config, log)
@@ -142,8 +159,8 @@ def _is_realtime(item: pytest.Item) -> bool:
 def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None):
     """Setup, call and teardown of each test (module fixtures included) in the lock
     (tests/run_lock.py): as an ordinary test, or as a real-time one (the ``realtime``
-    fixture)."""
-    lock = _run_lock(item.config)
+    fixture); no lock where the paced processes have real-time priority."""
+    lock = _run_lock(item.config) if realtime_priority.problem() else None
     if lock is not None:
         lock.realtime() if _is_realtime(item) else lock.test()
     try:
@@ -196,16 +213,19 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
 @pytest.fixture
 def realtime(request):
     """``with realtime(): ...``: a real-time section (LCM processes paced to the wall clock,
-    tolerances derived from their latency). A test that asks for this fixture runs, setup to
-    teardown, while no other worker runs an ordinary test: only other real-time tests beside
-    it (tests/run_lock.py). Its work outside the sections must be light (one thread, a second
-    or so), or go through ``heavy``. The sections are timed for the run's summary."""
+    tolerances derived from their latency), the test's own thread at real-time priority and
+    its paced processes started with it (tests/realtime_priority.py) where it can be had.
+    Elsewhere a test that asks for this fixture runs, setup to teardown, while no other worker
+    runs an ordinary test (tests/run_lock.py); its work outside the sections must then be
+    light (one thread, a second or so), or go through ``heavy``. The sections are timed for
+    the run's summary."""
 
     @contextlib.contextmanager
     def section():
         began = time.monotonic()
         try:
-            yield
+            with realtime_priority.realtime_thread():  # the test's own listener, answers
+                yield
         finally:
             if run_dir() is not None:
                 _record_section(request.node.nodeid, began, time.monotonic())
@@ -238,8 +258,11 @@ def run_at_idle_priority(call: Callable[[], T]) -> T:
 @pytest.fixture
 def heavy():
     """``heavy(call)``: a real-time test's heavy work (a one-process episode running flat
-    out), at idle priority (:func:`run_at_idle_priority`) so that it never delays a real-time
-    section running beside it; returns ``call()``."""
+    out); returns ``call()``. Where the paced processes lack real-time priority it runs at
+    idle priority (:func:`run_at_idle_priority`), so that it never delays another worker's
+    real-time section beside it; else as any other work (ordinary tests run beside anyway)."""
+    if realtime_priority.problem() is None:
+        return lambda call: call()
     return run_at_idle_priority
 
 

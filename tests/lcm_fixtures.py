@@ -12,8 +12,9 @@ Import the fixtures into a test module (``from lcm_fixtures import lcm_url  # no
   under CI (``CI`` set), where ``.ci/run`` must have added the route.
 - :class:`BusListener`: a plain ``pydrake.lcm.DrakeLcm`` subscriber in the test process,
   decoding Drake's lcmtypes and stamping each message with its receipt time.
-- :func:`sim_driver_process`: ``doorlab sim-driver`` as a child process (killed at the end
-  of the test whatever happens).
+- :func:`sim_driver_process`: ``doorlab sim-driver`` as a child process at real-time
+  priority where it can be had (tests/realtime_priority.py; killed at the end of the test
+  whatever happens).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+import realtime_priority
 
 MULTICAST_GROUP = "239.255.76.67"
 _used_ports: set[int] = set()
@@ -126,7 +128,13 @@ def sim_driver_process(url: str, *args: str, out: Path | None = None) -> Iterato
     command = [sys.executable, "-m", "doorlab.cli", "sim-driver", "--lcm-url", url, *args]
     if out is not None:
         command += ["--out", str(out)]
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen(
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=realtime_priority.preexec(),
+    )
     try:
         yield process
     finally:

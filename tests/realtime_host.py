@@ -1,16 +1,17 @@
 """Telling a loaded host from a defect in the real-time tests.
 
 A real-time section (LCM processes paced to the wall clock, ``with realtime():``) needs the
-CPU when it asks for it; the ``realtime`` fixture keeps the suite's ordinary tests out (other
-workers' real-time sections may run beside it: the suite's own choice, light by design), but
-not the machine's other users. :class:`HostWatch` measures what they took during the section:
-the machine's busy CPU time (``/proc/stat``) minus that of this test process and the children
-it waited for (the driver, the client) and minus the suite's other workers and their processes
-(:func:`suite_workers_s`), as an average number of cores. A timing assertion
-inside ``with host.excuse(what):`` that fails on a host whose other processes used
-:data:`LOADED_CORES` or more skips the test with that measurement and the failed figure (the
-driver's rate, the statuses missed, the client's watchdog): the host could not keep real
-time. On a host that was not loaded it fails: a defect of the product.
+CPU when it asks for it: its processes have real-time priority where they can
+(tests/realtime_priority.py), else the ``realtime`` fixture keeps the suite's ordinary tests
+out (tests/run_lock.py). What the suite runs beside a section is the suite's own choice, not
+the host's load; the machine's other users are. :class:`HostWatch` measures what they took
+during the section: the machine's busy CPU time (``/proc/stat``) minus that of this test
+process and the children it waited for (the driver, the client) and minus the suite's other
+workers and their processes (:func:`suite_workers_s`), as an average number of cores. A
+timing assertion inside ``with host.excuse(what):`` that fails on a host whose other
+processes used :data:`LOADED_CORES` or more skips the test with that measurement and the
+failed figure (the driver's rate, the statuses missed, the client's watchdog): the host could
+not keep real time. On a host that was not loaded it fails: a defect of the product.
 """
 
 from __future__ import annotations
@@ -55,35 +56,29 @@ def _process_table() -> dict[int, tuple[int, float]]:
     return table
 
 
-def _workers() -> set[int]:
-    """The pids of the suite's other pytest-xdist workers (conftest.py's state file)."""
-    import json
-
-    from run_lock import STATE_FILE
-    from shared_cache import run_dir
-
-    folder = run_dir()
-    try:
-        slots = json.loads((folder / STATE_FILE).read_text()) if folder else {}
-    except (OSError, ValueError):
-        return set()
-    return {int(pid) for pid, _ in slots.values()} - {os.getpid()}
+def suite_root() -> int | None:
+    """The pytest-xdist controller (every worker's parent), under xdist; else None."""
+    return os.getppid() if os.environ.get("PYTEST_XDIST_WORKER") else None
 
 
-def suite_workers_s() -> float:
-    """The CPU time [s] of the suite's other workers and of every process under them, so far:
-    during a real-time section they run only real-time sections of their own. A process's
-    time stays counted when it ends (its parent's children's time takes it over)."""
-    roots = _workers()
-    if not roots:
+def suite_workers_s(root: int | None = None) -> float:
+    """The CPU time [s] used so far by ``root`` (default :func:`suite_root`) and every process
+    under it but this one and its own: the suite's other workers and what they run beside a
+    real-time section (other sections, or ordinary tests where the paced processes have
+    real-time priority). A process's time stays counted when it ends (its parent's
+    children's time takes it over)."""
+    root = suite_root() if root is None else root
+    if root is None:
         return 0.0
     table = _process_table()
     children: dict[int, list[int]] = {}
     for pid, (ppid, _) in table.items():
         children.setdefault(ppid, []).append(pid)
-    total, todo = 0.0, [pid for pid in roots if pid in table]
+    total, todo = 0.0, [root] if root in table else []
     while todo:
         pid = todo.pop()
+        if pid == os.getpid():  # this test's own: counted by _own_s
+            continue
         total += table[pid][1]
         todo += children.get(pid, [])
     return total
@@ -93,9 +88,11 @@ class HostWatch:
     """Measures the other processes' CPU use from its creation to :meth:`stop` (or to the
     first :meth:`excuse`)."""
 
-    def __init__(self) -> None:
+    def __init__(self, suite: int | None = None) -> None:
+        """``suite``: the process whose tree is the suite's (default :func:`suite_root`)."""
         self._busy0, self._own0, self._wall0 = _machine_busy_s(), _own_s(), os.times().elapsed
-        self._suite0 = suite_workers_s()
+        self._suite = suite
+        self._suite0 = suite_workers_s(suite)
         self.other_cores: float | None = None
 
     def stop(self) -> float:
@@ -103,7 +100,7 @@ class HostWatch:
         if self.other_cores is None:
             wall = max(os.times().elapsed - self._wall0, 1e-6)
             other = (_machine_busy_s() - self._busy0) - (_own_s() - self._own0)
-            other -= suite_workers_s() - self._suite0
+            other -= suite_workers_s(self._suite) - self._suite0
             self.other_cores = max(0.0, other / wall)
         return self.other_cores
 

@@ -28,7 +28,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 STATE_FILE = "tests.state.json"
-"""In the run's folder: {worker: [pid, state]} (tests/realtime_host.py reads the pids)."""
+"""In the run's folder: {worker: [pid, state]}."""
 WAITS_FILE = "lock_waits.jsonl"
 """In the run's folder: each wait for the lock longer than :data:`RECORDED_WAIT_S`."""
 RECORDED_WAIT_S = 0.1

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import realtime_priority
 from drake import lcmt_iiwa_command, lcmt_iiwa_status
 from lcm_fixtures import (  # noqa: F401
     BusListener,
@@ -68,7 +69,13 @@ def client(url: str, out: Path, controller: str, *extra: str, sets=PRE_ARC) -> s
     command = [sys.executable, "-m", "doorlab.cli", "run", "--hardware", "--yes"]
     command += ["--lcm-url", url, "--controller", controller, "--out", str(out), "--no-replay"]
     command += [a for s in sets for a in ("--set", s)] + list(extra)
-    return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=realtime_priority.preexec(),
+    )
 
 
 def listener(url: str) -> BusListener:

@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import realtime_priority
 from lcm_fixtures import (  # noqa: F401
     BusListener,
     lcm_url,
@@ -118,7 +119,12 @@ def run_arm_pair(url: str, tmp: Path, controller: str, delay_ms: float, realtime
         command += ["60", "--lcm-url", url, "--controller", controller, "--out", str(out)]
         command += ["--no-replay", *config, *sets]
         run = subprocess.Popen(
-            command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+            command,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+            preexec_fn=realtime_priority.preexec(),
         )
         stdout, stderr = run.communicate(timeout=180)
         code, _, driver_err = stop(d)

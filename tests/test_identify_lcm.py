@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import realtime_priority
 from drake import lcmt_iiwa_status
 from lcm_fixtures import BusListener, lcm_url, multicast_route, sim_driver_process, stop  # noqa: F401
 from realtime_host import host_watch
@@ -47,7 +48,13 @@ def truth_file(tmp: Path) -> Path:
 def identify(url: str, out: Path, *extra: str) -> subprocess.Popen:
     command = [sys.executable, "-m", "doorlab.cli", "identify", "--yes", "--wait", "60"]
     command += ["--lcm-url", url, "--out", str(out), "--config", str(PRESET), *extra]
-    return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=realtime_priority.preexec(),
+    )
 
 
 @pytest.mark.slow

@@ -3,7 +3,6 @@ fails on a loaded host, and fails when the host was not loaded."""
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -55,14 +54,12 @@ def test_another_process_s_cpu_counts_as_load():
         burner.wait()
 
 
-def test_the_suite_s_other_workers_do_not_count_as_load(tmp_path, monkeypatch):
-    """The suite's other workers (conftest.py's state file) and the processes under them run
-    only real-time sections while this one runs: a core one of them burns (in a child) is
-    not the host's load. Two watches over the same second, one told of that worker and one
-    not, differ by what that child used meanwhile (whatever else the host runs)."""
-    from shared_cache import RUN_DIR_ENV
-
-    worker = subprocess.Popen(  # a worker whose child burns a core for 5 s
+def test_the_suite_s_other_workers_do_not_count_as_load():
+    """What the suite runs beside a real-time section (the other workers, under the xdist
+    controller, and their processes) is not the host's load: two watches over the same
+    second, one told that a process whose child burns a core is the suite's and one not,
+    differ by what that child used meanwhile (whatever else the host runs)."""
+    controller = subprocess.Popen(  # its child burns a core for 5 s
         [
             sys.executable,
             "-c",
@@ -71,30 +68,24 @@ def test_the_suite_s_other_workers_do_not_count_as_load(tmp_path, monkeypatch):
             "'import time\\nt = time.time()\\nwhile time.time() < t + 5: pass'])",
         ]
     )
-    told, untold = tmp_path / "told", tmp_path / "untold"
-    told.mkdir()
-    untold.mkdir()
-    (told / "tests.state.json").write_text(json.dumps({"gw9": [worker.pid, "realtime"]}))
     try:
         time.sleep(0.5)  # started and burning
-        (child,) = Path(f"/proc/{worker.pid}/task/{worker.pid}/children").read_text().split()
+        (child,) = (
+            Path(f"/proc/{controller.pid}/task/{controller.pid}/children").read_text().split()
+        )
         burned = _cpu_s(int(child))
-        monkeypatch.setenv(RUN_DIR_ENV, str(told))
-        with_worker = HostWatch()
-        monkeypatch.setenv(RUN_DIR_ENV, str(untold))
-        without = HostWatch()
+        told, untold = HostWatch(suite=controller.pid), HostWatch(suite=os.getpid())
         start = time.monotonic()
         time.sleep(1.0)
-        without.stop()
-        monkeypatch.setenv(RUN_DIR_ENV, str(told))
-        with_worker.stop()
+        untold.stop()
+        told.stop()
         burned = (_cpu_s(int(child)) - burned) / (time.monotonic() - start)
-        difference = without.other_cores - with_worker.other_cores
+        difference = untold.other_cores - told.other_cores
         assert burned > 0.3, burned  # it ran (a core, or its share of a loaded host's)
-        assert abs(difference - burned) < 0.15, (difference, burned, with_worker.describe())
+        assert abs(difference - burned) < 0.15, (difference, burned, told.describe())
     finally:
-        worker.kill()  # its child ends by itself
-        worker.wait()
+        controller.kill()  # its child ends by itself
+        controller.wait()
 
 
 def test_heavy_work_runs_at_idle_priority_and_hands_back_its_result():
