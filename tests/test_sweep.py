@@ -357,7 +357,7 @@ def test_ctrl_c_leaves_the_finished_runs_and_resume_completes(local_sweep, tmp_p
     process.send_signal(signal.SIGINT)  # the long episode has just started
     _, err = process.communicate(timeout=60)
     assert process.returncode == 130, err
-    assert "interrupted; 3 finished runs" in err
+    assert "interrupted; 3 finished runs" in err, err[-600:]
     table = read_table(out)
     assert list(table["run"]) == [0, 1, 2]
     assert list(table["status"].iloc[:2]) == ["ik_failed", "ik_failed"]
