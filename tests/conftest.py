@@ -213,7 +213,7 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
 @pytest.fixture
 def realtime(request):
     """``with realtime(): ...``: a real-time section (LCM processes paced to the wall clock,
-    tolerances derived from their latency), the test's own thread at real-time priority and
+    tolerances derived from their latency), the test's own process at real-time priority and
     its paced processes started with it (tests/realtime_priority.py) where it can be had.
     Elsewhere a test that asks for this fixture runs, setup to teardown, while no other worker
     runs an ordinary test (tests/run_lock.py); its work outside the sections must then be
@@ -224,7 +224,7 @@ def realtime(request):
     def section():
         began = time.monotonic()
         try:
-            with realtime_priority.realtime_thread():  # the test's own listener, answers
+            with realtime_priority.realtime_process():  # the test's own listener, answers
                 yield
         finally:
             if run_dir() is not None:

@@ -4,10 +4,12 @@ A real arm's driver and the client that commands it run at a real-time priority 
 ``SCHED_FIFO``, as ``chrt -f`` gives it): a woken process of that class takes a core from
 any ordinary one at once. The real-time tests start ``doorlab sim-driver``, ``doorlab run
 --hardware`` and ``doorlab identify`` so (:func:`preexec`), and a test that answers statuses
-itself does so in a thread of that class (:func:`realtime_thread`). Then the suite's ordinary
-tests may run beside them: a simulation running flat out on every core delays none of their
-wake-ups, and the workers keep every core busy while the real-time tests, which use a
-fraction of a core, wait on the wall clock.
+itself does so with every thread of its process in that class (:func:`realtime_process`:
+the main thread alone waited for the GIL behind pytest-xdist's I/O thread when that one,
+holding it, was preempted by a busy neighbour, and answered statuses in bursts). Then the
+suite's ordinary tests may run beside them: a simulation running flat out on every core
+delays none of their wake-ups, and the workers keep every core busy while the real-time
+tests, which use a fraction of a core, wait on the wall clock.
 
 Only a process allowed to (root, ``CAP_SYS_NICE``, or an ``RLIMIT_RTPRIO`` above 0) gets
 that class; elsewhere, or with ``DOORLAB_TEST_REALTIME_PRIORITY=0``, :func:`problem` says
@@ -21,6 +23,7 @@ import functools
 import os
 import threading
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 PRIORITY = 10
 """The ``SCHED_FIFO`` priority [1-99] (below the kernel's interrupt threads, 50)."""
@@ -59,14 +62,25 @@ def preexec() -> Callable[[], None] | None:
 
 
 @contextlib.contextmanager
-def realtime_thread() -> Iterator[None]:
-    """The calling thread at real-time priority for the block (where it can be had)."""
+def realtime_process() -> Iterator[None]:
+    """Every thread of this process at real-time priority for the block (where it can be had;
+    a thread started meanwhile keeps its creator's class), each put back after it."""
     if problem():
         yield
         return
-    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
-    _fifo()
+    saved = []
+    for entry in Path("/proc/self/task").iterdir():
+        tid = int(entry.name)
+        try:
+            saved.append((tid, os.sched_getscheduler(tid), os.sched_getparam(tid)))
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(PRIORITY))
+        except OSError:  # a thread that ended meanwhile
+            continue
     try:
         yield
     finally:
-        os.sched_setscheduler(0, policy, param)
+        for tid, policy, param in saved:
+            try:
+                os.sched_setscheduler(tid, policy, param)
+            except OSError:
+                continue

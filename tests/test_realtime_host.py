@@ -100,3 +100,34 @@ def test_heavy_work_runs_at_idle_priority_and_hands_back_its_result():
     assert os.sched_getscheduler(0) == os.SCHED_OTHER
     with pytest.raises(ZeroDivisionError):
         run_at_idle_priority(lambda: 1 // 0)
+
+
+def test_a_real_time_block_puts_every_thread_of_the_process_in_the_class_and_back():
+    """tests/realtime_priority.py (as root): inside ``realtime_process`` every thread of this
+    process (a waiting helper thread too) is SCHED_FIFO, after it each has its class back."""
+    import threading
+
+    import realtime_priority
+
+    if realtime_priority.problem():
+        pytest.skip(f"no real-time priority here: {realtime_priority.problem()}")
+    ready, done = threading.Event(), threading.Event()
+    tids: list[int] = []
+
+    def helper() -> None:
+        tids.append(threading.get_native_id())
+        ready.set()
+        done.wait(30)
+
+    thread = threading.Thread(target=helper)
+    thread.start()
+    ready.wait(30)
+    try:
+        with realtime_priority.realtime_process():
+            assert os.sched_getscheduler(0) == os.SCHED_FIFO
+            assert os.sched_getscheduler(tids[0]) == os.SCHED_FIFO
+        assert os.sched_getscheduler(0) == os.SCHED_OTHER
+        assert os.sched_getscheduler(tids[0]) == os.SCHED_OTHER
+    finally:
+        done.set()
+        thread.join()
