@@ -34,7 +34,8 @@ TABLE_WRITE_SHARE = 0.1
 """Most of the sweep's time spent rewriting the table: after a write that took d seconds, the
 next waits until 10 d have passed (the last one is always written). Small tables are written
 after every run; a table of many thousand rows finished at a high rate is not rewritten for
-every row."""
+every row. The first write does not count: it imports the Parquet writer (half a second on
+a loaded machine, which kept the next rows off the disk for 5 s)."""
 
 
 _local = threading.local()
@@ -195,19 +196,21 @@ def run_sweep(
                 rows[run.index] = {**record, "run": run.index}
     todo = [run for run in runs if run.index not in rows]
 
-    last_write, write_duration = -float("inf"), 0.0
+    last_write, write_duration, writes = -float("inf"), 0.0, 0
 
     def table() -> pd.DataFrame:
         return make_table(list(rows.values()), axes)
 
     def save(*, now: bool) -> None:
-        nonlocal last_write, write_duration
+        nonlocal last_write, write_duration, writes
         due = time.monotonic() - last_write >= write_duration / TABLE_WRITE_SHARE
         if out is not None and (now or due):
             begin = time.monotonic()
             write_table(table(), out)
             last_write = time.monotonic()
-            write_duration = last_write - begin
+            if writes:  # the first write imports the Parquet writer: not the table's cost
+                write_duration = last_write - begin
+            writes += 1
 
     bar = None
     failures = sum(r.get("status") != "ok" for r in rows.values())
