@@ -1,13 +1,13 @@
 """Shared fixtures: full episodes are expensive (~3-5 s each), so each is run once per session.
 
-The suite runs on pytest-xdist's workers (``addopts`` in pyproject.toml: one per core), a test
-file per worker at a time. A test's real-time section (``with realtime():``: LCM processes
-paced to the wall clock, with tolerances derived from their latency) must get a core the
-moment its processes wake. Where they can have real-time priority (tests/realtime_priority.py:
-as root), they do, and ordinary tests run beside them: one worker more than there are cores
-runs the real-time files while the others keep the cores busy. Elsewhere a real-time test
-runs beside nothing but other real-time tests (tests/run_lock.py), on every worker at the
-start of the run.
+The suite runs on pytest-xdist's workers (``addopts`` in pyproject.toml; ``-n auto`` is
+:func:`pytest_xdist_auto_num_workers`), a test file per worker at a time. A test's real-time
+section (``with realtime():``: LCM processes paced to the wall clock, with tolerances derived
+from their latency) must get a core the moment its processes wake. Where they can have
+real-time priority (tests/realtime_priority.py: as root), they do, and ordinary tests run
+beside them: one worker more than there are cores runs the real-time files while the others
+keep the cores busy. Elsewhere a real-time test runs beside nothing but other real-time tests
+(tests/run_lock.py), on every worker at the start of the run.
 """
 
 from __future__ import annotations
