@@ -196,7 +196,7 @@ def test_ctrl_c_as_a_private_folder_is_made_or_removed_leaves_nothing(tmp_path, 
 def test_staging_folders_left_by_a_caller_are_removed_at_exit(tmp_path):
     staging = prepare_output(tmp_path / "out", force=False)
     (staging / "half.json").write_text("{")
-    folders._remove_staged()  # what atexit runs
+    folders.remove_staged_folders()  # what atexit runs
     assert not staging.exists()
 
 

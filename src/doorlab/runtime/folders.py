@@ -371,8 +371,10 @@ def private_folder(prefix: str) -> Iterator[Path]:
 
 
 @atexit.register
-def _remove_staged() -> None:
-    """The last way out: staging folders a caller neither committed nor discarded."""
+def remove_staged_folders() -> None:
+    """The last way out: staging and private folders a caller neither committed nor removed
+    (run at exit; a process that leaves by ``os._exit`` from a signal handler calls it
+    there)."""
     with ignoring_signals():
         for path in sorted(_staged, reverse=True):
             shutil.rmtree(path, ignore_errors=True)

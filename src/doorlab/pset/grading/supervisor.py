@@ -15,7 +15,6 @@ cgroups are removed however it ends, a signal included.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import signal
@@ -26,7 +25,7 @@ from pathlib import Path
 
 from doorlab.pset.grading.jobs import _Jobs
 from doorlab.pset.isolation import sandbox
-from doorlab.runtime.interrupts import deferred_signals
+from doorlab.runtime.folders import private_folder, remove_staged_folders
 
 _EPISODE_ORDER = ("impedance", "velocity", "ik")
 """The episodes, longest first (closed doors: contact; open doors; the IK's joint-space plan)."""
@@ -117,8 +116,8 @@ def supervise(request: dict, prepared: dict | None = None) -> dict:
         parallel = max(1, int(request.get("jobs", 2)))
         return {"reference": _run(None, todo, {}, request, parallel, prepared)[0]}
     if request.get("files") is not None:
-        with _own_folder("doorlab_submission_") as tmp:
-            folder = _submission_folder(request["files"], Path(tmp))
+        with private_folder("doorlab_submission_") as tmp:
+            folder = _submission_folder(request["files"], tmp)
             return supervise({**request, "files": None, "folder": str(folder)}, prepared)
     folder = Path(request["folder"])
     try:
@@ -172,8 +171,7 @@ def _run(folder, todo: list[str], options: dict, request: dict, parallel: int, p
     """Runs ``todo`` in a private folder: (results by job, the isolation or why there is
     none)."""
     _warm(todo, options)
-    with _own_folder("doorlab_grade_") as tmp:
-        workdir = Path(tmp)
+    with private_folder("doorlab_grade_") as workdir:
         os.chmod(workdir, 0o711)
         os.chdir(workdir)
         runner = groups = None
@@ -202,30 +200,6 @@ def _run(folder, todo: list[str], options: dict, request: dict, parallel: int, p
                 groups.close()
                 _OWN_GROUPS.remove(groups)
             os.chdir("/")
-
-
-def _new_own_folder(prefix: str) -> str:
-    """A fresh private folder, this supervisor's (:data:`_OWN_FOLDERS`) from the moment it
-    exists: a signal between its creation and its registration would leave it behind."""
-    with deferred_signals():
-        folder = tempfile.mkdtemp(prefix=prefix)
-        _OWN_FOLDERS.append(folder)
-    return folder
-
-
-@contextlib.contextmanager
-def _own_folder(prefix: str):
-    """A fresh private folder of this supervisor's for the block, removed when it ends (its
-    removal not cut short by a signal, which :func:`_on_signal` handles right after)."""
-    import shutil
-
-    folder = _new_own_folder(prefix)
-    try:
-        yield folder
-    finally:
-        with deferred_signals():
-            shutil.rmtree(folder, ignore_errors=True)
-            _OWN_FOLDERS.remove(folder)
 
 
 def _submission_folder(files: dict[str, str], tmp: Path) -> Path:
@@ -301,21 +275,18 @@ def _isolation(request: dict, workdir: Path, prepared: dict | None = None):
     return isolation
 
 
-_OWN_FOLDERS: list[str] = []
-"""This supervisor's private folders (the submission's copy, the grading's, the prepared
-view): removed when it ends, a signal included."""
 _OWN_GROUPS: list = []
 """The cgroups of the grading running now (:mod:`doorlab.pset.isolation.cgroups`)."""
 
 
 def _on_signal(signum, frame):
-    import shutil
-
+    """Ends the supervisor: its processes, its cgroups and its private folders (the
+    submission's copy, the grading's, the prepared views: :func:`private_folder`'s, which
+    ``os._exit`` would otherwise leave) go with it."""
     sandbox.kill_descendants()
     for groups in _OWN_GROUPS:
         groups.close()
-    for folder in reversed(_OWN_FOLDERS):
-        shutil.rmtree(folder, ignore_errors=True)
+    remove_staged_folders()
     os._exit(128 + signum)
 
 
@@ -349,18 +320,14 @@ def supervise_main() -> int:
 def serve_main() -> int:
     """``serve``: one request per line on stdin, one results line each on stdout, until
     stdin closes (:class:`doorlab.pset.grading.grader.Supervisor`)."""
-    import shutil
-
     answers = _supervisor_setup(interrupt=False)
-    prepared = {"folder": _new_own_folder("doorlab_supervisor_")}
-    os.chmod(prepared["folder"], 0o711)
-    try:
+    with private_folder("doorlab_supervisor_") as folder:
+        os.chmod(folder, 0o711)
+        prepared = {"folder": str(folder)}
         for line in sys.stdin:
             results = supervise(json.loads(line), prepared)
             answers.write(json.dumps(results, default=str) + "\n")
             answers.flush()
-    finally:
-        shutil.rmtree(prepared["folder"], ignore_errors=True)
     return 0
 
 
