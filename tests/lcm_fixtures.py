@@ -119,22 +119,29 @@ class BusListener:
         self.lcm.Publish(channel, message.encode())
 
 
+def paced_cli(args: list[str], env: dict[str, str] | None = None) -> subprocess.Popen:
+    """``doorlab ARGS`` as a child process paced to the wall clock (a driver or a client of
+    the bus): text pipes, real-time priority where it can be had (tests/realtime_priority.py)."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "doorlab.cli", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        preexec_fn=realtime_priority.preexec(),
+    )
+
+
 @contextlib.contextmanager
 def sim_driver_process(url: str, *args: str, out: Path | None = None) -> Iterator[subprocess.Popen]:
     """``doorlab sim-driver --lcm-url URL [--out OUT] ARGS`` as a child process (text pipes).
 
     The process is killed when the block ends if it is still running.
     """
-    command = [sys.executable, "-m", "doorlab.cli", "sim-driver", "--lcm-url", url, *args]
+    command = ["sim-driver", "--lcm-url", url, *args]
     if out is not None:
         command += ["--out", str(out)]
-    process = subprocess.Popen(
-        command,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        preexec_fn=realtime_priority.preexec(),
-    )
+    process = paced_cli(command)
     try:
         yield process
     finally:

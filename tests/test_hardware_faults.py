@@ -22,12 +22,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import realtime_priority
 from drake import lcmt_iiwa_command, lcmt_iiwa_status
 from lcm_fixtures import (  # noqa: F401
     BusListener,
     lcm_url,
     multicast_route,
+    paced_cli,
     sim_driver_process,
     stop,
 )
@@ -66,16 +66,10 @@ def scenario(controller: str, sets=PRE_ARC) -> Scenario:
 
 
 def client(url: str, out: Path, controller: str, *extra: str, sets=PRE_ARC) -> subprocess.Popen:
-    command = [sys.executable, "-m", "doorlab.cli", "run", "--hardware", "--yes"]
-    command += ["--lcm-url", url, "--controller", controller, "--out", str(out), "--no-replay"]
+    command = ["run", "--hardware", "--yes", "--lcm-url", url, "--controller", controller]
+    command += ["--out", str(out), "--no-replay"]
     command += [a for s in sets for a in ("--set", s)] + list(extra)
-    return subprocess.Popen(
-        command,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        preexec_fn=realtime_priority.preexec(),
-    )
+    return paced_cli(command)
 
 
 def listener(url: str) -> BusListener:

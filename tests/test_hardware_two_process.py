@@ -33,17 +33,15 @@ from __future__ import annotations
 import json
 import math
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-import realtime_priority
 from lcm_fixtures import (  # noqa: F401
     BusListener,
     lcm_url,
     multicast_route,
+    paced_cli,
     sim_driver_process,
     stop,
 )
@@ -115,17 +113,9 @@ def run_arm_pair(url: str, tmp: Path, controller: str, delay_ms: float, realtime
     gt_dir, out = tmp / "gt", tmp / "run"
     env = {**os.environ, "DOORLAB_TEST_ANSWER_DELAY_MS": f"{delay_ms:g}"}
     with realtime(), sim_driver_process(url, "--doors", "closed", *config, *sets, out=gt_dir) as d:
-        command = [sys.executable, "-m", "doorlab.cli", "run", "--hardware", "--yes", "--wait"]
-        command += ["60", "--lcm-url", url, "--controller", controller, "--out", str(out)]
-        command += ["--no-replay", *config, *sets]
-        run = subprocess.Popen(
-            command,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            env=env,
-            preexec_fn=realtime_priority.preexec(),
-        )
+        command = ["run", "--hardware", "--yes", "--wait", "60", "--lcm-url", url]
+        command += ["--controller", controller, "--out", str(out), "--no-replay", *config, *sets]
+        run = paced_cli(command, env)
         stdout, stderr = run.communicate(timeout=180)
         code, _, driver_err = stop(d)
         assert code == 143, driver_err

@@ -17,15 +17,20 @@ import contextlib
 import json
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-import realtime_priority
 from drake import lcmt_iiwa_status
-from lcm_fixtures import BusListener, lcm_url, multicast_route, sim_driver_process, stop  # noqa: F401
+from lcm_fixtures import (  # noqa: F401
+    BusListener,
+    lcm_url,
+    multicast_route,
+    paced_cli,
+    sim_driver_process,
+    stop,
+)
 from realtime_host import host_watch
 from test_identify import TRUE_DAMPING, TRUE_LATENCY, TRUE_LOAD, TRUE_STICTION, truth
 
@@ -46,15 +51,8 @@ def truth_file(tmp: Path) -> Path:
 
 
 def identify(url: str, out: Path, *extra: str) -> subprocess.Popen:
-    command = [sys.executable, "-m", "doorlab.cli", "identify", "--yes", "--wait", "60"]
-    command += ["--lcm-url", url, "--out", str(out), "--config", str(PRESET), *extra]
-    return subprocess.Popen(
-        command,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        preexec_fn=realtime_priority.preexec(),
-    )
+    command = ["identify", "--yes", "--wait", "60", "--lcm-url", url, "--out", str(out)]
+    return paced_cli([*command, "--config", str(PRESET), *extra])
 
 
 @pytest.mark.slow
