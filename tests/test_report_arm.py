@@ -10,11 +10,13 @@ report's and the real-arm guide's, measured by ``doorlab report``.
 
 from __future__ import annotations
 
+import atexit
 import functools
 import html
 import json
 import math
 import re
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -169,6 +171,7 @@ def arm_report() -> tuple[Path, list]:
     cases, new = make_arm_cases(base, ())
     scenarios = dict(new)
     root = Path(tempfile.mkdtemp(prefix="doorlab_arm_report_"))
+    atexit.register(shutil.rmtree, root, ignore_errors=True)  # the session's, then gone
     runs = root / "runs"
     runs.mkdir()
     grid = []
