@@ -84,6 +84,7 @@ def clean_environment(venv: Path, home: Path | None = None) -> dict[str, str]:
             ("IPYTHONDIR", "ipython"),
             ("MPLCONFIGDIR", "mpl"),
         ):
+            (home / sub).mkdir(parents=True, exist_ok=True)  # else each falls back to a tempdir
             env[name] = str(home / sub)
         env["JUPYTER_PATH"] = ""
     return env

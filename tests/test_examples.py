@@ -42,7 +42,11 @@ def _kernel_manager(tmp_path: Path):
     }
     (spec_dir / "kernel.json").write_text(json.dumps(spec))
     specs = KernelSpecManager(kernel_dirs=[str(spec_dir.parent)], ensure_native_kernel=False)
-    return KernelManager(kernel_name=KERNEL_NAME, kernel_spec_manager=specs)
+    # the connection file in tmp_path: by default a tempfile in $TMPDIR, left there
+    connection = str(tmp_path / "kernel-connection.json")
+    return KernelManager(
+        kernel_name=KERNEL_NAME, kernel_spec_manager=specs, connection_file=connection
+    )
 
 
 def _stream_text(cell) -> str:
