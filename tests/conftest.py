@@ -210,6 +210,24 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
     pytest.skip(f"the grader's tests need bubblewrap: {problem}")
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _session_working_directory(tmp_path_factory):
+    """Module and session fixtures run in a folder of the run's own: nothing they write
+    relative to the working directory lands in the checkout, and nothing there (a user's
+    ``doorlab_out/``) changes what they see."""
+    previous = os.getcwd()
+    os.chdir(tmp_path_factory.mktemp("cwd"))
+    yield
+    os.chdir(previous)
+
+
+@pytest.fixture(autouse=True)
+def _working_directory(tmp_path_factory, monkeypatch):
+    """Each test runs in an empty folder of its own (a command a test runs without ``cwd``
+    writes its default output folder there, never into the checkout or another test's)."""
+    monkeypatch.chdir(tmp_path_factory.mktemp("cwd"))
+
+
 @pytest.fixture
 def realtime(request):
     """``with realtime(): ...``: a real-time section (LCM processes paced to the wall clock,

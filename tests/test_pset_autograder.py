@@ -16,7 +16,6 @@ import importlib.metadata
 import json
 import os
 import shutil
-import site
 import subprocess
 import sys
 import tempfile
@@ -25,6 +24,7 @@ from pathlib import Path
 
 import pset_fixtures
 import pytest
+import readable_site
 from pset_attacks import attack_folder, evidence
 
 import doorlab
@@ -77,7 +77,10 @@ def _install(root: Path, zip_path: Path, python: str) -> Path:
         text=True,
         check=True,
     ).stdout.strip()
-    Path(purelib, "doorlab_test_dependencies.pth").write_text("\n".join(site.getsitepackages()))
+    # This environment's packages where the sandbox user can read them (a copy where the
+    # checkout is in a folder only its owner can read).
+    dependencies = readable_site.readable_site_packages()
+    Path(purelib, "doorlab_test_dependencies.pth").write_text("\n".join(dependencies))
     return root
 
 

@@ -3,8 +3,9 @@
 Each attack of the issue is rebuilt from the untouched stubs, in a class graded by
 ``grade-all --jobs 2`` beside honest submissions (the answer key), against the session's
 reference episodes (``pset_fixtures.reference``): a submission that forks until EAGAIN, on and
-off for 20 s, beside 6 honest ones; a submission whose 50 busy children share a one-CPU
-group with an honest one. The honest ones, graded while the attack lasts, keep full
+off, beside 6 honest ones; a submission whose 50 busy children share a one-CPU group with an
+honest one. Each attack lasts until the honest ones are graded (the test stops it then), so
+they are graded under it on a fast host and a loaded one alike; they keep full
 marks and the status ``graded``: each grading is a cgroup of its own
 (:mod:`doorlab.pset.isolation.cgroups`), its views' processes bounded by their own
 ``pids.max``, its CPU share its own. Tests that make cgroups run as root on a machine whose
@@ -14,13 +15,16 @@ cgroups this user may write (they skip, saying why, elsewhere).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
 import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pset_fixtures
@@ -39,12 +43,28 @@ needs_cgroups = pytest.mark.skipif(
     reason=f"needs root and writable cgroups ({SETUP.reason or 'not root'})",
 )
 
-FORK_CYCLER = r"""
-import errno, json, os, signal, time
-ev = {"eagain": 0, "most": 0, "rounds": 0, "start": time.time()}
+STOPPABLE = r"""
+import ctypes, signal, time
+if control_period != 0.005:  # the unit test's draws: not the episode, fail at once
+    raise NotImplementedError("CalcTorqueCommand: the attack is in the episode only")
+ctypes.CDLL(None).prctl(15, NAME.encode(), 0, 0, 0)  # PR_SET_NAME: the test finds it by name
+stop = []
+signal.signal(signal.SIGUSR1, lambda *_: stop.append(time.time()))
 end = time.monotonic() + SECONDS
-while time.monotonic() < end:  # on: fork until the kernel refuses, hold; off: let them go
-    children = []
+"""
+"""The start of an attack in the impedance plan's CalcTorqueCommand (the first call of the
+first test a grading runs, its impedance episode): it names its process NAME and lasts until
+the test sends it SIGUSR1 (:func:`stopped_when`: once the honest gradings are done) or for
+SECONDS, its bound. The unit test's calls (control_period other than the episode's 0.005 s)
+fail at once: a second dose there would only lengthen the attacker's grading."""
+
+FORK_CYCLER = (
+    STOPPABLE
+    + r"""
+import errno, json, os
+ev = {"eagain": 0, "most": 0, "rounds": 0, "start": time.time()}
+while time.monotonic() < end and not (stop and ev["rounds"] >= ROUNDS):
+    children = []  # on: fork until the kernel refuses, hold; off: let them go
     while True:
         try:
             pid = os.fork()
@@ -62,38 +82,94 @@ while time.monotonic() < end:  # on: fork until the kernel refuses, hold; off: l
         os.waitpid(pid, 0)
     time.sleep(0.3)
 ev["end"] = time.time()
+ev["stopped"] = stop[0] if stop else None
 print("EVIDENCE forks " + json.dumps(ev))
-raise NotImplementedError("calc_p_Q: forked until EAGAIN")
+raise NotImplementedError("CalcTorqueCommand: forked until EAGAIN")
 """
-"""calc_p_Q: forks until the kernel refuses (EAGAIN), on and off for SECONDS."""
-FORK_SECONDS = 20
-"""How long the fork cycler cycles [s]: about 12 rounds of 1.7 s (measured), and twice as long
-as the honest submissions' grading beside it (one grading, their files being identical: done
-9 s in on the slowest of this project's machines, measured)."""
+)
+"""Forks until the kernel refuses (EAGAIN), on and off, until stopped (at least ROUNDS
+rounds of about 1.7 s, measured)."""
 
-BUSY_CHILDREN = r"""
-import json, os, time
-if control_period != 0.005:  # the unit test's draws: not the episode, fail at once
-    raise NotImplementedError("CalcTorqueCommand: busy children in the episode only")
+BUSY_CHILDREN = (
+    STOPPABLE
+    + r"""
+import json, os
 start = time.time()
 children = []
 for _ in range(CHILDREN):
     pid = os.fork()
     if pid == 0:
-        while True:
+        while time.monotonic() < end:
             pass
+        os._exit(0)
     children.append(pid)
-time.sleep(SECONDS)
+while not stop and time.monotonic() < end:
+    time.sleep(0.05)
+for pid in children:
+    os.kill(pid, signal.SIGKILL)
+for pid in children:
+    os.waitpid(pid, 0)
 ev = {"children": len(children), "start": start, "end": time.time()}
+ev["stopped"] = stop[0] if stop else None
 print("EVIDENCE busy " + json.dumps(ev))
 raise NotImplementedError("CalcTorqueCommand: busy children")
 """
-"""The impedance plan's CalcTorqueCommand (the first call of the first test a grading runs,
-its impedance episode): CHILDREN processes that spin for SECONDS, then it fails (the
-evidence: when they started and stopped, on the machine's clock). The unit test's calls
-(control_period other than the episode's 0.005 s) fail at once: a second dose of spinning
-there would only lengthen the attacker's grading (up to the unit test's 60 s limit) after
-the honest one, which is what the test measures, has ended."""
+)
+"""CHILDREN processes that spin until the attack is stopped, then it fails (the evidence: when
+they started and stopped, on the machine's clock)."""
+
+ATTACK_BOUND_S = 120.0
+"""The longest an attack lasts [s] if the test never stops it: below its episode's time limit
+(150 s), so that it ends by itself and its evidence reaches the results, and far beyond an
+honest grading (9 s on an idle 2-core machine, 66 s measured beside a CPU burner on both
+cores)."""
+
+
+def _named(name: str) -> list[int]:
+    """The processes whose name is ``name`` and whose parent's is not (an attack's first)."""
+
+    def comm(pid: str) -> str | None:
+        try:
+            return Path(f"/proc/{pid}/comm").read_text().strip()
+        except OSError:
+            return None
+
+    found = []
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        if comm(pid) != name:
+            continue
+        try:
+            stat = Path(f"/proc/{pid}/stat").read_text()
+        except OSError:
+            continue
+        parent = stat[stat.rfind(")") + 2 :].split()[1]
+        if comm(parent) != name:
+            found.append(int(pid))
+    return found
+
+
+@contextlib.contextmanager
+def stopped_when(done: Callable[[], bool], name: str):
+    """While the block runs: once ``done()``, SIGUSR1 to the attack named ``name``, every
+    second until the block ends. So the attack lasts as long as what the test measures beside
+    it, however fast the host is."""
+    finished = threading.Event()
+
+    def watch() -> None:
+        while not finished.wait(0.2):
+            if done():
+                for pid in _named(name):
+                    with contextlib.suppress(ProcessLookupError):
+                        os.kill(pid, signal.SIGUSR1)
+                finished.wait(1.0)
+
+    thread = threading.Thread(target=watch, name="stop-the-attack", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        finished.set()
+        thread.join()
 
 
 @pytest.fixture(scope="module")
@@ -126,10 +202,15 @@ def _rows(out: Path) -> dict[str, dict]:
 @pytest.mark.slow
 def test_six_honest_submissions_beside_a_fork_cycler_keep_full_marks(tmp_path, reference):
     """The fork cycler hits its own view's limit (EAGAIN) again and again while 6 honest
-    submissions are graded on the other worker: every one of them 14 and graded."""
-    export = _class(tmp_path, 6, (FORK_CYCLER, {"SECONDS": FORK_SECONDS}))
+    submissions are graded on the other worker: every one of them 14 and graded. It cycles
+    until they are (the test stops it then: :func:`stopped_when`), so it lasts through their
+    whole grading whatever the host's speed."""
+    values = {"NAME": "doorlab-forker", "SECONDS": ATTACK_BOUND_S, "ROUNDS": 5}
+    export = _class(tmp_path, 6, (FORK_CYCLER, values), where="impedance")
     out = tmp_path / "out"
-    outcome = grade_class(export, out, reference=reference, jobs=2)
+    honest = [out / f"honest_{i}" / RESULTS_JSON for i in range(6)]
+    with stopped_when(lambda: all(p.is_file() for p in honest), values["NAME"]):
+        outcome = grade_class(export, out, reference=reference, jobs=2)
     rows = _rows(out)
     for i in range(6):
         row = rows[f"honest_{i}"]
@@ -137,14 +218,15 @@ def test_six_honest_submissions_beside_a_fork_cycler_keep_full_marks(tmp_path, r
     assert rows["attacker"]["status"] == "graded", rows["attacker"]
     results = json.loads((out / "attacker" / RESULTS_JSON).read_text())
     forks = evidence(results)["forks"]
-    assert forks["eagain"] >= 5 and forks["rounds"] >= 5, forks  # ~12 of 1.7 s in 20 s
+    assert forks["eagain"] >= 5 and forks["rounds"] >= 5, forks  # one EAGAIN a round
     # Its own view's limit, not the machine's: at most pids.max less the view's own tasks.
     assert 50 <= forks["most"] <= cgroups.VIEW_TASKS, forks
     assert results["extra_data"]["sandbox"]["cgroup"]["version"] == SETUP.version
     assert outcome.errors == 0
-    # The honest ones were graded while it cycled (identical files: one grading, copied).
-    honest_done = max((out / f"honest_{i}" / RESULTS_JSON).stat().st_mtime for i in range(6))
-    assert honest_done < forks["end"], (honest_done - forks["start"], forks)
+    # It cycled until the honest ones were graded (identical files: one grading, copied),
+    # or for its whole bound if that came first.
+    honest_done = max(p.stat().st_mtime for p in honest)
+    assert forks["stopped"] is None or forks["stopped"] >= honest_done, (honest_done, forks)
     print(f"the fork cycler: {forks}; the honest ones done {honest_done - forks['start']:.1f} s in")
 
 
@@ -231,12 +313,6 @@ def test_a_cluster_whose_workers_would_not_isolate_the_network_is_refused():
     assert check_workers(Worker(view), "require") == view
 
 
-BUSY_SECONDS = 30
-"""How long the attacker's 50 children spin [s]: about twice as long as an honest grading
-takes at half a CPU (its share of the one CPU beside the attacker: 11 s, measured), far
-below the time limit of the attacker's own episode (150 s), so that it ends by itself."""
-
-
 def _one_cpu(name: str) -> cgroups.Group:
     """A cgroup of one CPU (a quota: as in a Gradescope container), below this process's."""
     base = cgroups.Group(SETUP, {k: Path(v) for k, v in SETUP.bases.items()})
@@ -255,13 +331,13 @@ def test_an_honest_submission_beside_50_busy_children_in_one_cpu_keeps_full_mark
     tmp_path, reference
 ):
     """``grade-all --jobs 2`` in a group of one CPU: the attacker's first test starts 50
-    processes that spin for BUSY_SECONDS; the honest submission, graded meanwhile, gets its
-    grading's share of the CPU (each grading is a cgroup with the same weight): it is 14 and
-    graded, and its whole grading ended while the 50 children spun. (Before each grading had
-    its cgroup, it had 2 of 52 shares while they spun, about 0.04 CPU here: its grading, 6-16
-    CPU-s, could not have ended within BUSY_SECONDS; with the children spinning for 140 s in
-    half a CPU its first episode, 150 s, did not answer in time: 12/14.)"""
-    busy = (BUSY_CHILDREN, {"CHILDREN": 50, "SECONDS": BUSY_SECONDS})
+    processes that spin until the honest submission is graded (the test stops them then:
+    :func:`stopped_when`); graded meanwhile, it gets its grading's share of the CPU (each
+    grading is a cgroup with the same weight): it is 14 and graded. (Before each grading had
+    its cgroup, it had 2 of 52 shares while they spun, about 0.04 CPU here: with the children
+    spinning for 140 s in half a CPU its first episode, 150 s, did not answer in time: 12/14.)"""
+    values = {"NAME": "doorlab-busy", "SECONDS": ATTACK_BOUND_S, "CHILDREN": 50}
+    busy = (BUSY_CHILDREN, values)
     export = _class(tmp_path, 1, busy, where="impedance")
     out = tmp_path / "out"
     reference_file = tmp_path / "reference.json"
@@ -270,14 +346,15 @@ def test_an_honest_submission_beside_50_busy_children_in_one_cpu_keeps_full_mark
     fds = group.join_descriptors()
     argv = ["pset", "grade-all", str(export), "--out", str(out), "--jobs", "2"]
     try:
-        proc = subprocess.run(
-            [sys.executable, "-m", "doorlab.cli", *argv, "--reference", str(reference_file)],
-            capture_output=True,
-            text=True,
-            timeout=900,
-            pass_fds=fds,
-            preexec_fn=lambda: cgroups.join_by_descriptors(fds),
-        )
+        with stopped_when((out / "honest_0" / RESULTS_JSON).is_file, values["NAME"]):
+            proc = subprocess.run(
+                [sys.executable, "-m", "doorlab.cli", *argv, "--reference", str(reference_file)],
+                capture_output=True,
+                text=True,
+                timeout=900,
+                pass_fds=fds,
+                preexec_fn=lambda: cgroups.join_by_descriptors(fds),
+            )
         used = group.cpu_seconds()
     finally:
         for fd in fds:
@@ -294,10 +371,10 @@ def test_an_honest_submission_beside_50_busy_children_in_one_cpu_keeps_full_mark
     assert impedance["score"] == 0 and "busy children" in impedance["output"], impedance["output"]
     busy = evidence(results)["busy"]
     assert busy["children"] == 50
-    # The honest grading was graded under the attack: its results were written (the grading's
-    # last step) before the children stopped spinning.
+    # The children spun until the honest grading was done (its results written, the
+    # grading's last step), or for their whole bound if that came first.
     honest_done = (out / "honest_0" / RESULTS_JSON).stat().st_mtime
-    assert honest_done < busy["end"], (honest_done - busy["start"], busy)
+    assert busy["stopped"] is None or busy["stopped"] >= honest_done, (honest_done, busy)
     print(
         f"the class used {used:.1f} CPU-s in the one-CPU group; the honest grading ended "
         f"{honest_done - busy['start']:.1f} s after the children started, "

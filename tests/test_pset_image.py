@@ -14,6 +14,7 @@ import os
 import shutil
 import subprocess
 import zipfile
+from pathlib import Path
 
 import pytest
 from package_index import INSTALL_TIMEOUT_S, clean_environment, require_index
@@ -35,6 +36,16 @@ def _pins(text: str) -> dict[str, str]:
             name, version = line.split("==", 1)
             pins[canonicalize_name(name)] = version
     return pins
+
+
+def _forget_user(etc: Path, user: str) -> None:
+    """``etc`` (a copy of /etc) without ``user`` and its group: an earlier rehearsal on this
+    machine may have created them in the real /etc."""
+    for name in ("passwd", "group", "shadow", "gshadow"):
+        path = etc / name
+        if path.is_file() and not path.is_symlink():
+            lines = path.read_text().splitlines(keepends=True)
+            path.write_text("".join(line for line in lines if not line.startswith(f"{user}:")))
 
 
 @pytest.mark.slow
@@ -60,6 +71,7 @@ def test_setup_sh_installs_the_pinned_versions_only_and_creates_the_user(tmp_pat
     if os.geteuid() == 0 and shutil.which("bwrap"):
         etc = tmp_path / "etc"
         shutil.copytree("/etc", etc, symlinks=True, ignore_dangling_symlinks=True)
+        _forget_user(etc, gradescope.SANDBOX_USER)  # as on a fresh image, whatever ran here
         command = ["bwrap", "--bind", "/", "/", "--bind", str(etc), "/etc"]
         command += ["--dev", "/dev", "--proc", "/proc", "bash", str(root / "source" / "setup.sh")]
     else:

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import pset_fixtures
 import pytest
+import readable_site
 from pset_attacks import _insert, attack_folder, evidence
 
 import doorlab
@@ -594,10 +595,10 @@ def _venv_with_doorlab(python: str, venv: Path) -> Path:
         text=True,
         check=True,
     ).stdout.strip()
-    import site
-
-    src = str(Path(doorlab.__file__).resolve().parents[1])
-    Path(purelib, "doorlab_tests.pth").write_text("\n".join([src, *site.getsitepackages()]))
+    # doorlab's source and this environment's packages, where the other user can read them
+    # (a copy where the checkout is in a folder only its owner can read).
+    paths = [readable_site.readable_source(), *readable_site.readable_site_packages()]
+    Path(purelib, "doorlab_tests.pth").write_text("\n".join(paths))
     return venv
 
 

@@ -228,7 +228,7 @@ def test_installed_from_the_handout_no_key_and_the_self_check_is_the_course_s_te
     assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1, refused
     assert "the answer key is the instructor's" in refused.stderr
     assert not (tmp_path / "key").exists()
-    ran = _run([str(command), "run"])
+    ran = _run([str(command), "run"], cwd=tmp_path)  # its default folder: doorlab_out/ there
     assert ran.returncode == 2 and "leaves out" in ran.stderr and "Traceback" not in ran.stderr
     # The self-check, as the notebook's last cell runs it, on the key's files and the stubs.
     assert _run([str(command), "pset", "init", str(tmp_path / "mine")]).returncode == 0

@@ -78,3 +78,56 @@ def test_the_search_finds_such_paths(tmp_path: Path):
     sample.write_text("\n".join(bad + good) + "\n")
     found = _findings([sample], str(tmp_path))
     assert [int(f.split(":")[1]) for f in found] == list(range(1, len(bad) + 1)), found
+
+
+def _quick_start() -> list[str]:
+    """The README's quick-start commands: the lines of the first bash block under its
+    "Quick start" heading that are not comments."""
+    text = (ROOT / "README.md").read_text()
+    section = text.split("\n## Quick start\n", 1)[1].split("\n## ", 1)[0]
+    block = re.search(r"```bash\n(.*?)```", section, re.S)
+    assert block, "README.md: no bash block under 'Quick start'"
+    lines = [line.strip() for line in block.group(1).splitlines()]
+    return [line for line in lines if line and not line.startswith("#")]
+
+
+def test_ci_runs_the_readme_s_quick_start_as_written():
+    """.ci/run runs the README's two commands, each exactly as written, in the README's
+    order: what CI passes is what a new user runs (the main job's run included)."""
+    commands = _quick_start()
+    assert len(commands) == 2 and commands[0].endswith("doorlab run"), commands
+    assert commands[1].endswith("-m pytest"), commands
+    ci = [line.strip() for line in (ROOT / ".ci" / "run").read_text().splitlines()]
+    where = [ci.index(command) if command in ci else None for command in commands]
+    assert None not in where, f".ci/run lacks a README command as written: {commands}"
+    assert where == sorted(where), "the README's commands run out of order in .ci/run"
+    # Getting started repeats the quick start: the same commands.
+    started = (ROOT / "docs" / "getting-started.md").read_text()
+    assert all(command in started.splitlines() for command in commands)
+
+
+def test_every_default_output_folder_is_ignored_by_git():
+    """What a command writes where the reader did not say (its default output folder, in
+    the clone's root, where the README's commands run) is not offered to git as new files."""
+    import argparse
+
+    from doorlab.cli.parser import build_parser
+
+    defaults = {"doorlab_out"}  # doorlab run's doorlab_out/<controller>_<doors>
+
+    def walk(parser: argparse.ArgumentParser) -> None:
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for sub in action.choices.values():
+                    walk(sub)
+            elif action.dest == "out" and isinstance(action.default, Path):
+                defaults.add(action.default.parts[0])
+
+    walk(build_parser())
+    assert len(defaults) >= 3, defaults  # run, report, sweep at least
+    ignored = subprocess.run(
+        ["git", "-C", str(ROOT), "check-ignore", *[f"{name}/x" for name in sorted(defaults)]],
+        capture_output=True,
+        text=True,
+    ).stdout.split()
+    assert sorted(ignored) == sorted(f"{name}/x" for name in defaults), (defaults, ignored)
