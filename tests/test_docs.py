@@ -482,3 +482,40 @@ def test_pages_render_with_their_navigation(
     assert (header.std(axis=1) > 0.02).mean() > 0.5 or header.mean() < 0.9  # colored, not blank
     sidebar = pixels[80:, 20:260, :]
     assert (sidebar.mean(axis=2) < 0.5).mean() > 0.002  # the navigation's text is drawn
+
+
+def test_every_measured_region_is_what_its_run_wrote():
+    """What a page quotes from a run (``<!-- measured: T/NAME -->`` regions: figures, tables,
+    summaries, times) is exactly what ``docs/tools/make_figures.py`` wrote from the run's
+    outputs in docs/figures: no region typed or edited by hand, none stale against them."""
+    sys.path.insert(0, str(ROOT / "docs" / "tools"))
+    try:
+        from doorlab_reference import measured
+    finally:
+        sys.path.remove(str(ROOT / "docs" / "tools"))
+    regions = [
+        (page, m.group("name"))
+        for page in measured.pages()
+        for m in measured.REGION.finditer(page.read_text())
+    ]
+    assert len(regions) >= 15, regions  # the run's, the report's, the sweeps' figures and texts
+    assert measured.stale() == []
+
+
+def test_a_region_typed_by_hand_is_found(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """The check is not blind: a page whose region was edited by hand is stale."""
+    sys.path.insert(0, str(ROOT / "docs" / "tools"))
+    try:
+        from doorlab_reference import measured
+    finally:
+        sys.path.remove(str(ROOT / "docs" / "tools"))
+    page = ROOT / "docs" / "getting-started.md"
+    text = page.read_text()
+    edited = re.sub(r"(door opened at the arc's end\s+)[\d.]+", r"\g<1>45.0", text, count=1)
+    assert edited != text
+    copy = tmp_path / "docs" / "getting-started.md"
+    copy.parent.mkdir()
+    copy.write_text(edited)
+    monkeypatch.setattr(measured, "ROOT", tmp_path)
+    monkeypatch.setattr(measured, "pages", lambda: [copy])
+    assert measured.stale() == ["docs/getting-started.md"]

@@ -1,23 +1,32 @@
-"""Makes the site's figures from real runs: ``python docs/tools/make_figures.py [TARGET ...]``.
+"""Makes the site's figures and measured texts from real runs: ``python docs/tools/make_figures.py
+[TARGET ...]``.
 
-Each target runs one doorlab command (or benchmark) into a temporary folder and copies the
-figures the pages show into ``docs/figures/TARGET/``; the pages show each figure with the
-command that made it (the ``<!-- doorlab:figure TARGET/NAME -->`` marker of
-``docs/tools/reference.py`` reads :data:`TARGETS`). Without arguments every target is made
-(the report and the two sweeps take about 100 s, 11 s and 20 s on 2 idle cores).
+Each target runs one doorlab command (or benchmark) into a temporary folder, times it, and
+copies what the pages show into ``docs/figures/TARGET/``: its figures, the texts it keeps (a
+part of what the command printed, a table made from its output files) and ``time.md``, how
+long the command took on this machine. Then it writes every page's measured regions from them
+(``<!-- measured: TARGET/NAME -->`` ... ``<!-- /measured -->``; docs/tools/doorlab_reference/
+measured.py), so that a page quotes a run only as the run wrote it. Without arguments every
+target is made; ``--pages`` only writes the pages again from docs/figures.
 
 ``--keep DIR`` runs into DIR and keeps the outputs there; a target already run there is
-not run again, only its figures copied (to change which figures a page shows).
+not run again, only its figures and texts made again (to change what a page shows).
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
+import json
+import math
+import os
 import shlex
 import shutil
 import subprocess
 import sys
 import tempfile
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,11 +36,66 @@ FIGURES = ROOT / "docs" / "figures"
 
 @dataclass(frozen=True)
 class Target:
-    """One command and the figures taken from its output folder."""
+    """One command and what is taken from its output folder."""
 
     command: str  # run from the repository's root; {out} is the output folder
     figures: dict[str, tuple[str, str]]  # name -> (file in {out}, caption)
-    text: dict[str, str] | None = None  # name -> what to keep of the command's stdout
+    text: dict[str, Callable[[str], str]] | None = None  # name -> what to keep of its stdout
+    tables: dict[str, Callable[[Path], str]] | None = None  # name -> Markdown from {out}
+
+
+def _rows(out: Path) -> list[dict[str, str]]:
+    with open(out / "results.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _pytest_summary(stdout: str) -> str:
+    """pytest's last line (``862 passed in 352.10s (0:05:52)``) and how many workers ran."""
+    lines = [line.strip("= ") for line in stdout.splitlines() if line.strip()]
+    workers = next((line for line in lines if line.startswith("created:")), "")
+    return "\n".join(x for x in (workers, lines[-1]) if x) + "\n"
+
+
+def _deg(value: str) -> float:
+    return abs(math.degrees(float(value)))
+
+
+def _cell(row: dict[str, str]) -> str:
+    """Door opened at the arc's end [deg] / peak |external torque| in the arc [N m]."""
+    slipped = "*" if row.get("handle_held") == "False" else ""
+    door = _deg(row["door_opening_arc_end_rad"])
+    return f"{door:.1f}{slipped} / {float(row['peak_external_torque_arc_Nm']):.2f}"
+
+
+def impedance_table(out: Path) -> str:
+    """The impedance sweep: dq_scale down, Kv across, door / torque in each cell."""
+    rows = _rows(out)
+    kvs = sorted({float(r["impedance.kv"]) for r in rows})
+    scales = sorted({float(r["station.inner_loop.dq_scale"]) for r in rows})
+    cell = {
+        (float(r["station.inner_loop.dq_scale"]), float(r["impedance.kv"])): _cell(r) for r in rows
+    }
+    lines = ["| dq_scale \\ Kv [N/m] | " + " | ".join(f"{k:g}" for k in kvs) + " |"]
+    lines.append("|---" * (len(kvs) + 1) + "|")
+    for scale in scales:
+        lines.append(f"| {scale:g} | " + " | ".join(cell[(scale, k)] for k in kvs) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def yaw_error_table(out: Path) -> str:
+    """The hinge-error sweep: per controller a row of doors (* slipped) and one of torques."""
+    rows = _rows(out)
+    yaws = sorted({float(r["station.cupboard_yaw_error"]) for r in rows})
+    controllers = list(dict.fromkeys(r["controller"] for r in rows))
+    by = {(r["controller"], float(r["station.cupboard_yaw_error"])): r for r in rows}
+    header = "| yaw error [deg] | " + " | ".join(f"{math.degrees(y):.0f}" for y in yaws) + " |"
+    lines = [header, "|---" * (len(yaws) + 1) + "|"]
+    for name in controllers:
+        doors = [_cell(by[(name, y)]).split(" / ")[0] for y in yaws]
+        torques = [f"{float(by[(name, y)]['peak_external_torque_arc_Nm']):.1f}" for y in yaws]
+        lines.append(f"| {name}, door | " + " | ".join(doors) + " |")
+        lines.append(f"| {name}, torque | " + " | ".join(torques) + " |")
+    return "\n".join(lines) + "\n"
 
 
 TARGETS = {
@@ -43,7 +107,7 @@ TARGETS = {
             "door_angle": ("door_angle.png", "The left door's hinge angle over the episode"),
             "external_torques": ("external_torques.png", "External (contact) joint torques"),
         },
-        text={"summary": "the summary it prints"},
+        text={"summary": lambda stdout: stdout},  # the summary it prints
     ),
     "report": Target(
         "doorlab report --out {out}",
@@ -86,15 +150,27 @@ TARGETS = {
                 "The impedance plan: Kv against the joint damping's scale (dq_scale)",
             ),
         },
+        tables={"table": impedance_table},
     ),
     "sweep_hinge_error": Target(
         "doorlab sweep examples/sweep_hinge_error.yaml --out {out}",
         {
             "yaw_error": (
                 "figures/axis_0.png",
-                "All four controllers against the cupboard's yaw error, doors closed",
+                "The controllers against the cupboard's yaw error, doors closed",
             ),
         },
+        tables={"table": yaw_error_table},
+    ),
+    "suite": Target(
+        "python -m pytest -p no:cacheprovider",
+        {},
+        text={"summary": lambda stdout: _pytest_summary(stdout)},
+    ),
+    "quick_tier": Target(
+        'python -m pytest -m "not slow" -p no:cacheprovider',
+        {},
+        text={"summary": lambda stdout: _pytest_summary(stdout)},
     ),
 }
 """What each figure of the site is and which command makes it."""
@@ -110,27 +186,57 @@ def _command(target: Target, out: Path) -> list[str]:
     return words
 
 
+def _time_md(command: str, seconds: float, load: float) -> str:
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return (
+        f"`{command}` took {seconds:.0f} s of wall time when these figures were made, on a "
+        f"machine of {cores} cores (load average {load:.1f} at its start).\n"
+    )
+
+
 def make(name: str, work: Path, *, reuse: bool = False) -> None:
     """Runs target ``name`` into ``work/name`` (``reuse``: unless a run left it there) and
-    copies its figures into docs/figures/name."""
+    copies its figures and texts into docs/figures/name."""
     target = TARGETS[name]
     out, stdout = work / name, work / f"{name}.stdout.txt"
+    timing = work / f"{name}.time.json"
     if not (reuse and out.is_dir() and stdout.is_file()):
         shutil.rmtree(out, ignore_errors=True)
         print(f"== {name}: {target.command.format(out=out)}", flush=True)
+        load, start = os.getloadavg()[0], time.perf_counter()
         done = subprocess.run(_command(target, out), cwd=ROOT, capture_output=True, text=True)
+        seconds = time.perf_counter() - start
         sys.stdout.write(done.stdout)
         if done.returncode not in (0, 1):  # 1: the report or a sweep had a run not ok
             sys.stderr.write(done.stderr)
             raise SystemExit(f"{name}: exit {done.returncode}")
         stdout.write_text(done.stdout)
+        timing.write_text(json.dumps({"seconds": seconds, "load": load}))
     dest = FIGURES / name
     dest.mkdir(parents=True, exist_ok=True)
     for figure, (source, _) in target.figures.items():
         shutil.copyfile(out / source, dest / f"{figure}.png")
-    for text_name in target.text or {}:
-        text = stdout.read_text().replace(str(out), "doorlab_out/velocity_closed")
+    for text_name, keep in (target.text or {}).items():
+        text = keep(stdout.read_text().replace(str(out), "doorlab_out/velocity_closed"))
         (dest / f"{text_name}.txt").write_text(text)
+    for table_name, table in (target.tables or {}).items():
+        (dest / f"{table_name}.md").write_text(table(out))
+    if timing.is_file():
+        measured = json.loads(timing.read_text())
+        command = target.command.replace(" --out {out}", "").format(out="DIR")
+        (dest / "time.md").write_text(_time_md(command, measured["seconds"], measured["load"]))
+
+
+def write_pages() -> None:
+    """Every page's measured regions from docs/figures (doorlab_reference.measured)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from doorlab_reference.measured import write_pages as write
+
+    changed, missing = write()
+    for page in changed:
+        print(f"wrote the measured regions of {page}")
+    if missing:
+        raise SystemExit("regions left as they were:\n" + "\n".join(missing))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -144,7 +250,15 @@ def main(argv: list[str] | None = None) -> int:
         help="run into DIR and keep the outputs; a target whose outputs are there is not run "
         "again (its figures are copied again)",
     )
+    parser.add_argument(
+        "--pages",
+        action="store_true",
+        help="only write the pages' measured regions again from docs/figures",
+    )
     args = parser.parse_args(argv)
+    if args.pages:
+        write_pages()
+        return 0
     unknown = [t for t in args.targets if t not in TARGETS]
     if unknown:
         parser.error(f"unknown targets {unknown}; valid: {', '.join(TARGETS)}")
@@ -153,10 +267,12 @@ def main(argv: list[str] | None = None) -> int:
         args.keep.mkdir(parents=True, exist_ok=True)
         for name in names:
             make(name, args.keep.resolve(), reuse=True)
+        write_pages()
         return 0
     with tempfile.TemporaryDirectory(prefix="doorlab_figures_") as work:
         for name in names:
             make(name, Path(work))
+    write_pages()
     return 0
 
 

@@ -13,8 +13,6 @@ A page asks for a generated block with a marker on a line of its own (modules ar
     <!-- doorlab:public-api -->     mkdocstrings blocks for every name of doorlab.__all__
     <!-- doorlab:packages -->       the package's parts, foundations first (API_GROUPS)
     <!-- doorlab:api GROUP -->      mkdocstrings blocks for the modules of API_GROUPS[GROUP]
-    <!-- doorlab:figure T/NAME -->  a figure of docs/figures with the command that made it
-    <!-- doorlab:figure-text T/NAME -->  a text the figure script kept (a run's summary)
 
 The hook ``docs/tools/reference.py`` (``hooks:`` in mkdocs.yml) replaces the markers when MkDocs
 builds (:func:`expand`), so a new CLI option, scenario field, exit code, run file or module
@@ -28,7 +26,9 @@ Print one block without MkDocs: ``python docs/tools/reference.py cli`` (or any m
 
 One module per kind of block: :mod:`.text` (comments and docstrings as Markdown),
 :mod:`.scenario`, :mod:`.cli` (commands, options, exit codes), :mod:`.outputs` (run files,
-metrics, logs), :mod:`.api` (the package's parts, mkdocstrings blocks), :mod:`.figures`.
+metrics, logs), :mod:`.api` (the package's parts, mkdocstrings blocks). What pages quote from
+runs (figures, tables, times) is not written at build time but by the runs themselves, into
+the pages' Markdown: :mod:`.measured`.
 """
 
 from __future__ import annotations
@@ -44,7 +44,6 @@ from .api import (
     public_api_markdown,
 )
 from .cli import STATUS_MEANINGS, cli_anchor, cli_commands, cli_markdown, exit_codes_markdown
-from .figures import figure_markdown, figure_text_markdown
 from .outputs import (
     RUN_FILES,
     log_channels_markdown,
@@ -70,8 +69,6 @@ GENERATORS = {
     "public-api": public_api_markdown,
     "packages": packages_markdown,
     "api": api_markdown,
-    "figure": figure_markdown,
-    "figure-text": figure_text_markdown,
 }
 """Marker name -> the function that writes its block (``api`` takes the group as argument)."""
 
@@ -83,8 +80,6 @@ def expand(markdown: str, where: str = "a page") -> str:
         name, argument = match.group(1), match.group(2)
         if name not in GENERATORS:
             raise ValueError(f"{where}: unknown marker doorlab:{name}; valid: {list(GENERATORS)}")
-        if name in ("figure", "figure-text"):
-            return GENERATORS[name](argument, where)
         return GENERATORS[name](*([argument] if argument else []))
 
     return MARKER.sub(replace, markdown)
@@ -110,8 +105,6 @@ __all__ = [
     "docstring_attributes",
     "exit_codes_markdown",
     "expand",
-    "figure_markdown",
-    "figure_text_markdown",
     "log_channels_markdown",
     "metrics_markdown",
     "package_modules",
