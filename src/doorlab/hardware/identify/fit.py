@@ -485,8 +485,10 @@ def jitter_estimate(latencies: np.ndarray) -> Estimate:
     """
     values = np.asarray(latencies, float)
     m = len(values)
+    if m == 0:
+        raise NotIdentifiable("no timed step in the recording")
     if m < 2:
-        raise NotIdentifiable(f"{m} timed step in the recording: no scatter to measure")
+        raise NotIdentifiable("one timed step in the recording: no scatter to measure")
     std = float(values.std(ddof=1))
     value = math.sqrt(3.0) * std
     return Estimate(value, value / math.sqrt(2 * (m - 1)), m, std)
