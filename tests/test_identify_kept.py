@@ -345,3 +345,36 @@ def test_a_run_cut_short_keeps_its_recording_and_analyse_fits_what_it_holds(
     fits = json.loads((out / FIT_FILE).read_text())
     assert fits["status"] == status and fits["load_mass"] is not None
     assert load_scenario(out / IDENTIFIED_FILE).station.inner_loop.kuka_damping_model == "values"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("failure", [KeyboardInterrupt, ZeroDivisionError])
+def test_whatever_the_fit_does_the_recording_is_in_place(failure, tmp_path, monkeypatch):
+    """The fit interrupted (Ctrl-C: exit 130, the hint to fit it again) or failing on a
+    defect (its traceback, with a note where the recording is): the recording is in place
+    either way, whole, and no identified.yaml. A shortened script (joint 7, one repeat, the
+    move to the pose in 3 s)."""
+    import doorlab.hardware.identify.analysis as analysis
+
+    def fail(*args, **kwargs):
+        raise failure()
+
+    monkeypatch.setattr(analysis, "analyse", fail)
+    stepped = SteppedDriver(load_scenario(PRESET))
+    link = DriverLink(stepped.lcm, clock=stepped.clock, pump=stepped.pump)
+    link.wait_first_status(1.0)
+    out = tmp_path / "identify"
+    settings = ScriptSettings(joints=(6,), repeats=1, move_duration=3.0, rest_duration=1.0)
+    if failure is KeyboardInterrupt:
+        outcome = _identify(out, link, settings)
+        assert (outcome.status, outcome.exit_code) == ("interrupted", 130)
+        assert "interrupted during the fit" in outcome.message
+        assert f"doorlab identify --analyse {out}" in outcome.message
+    else:
+        with pytest.raises(ZeroDivisionError) as raised:
+            _identify(out, link, settings)
+        assert any(f"kept in {out}" in note for note in raised.value.__notes__)
+    assert {p.name for p in out.iterdir()} >= {*RECORDING, FIT_FILE}
+    assert not (out / IDENTIFIED_FILE).exists()
+    assert json.loads((out / FIT_FILE).read_text())["status"] == "ok"
+    assert not list(tmp_path.glob(".identify*"))  # no staging left behind
