@@ -312,19 +312,20 @@ class _Fitter:
             ]
             block = mass[np.ix_([joint, partner], [joint, partner])].copy()
             block[1, 1] = steps[partner].inertia.value
-            out[joint] = self.attempt(
-                ("damping", joint),
-                fit_coupled_step,
-                parts,
-                joint=joint,
-                partner=partner,
-                inertia=block,
-                partner_damping=steps[partner].damping.value,
-                stiffness=self.stiffness[[joint, partner]],
-                guess=steps[joint],
-                band=self.band,
-                latency=latency,
-            )
+            try:
+                out[joint] = fit_coupled_step(
+                    parts,
+                    joint=joint,
+                    partner=partner,
+                    inertia=block,
+                    partner_damping=steps[partner].damping.value,
+                    stiffness=self.stiffness[[joint, partner]],
+                    guess=steps[joint],
+                    band=self.band,
+                    latency=latency,
+                )
+            except NotIdentifiable:
+                pass  # a refinement: the joint's own fit stands
         return out
 
     def latencies(self, steps: list[StepFit | None]) -> np.ndarray:
