@@ -232,7 +232,21 @@ def _write_recording(
     settings: ScriptSettings,
     url: str,
 ) -> None:
-    """The recording's files (module docstring, 1.)."""
+    """The recording's files (module docstring, 1.).
+
+    Raises:
+        OutputError: They cannot be written (a full disk: one line, the staging removed).
+    """
+    try:
+        _write_recording_files(staging, scenario, script, outcome, settings, url)
+    except OSError as e:
+        raise OutputError(
+            f"cannot write the recording into {staging.parent}: {e.strerror or e} (the arm "
+            "holds its last command)"
+        ) from None
+
+
+def _write_recording_files(staging, scenario, script, outcome, settings, url) -> None:
     from pydrake.common.yaml import yaml_dump_typed
 
     arrays = outcome.log.arrays()
