@@ -189,6 +189,8 @@ def run_identify(
         return IdentifyOutcome(
             "interrupted", interrupt_exit_code(e), out_dir, f"interrupted during the fit; {kept}"
         )
+    except OutputError as e:  # a full disk: one line, and the recording stays
+        raise OutputError(f"{e}; {kept}") from None
     except Exception as e:  # a defect of the fit: its traceback, and the recording stays
         e.add_note(f"doorlab identify: {kept}")
         raise
