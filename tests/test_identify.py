@@ -62,30 +62,45 @@ def truth():
 
 
 def _integrated(r, M, D, K, L, b, q0, period=0.005, substeps=2000):
-    """The single joint integrated finely (semi-implicit Euler at period / substeps)."""
+    """The single joint integrated finely (semi-implicit Euler at period / substeps); the
+    command applied at cycle k acts from k T + L (L < 0: before the cycle)."""
     h = period / substeps
     q, v = q0, 0.0
     out = []
-    previous = r[0]
     for k in range(len(r)):
         out.append(q)
         for i in range(substeps):
-            command = previous if i * h < L else r[k]
+            t = k * period + i * h  # the command acting at t: the last one whose j T + L <= t
+            j = min(int(np.floor((t - L) / period + 1e-12)), len(r) - 1)
+            command = r[max(j, 0)]
             v = (v + h * (K * (command - q) + b) / M) / (1 + h * D / M)
             q += h * v
-        previous = r[k]
     return np.array(out)
 
 
-@pytest.mark.parametrize("latency", [0.0, 0.0021])
+@pytest.mark.parametrize("latency", [0.0, 0.0021, -0.00125])
 def test_the_step_response_is_the_single_joints_exact_solution(latency):
     """The closed-form response (exact discretization, the command from cycle + L on) is the
-    fine integration's within its own error (O(h) at 2.5 us: 1e-3 of the step)."""
+    fine integration's within its own error (O(h) at 2.5 us: 1e-3 of the step). A negative
+    latency (a command acting before its cycle: how the simulator's semi-implicit step
+    realizes the arm preset's none, -h/2) too."""
     r = np.r_[0.0, np.full(40, 0.02), np.zeros(40)]
     M, D, K, b = 2.7, 70.0, 1000.0, 0.3
     exact = step_response(r, M=M, D=D, K=K, latency=latency, bias=b, q0=b / K)
     fine = _integrated(r, M, D, K, latency, b, b / K)
     assert np.max(np.abs(exact - fine)) < 1e-3 * 0.02
+
+
+@pytest.mark.parametrize("damping", [5.0, 2.0 * math.sqrt(500.0 * 1.4), 400.0])
+def test_the_closed_form_transition_is_the_matrix_exponential(damping):
+    """The single joint's transition in closed form (under-, critically and over-damped) is
+    the augmented system's matrix exponential to rounding, over a cycle and its parts."""
+    from doorlab.hardware.identify.response import _transition, _transition_expm
+
+    for dt in (0.0, 1e-7, 1.25e-3, 3.75e-3, 5e-3):
+        phi, gamma = _transition(1.4, damping, 500.0, dt)
+        phi_e, gamma_e = _transition_expm(1.4, damping, 500.0, dt)
+        assert np.max(np.abs(phi - phi_e)) < 1e-12 and np.max(np.abs(gamma - gamma_e)) < 1e-14
 
 
 def test_a_step_fit_recovers_inertia_and_damping_within_its_tolerance():

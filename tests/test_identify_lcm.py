@@ -124,8 +124,9 @@ def _wait_for_motion(url: str, seconds: float) -> None:
 @pytest.mark.slow
 def test_identifys_ways_out_leave_complete_folders(realtime, lcm_url, tmp_path):  # noqa: F811
     """The driver killed mid-move: identify stops commanding at its watchdog and exits 7;
-    SIGTERM to identify: exit 143. Each folder holds fit.json (its status), the raw log and
-    the segments, and no identified.yaml."""
+    SIGTERM to identify: exit 143. Each folder holds the recording (the raw log, the segments,
+    the preset it ran with, fit.json with its status) and no identified.yaml, and the summary
+    says how to fit it (``doorlab identify --analyse DIR``: tests/test_identify_kept.py)."""
     lost, stopped = tmp_path / "lost", tmp_path / "stopped"
     with realtime(), sim_driver_process(lcm_url) as driver:
         run = identify(lcm_url, lost, "--joints", "7")
@@ -136,6 +137,7 @@ def test_identifys_ways_out_leave_complete_folders(realtime, lcm_url, tmp_path):
         exited = time.monotonic() - killed
     assert run.returncode == 7, stdout + stderr
     assert exited < 5.0  # the watchdog (50 ms) and the folder, not a hang
+    assert f"doorlab identify --analyse {lost}" in stdout
     with realtime(), sim_driver_process(lcm_url) as driver:
         run = identify(lcm_url, stopped, "--joints", "7")
         _wait_for_motion(lcm_url, 30.0)
@@ -143,8 +145,14 @@ def test_identifys_ways_out_leave_complete_folders(realtime, lcm_url, tmp_path):
         stdout, stderr = run.communicate(timeout=60)
         stop(driver)
     assert run.returncode == 143, stdout + stderr
+    assert f"doorlab identify --analyse {stopped}" in stdout
     for folder, status in ((lost, "driver_lost"), (stopped, "interrupted")):
         assert json.loads((folder / "fit.json").read_text())["status"] == status
-        assert {p.name for p in folder.iterdir()} >= {"fit.json", "identify_log.npz"}
+        assert {p.name for p in folder.iterdir()} >= {
+            "fit.json",
+            "identify_log.npz",
+            "script.json",
+            "scenario.yaml",
+        }
         assert not (folder / "identified.yaml").exists()
         assert not list(folder.parent.glob(f".{folder.name}*"))  # no staging left behind

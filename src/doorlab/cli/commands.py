@@ -228,7 +228,13 @@ def identify(args: argparse.Namespace) -> int:
     from doorlab.config import arm_preset
     from doorlab.hardware.cli import run_identify_command
 
-    base = load_scenario(args.config) if args.config is not None else arm_preset()
+    config = args.config
+    if config is None and args.analyse is not None:
+        from doorlab.hardware.identify.run import SCENARIO_FILE
+
+        recorded = Path(args.analyse) / SCENARIO_FILE  # the preset the run used
+        config = recorded if recorded.is_file() else None
+    base = load_scenario(config) if config is not None else arm_preset()
     scenario = validate(apply_overrides(base, args.overrides))
     return run_identify_command(args, scenario)
 

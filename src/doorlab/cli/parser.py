@@ -479,7 +479,7 @@ def add_identify_parser(sub) -> None:
     identify.add_argument(
         "--wait",
         type=seconds(0.01, 3600.0),
-        default=5.0,
+        default=None,
         metavar="S",
         help="seconds to wait for the driver's first status (default 5)",
     )
@@ -491,23 +491,32 @@ def add_identify_parser(sub) -> None:
     identify.add_argument(
         "--out",
         type=Path,
-        default=Path("doorlab_out") / "identify",
-        help="the folder to write (identified.yaml, fit.json, identify_log.npz, script.json; "
+        default=None,
+        help="the folder to write (the recording: identify_log.npz, script.json, "
+        "scenario.yaml, written before any fit; then identified.yaml and fit.json; "
         "default doorlab_out/identify)",
     )
     identify.add_argument(
         "--repeats",
         type=bounded_int(1, 10),
-        default=2,
+        default=None,
         metavar="N",
         help="each joint's breakaways, steps and timed steps per direction (default 2; 1-10)",
     )
     identify.add_argument(
         "--joints",
         type=_joints,
-        default=tuple(range(7)),
+        default=None,
         metavar="LIST",
         help="the joints to identify, e.g. 1,2,7 (default all seven)",
+    )
+    identify.add_argument(
+        "--analyse",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="fit the recording a run kept in DIR again (no arm, no LCM) and write DIR's "
+        "identified.yaml and fit.json; the preset is DIR/scenario.yaml unless --config",
     )
     _common(identify)
 

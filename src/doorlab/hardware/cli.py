@@ -114,29 +114,58 @@ def _exit_promptly(code: int) -> int:
     return code
 
 
+ANALYSE_EXCLUDES = ("lcm_url", "wait", "yes", "out", "repeats", "joints")
+"""The options of an identification run that ``--analyse`` (no arm, no LCM) does not take."""
+
+
 def run_identify_command(args: argparse.Namespace, scenario: Scenario) -> int:
-    """``doorlab identify``; returns the exit code."""
-    from doorlab.hardware.identify.run import check_scenario, identify_summary, run_identify
+    """``doorlab identify`` (the calibration over LCM, or ``--analyse DIR``); returns the exit
+    code."""
+    from doorlab.hardware.identify.run import (
+        analyse_folder,
+        check_scenario,
+        identify_summary,
+        run_identify,
+    )
     from doorlab.hardware.identify.script import ScriptSettings
     from doorlab.hardware.link import DriverLink
     from doorlab.runtime.folders import check_replaceable
 
     check_scenario(scenario)
+    if args.analyse is not None:
+        given = [
+            f"--{name.replace('_', '-')}"
+            for name in ANALYSE_EXCLUDES
+            if getattr(args, name) not in (None, False)
+        ]
+        if given or args.force:
+            raise ConfigError(
+                f"--analyse fits a recording (no arm, no LCM): it takes --config and --set "
+                f"only, not {', '.join(given + (['--force'] if args.force else []))}"
+            )
+        outcome = analyse_folder(args.analyse, scenario)
+        print(identify_summary(outcome), flush=True)
+        return outcome.exit_code
+    out = args.out if args.out is not None else Path("doorlab_out") / "identify"
+    wait = args.wait if args.wait is not None else 5.0
     url = resolve_lcm_url(args.lcm_url)
-    check_replaceable(args.out, force=args.force)
-    settings = ScriptSettings(joints=args.joints, repeats=args.repeats)
+    check_replaceable(out, force=args.force)
+    settings = ScriptSettings(
+        joints=args.joints if args.joints is not None else ScriptSettings().joints,
+        repeats=args.repeats if args.repeats is not None else ScriptSettings().repeats,
+    )
     link = DriverLink(url=url)
     print(
-        f"doorlab identify: waiting up to {args.wait:g} s for IIWA_STATUS on {link.url}",
+        f"doorlab identify: waiting up to {wait:g} s for IIWA_STATUS on {link.url}",
         flush=True,
     )
     try:
-        first = link.wait_first_status(args.wait)
+        first = link.wait_first_status(wait)
         outcome = run_identify(
             scenario,
-            args.out,
+            out,
             link=link,
-            wait=args.wait,
+            wait=wait,
             confirm=_confirm(args.yes),
             settings=settings,
             force=args.force,

@@ -96,10 +96,20 @@ class SessionOutcome:
 
 
 def run_session(
-    script: Script, link: DriverLink, limits: SafetyLimits, *, wait: float
+    script: Script,
+    link: DriverLink,
+    limits: SafetyLimits,
+    *,
+    wait: float,
+    log: IdentifyLog | None = None,
 ) -> SessionOutcome:
-    """Answers statuses with the script's commands until it ends or a stop (module doc)."""
-    log = IdentifyLog()
+    """Answers statuses with the script's commands until it ends or a stop (module doc).
+
+    Args:
+        log: Where to record (the caller's, so that what was recorded survives an exception
+            this function does not expect); a new one if None.
+    """
+    log = IdentifyLog() if log is None else log
     command_message = lcmt_iiwa_command()
     command_message.num_joints = NUM_JOINTS
     command_message.num_torques = NUM_JOINTS
