@@ -1,7 +1,8 @@
 """docs/guides/real-arm.md's commands, as written (tests/doc_commands.py): the rehearsal on
 one machine, the simulated driver in one terminal and ``doorlab run --hardware`` in another
 (answered "y" at its question, on a terminal of its own), Ctrl-C to the driver, then the same
-plan in one process.
+plan in one process; then the calibration's rehearsal (``doorlab identify`` against the
+simulated driver with the arm preset, its recording fitted again, a run on what it wrote).
 
 The bus is the test's own (``LCM_DEFAULT_URL``, which the page says the commands read: a port
 of its own on loopback, tests/lcm_fixtures.py); the paced processes run at real-time priority
@@ -34,7 +35,10 @@ def test_a_rehearsal_on_one_machine(tmp_path, lcm_url, realtime):  # noqa: F811
     page = Page("docs/guides/real-arm.md", tmp_path, env={"LCM_DEFAULT_URL": lcm_url})
     with realtime():
         outcomes = page.run_blocks()
-    assert [o.how for o in outcomes] == ["ran"]
+    assert [o.how for o in outcomes] == ["ran", "ran"]
+    identified = tmp_path / "doorlab_out" / "identify" / "identified.yaml"
+    assert identified.is_file()
+    assert json.loads((tmp_path / "identified_ik" / "metrics.json").read_text())["status"] == "ok"
     truth = np.load(tmp_path / "gt" / "ground_truth.npz")
     assert {"t", "door_angles", "q_measured"} <= set(truth.files)
     driver = json.loads((tmp_path / "gt" / "driver.json").read_text())
