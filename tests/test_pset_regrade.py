@@ -321,18 +321,19 @@ def _class():
 def test_the_canvas_export_has_the_columns_canvas_s_gradebook_import_expects():
     """Canvas's guide: Student, ID, SIS User ID, SIS Login ID, Section, then the assignment's
     column; its export's Points Possible row; one row per student (a group's members each
-    get the group's grade); no cell a spreadsheet runs; no grade: an empty cell."""
+    get the group's grade) named as Canvas does ("Last, First"); no cell a spreadsheet runs;
+    no grade: an empty cell."""
     submissions, rows = _class()
     text, notes = gradebook.canvas_text(submissions, rows, Assignment(title="Problem set 5"))
     table = list(csv.reader(text.splitlines()))
     assert table[0] == ["Student", "ID", "SIS User ID", "SIS Login ID", "Section", "Problem set 5"]
     assert table[1] == ["Points Possible", "", "", "", "", "16"]
     assert table[2:] == [
-        ["Ada Key", "", "101", "ada@x.edu", "", "16"],
-        ["'=cmd|' /C calc'!A0", "", "102", "b@x.edu", "", "12.800"],
-        ["Grace One", "", "103", "g@x.edu", "", "12.800"],
-        ["Absent Al", "", "104", "al@x.edu", "", ""],
-        ["Error Eve", "", "105", "eve@x.edu", "", ""],
+        ["Key, Ada", "", "101", "ada@x.edu", "", "16"],
+        ["calc'!A0, =cmd|' /C", "", "102", "b@x.edu", "", "12.800"],
+        ["One, Grace", "", "103", "g@x.edu", "", "12.800"],
+        ["Al, Absent", "", "104", "al@x.edu", "", ""],
+        ["Eve, Error", "", "105", "eve@x.edu", "", ""],
     ]
     assert notes == []
     text, _ = gradebook.gradescope_text(submissions, rows)
@@ -344,13 +345,17 @@ def test_the_canvas_export_has_the_columns_canvas_s_gradebook_import_expects():
         "al@x.edu",
         "eve@x.edu",
     ]
+    assert table[1]["Name"] == "'=cmd|' /C calc'!A0"  # the guard: no formula
     assert table[2]["Total Score"] == "12.800" and table[2]["Late Penalty"] == "3.200"
-    # A student in two submissions: the later one counts, and the export says so.
+    # A student in two submissions (one SID): refused, never one row replacing the other.
     again = Submission("s5", Path("s5"), submissions[0].submitters, "2024-03-02T12:00:00-05:00")
-    rows["s5"] = {"status": "graded", "total": 10.0, "max_total": 16.0}
-    text, notes = gradebook.canvas_text([*submissions, again], rows, Assignment())
-    assert notes == ["101 is in s1 and s5: s5 (the later) counts"]
-    assert list(csv.reader(text.splitlines()))[2][5] == "10"
+    with pytest.raises(ConfigError) as error:
+        gradebook.check_exports(["canvas"], [*submissions, again])
+    assert str(error.value).startswith(
+        "--export canvas: SID '101' is both s1 (Ada Key, ada@x.edu)'s and s5 (Ada Key, "
+        "ada@x.edu)'s: one row would replace the other; correct the student's identity in "
+        "the class's adjustments.csv"
+    )
 
 
 def test_the_class_statistics_count_each_mistake_once_whatever_its_numbers():

@@ -378,7 +378,17 @@ def add_grade_all_parser(actions) -> None:
         default=[],
         choices=("canvas", "gradescope"),
         help="also write DIR/canvas.csv (Canvas's gradebook import) or DIR/gradescope.csv "
-        "(Gradescope's roster columns with the grade): one row per student; repeat for both",
+        "(one row per student by Gradescope's name, e-mail and SID, for another gradebook's CSV "
+        "import); repeat for both; every later run rewrites the exports DIR holds",
+    )
+    grade_all.add_argument(
+        "--roster",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="the course's Canvas gradebook export (Grades, Export): --export canvas fills its "
+        "students (matched by e-mail, then SIS User ID) with Canvas's ID, names and sections; "
+        "kept in DIR for later runs",
     )
     grade_all.add_argument(
         "--pdf",
