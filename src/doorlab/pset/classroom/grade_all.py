@@ -31,8 +31,8 @@ cluster with ``scheduler``):
 ``--force`` replaces only such a folder), but for the instructor's ``extensions.csv`` and
 ``adjustments.csv`` (:mod:`doorlab.pset.classroom.extensions`,
 :mod:`doorlab.pset.classroom.adjustments`), which every run reads and none writes.
-``DIR/class.json`` holds the reference figures and the assignment, so a resumed class (``--resume``, ``--only``)
-is graded against the same reference and, without ``--assignment``, the same assignment; a
+``DIR/class.json`` holds the reference figures and the assignment, so a resumed class
+(``--resume``, ``--only``) is graded against the same reference and, without ``--assignment``, the same assignment; a
 different ``--assignment`` is named, with what it costs, before anything is simulated. A run
 over an existing sheet rewrites the sheet and the exports only when it ends: an interrupted
 one leaves them as they were (its finished results are kept, and the next run's
