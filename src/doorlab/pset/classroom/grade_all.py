@@ -32,11 +32,11 @@ cluster with ``scheduler``):
 ``adjustments.csv`` (:mod:`doorlab.pset.classroom.extensions`,
 :mod:`doorlab.pset.classroom.adjustments`), which every run reads and none writes.
 ``DIR/class.json`` holds the reference figures and the assignment, so a resumed class
-(``--resume``, ``--only``) is graded against the same reference and, without ``--assignment``, the same assignment; a
-different ``--assignment`` is named, with what it costs, before anything is simulated. A run
-over an existing sheet rewrites the sheet and the exports only when it ends: an interrupted
-one leaves them as they were (its finished results are kept, and the next run's
-``changes.csv`` lists them).
+(``--resume``, ``--only``) is graded against the same reference and, without ``--assignment``,
+the same assignment; a different ``--assignment`` is named, with what it costs, before anything
+is simulated. A run over an existing sheet rewrites the sheet and the exports only when it
+ends: an interrupted one leaves them as they were (its finished results are kept, and the next
+run's ``changes.csv`` lists them).
 """
 
 from __future__ import annotations
