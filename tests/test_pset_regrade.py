@@ -288,8 +288,9 @@ def test_the_self_check_summary_prints_the_course_s_points_and_total(tmp_path):
         "after the due date)"
     ) in text
     assert "[LATER] Task 1 episode: IK with 10 knots, doors open: 2 points, not run here" in text
-    assert text.splitlines()[-1] == (
-        "Total score: 13 / 15 (2 of them in tests this check does not run)"
+    assert text.splitlines()[-1] == (  # the course's 16 points, the hidden test's 1 named
+        "Total score: 13 / 16 (2 of them in tests this check does not run; 1 in hidden tests: "
+        "graded by your course, not shown or run here)"
     )
 
 
@@ -455,7 +456,12 @@ def test_the_feedback_page_shows_each_test_as_its_visibility_allows():
         f"shown after the due date ({DUE})",
         "shown once the course publishes its grades",
     ]
-    assert context["final"] is None  # the score shown is the shown tests'
+    # The score is the grade with the course's points, naming the points not on the page.
+    assert context["final"] == results["score"] and context["max_score"] == 14
+    assert context["notes"] == [
+        "1 point in 1 hidden test (not on this page)",
+        "4 points in 2 tests not shown yet (not on this page)",
+    ]
     assert context["score"] == sum(t["score"] for t in context["tests"])
     after, _ = shown(due + datetime.timedelta(hours=1))
     assert after == ["1.1", "1.2", "2.2", "2.3", "2.4", "3.1"]

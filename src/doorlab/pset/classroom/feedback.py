@@ -8,9 +8,11 @@ orientation error along the 10 s arc), drawn from the series the grading stored 
 results (:func:`doorlab.pset.grading.episodes.episode_series`): nothing is simulated here.
 
 What the page shows follows the tests' Gradescope visibility: a ``hidden`` test is never on
-it (nor counted in the score shown), an ``after_due_date`` test once the due date (the
-assignment's late policy) has passed, an ``after_published`` test once the course says its
-grades are published (``published``). A figure depends only on the two series it draws, so it
+it, an ``after_due_date`` test once the due date (the assignment's late policy) has passed, an
+``after_published`` test once the course says its grades are published (``published``). The
+score is always the grade with the course's points, and says how many of them are in tests
+the page does not show, the late penalty (and an extension) and the instructor's adjustments
+(:mod:`doorlab.pset.classroom.final_grade`). A figure depends only on the two series it draws, so it
 is rendered once and kept (``feedback/figures/<sha256>.png``): a regrade that changes points
 or margins re-renders the pages, not the figures.
 """
@@ -172,9 +174,9 @@ def page_context(submission, results: dict, assignment, visibility: Visibility) 
             }
         )
     late = extra.get("late") if isinstance(extra.get("late"), dict) else None
-    everything = not later and len(tests) == len(by_name)
     people = ", ".join(p.get("name", "") for p in submission.submitters if p.get("name"))
     seed = extra.get("seed") if isinstance(extra.get("seed"), dict) else {}
+    adjusted = extra.get("adjusted") if isinstance(extra.get("adjusted"), dict) else {}
     return {
         "title": f"{assignment.title}: feedback for {submission.id}",
         "meta": [
@@ -188,11 +190,43 @@ def page_context(submission, results: dict, assignment, visibility: Visibility) 
         "later": later,
         "shown_jobs": shown_jobs,
         "score": sum(t["score"] for t in tests),
-        "max_score": sum(t["max_score"] for t in tests),
-        "final": results.get("score") if everything else None,
+        "max_score": float(extra.get("max_score") or sum(t["max_score"] for t in tests)),
+        "final": float(results.get("score") or 0.0),
+        "notes": _score_notes(by_name, tests, late, adjusted),
         "late": late if late and late.get("penalty_points") else None,
+        "adjustments": list(adjusted.get("lines") or []),
         "output": str(results.get("output") or ""),
     }
+
+
+def _score_notes(by_name: dict, shown: list[dict], late: dict | None, adjusted: dict) -> list:
+    """What the page's score says besides the grade: the points in tests not shown (hidden,
+    or shown later), the late penalty (and an extension), the instructor's adjustments."""
+    names = {t["name"] for t in shown}
+    unseen: dict[str, list[float]] = {}
+    for name, t in by_name.items():
+        if name not in names:
+            kind = "hidden" if t.get("visibility") == "hidden" else "later"
+            unseen.setdefault(kind, []).append(float(t["max_score"]))
+    notes = []
+    for kind, points in sorted(unseen.items()):
+        what = "hidden test" if kind == "hidden" else "test not shown yet"
+        total = sum(points)
+        notes.append(
+            f"{total:g} point{'s' if total != 1 else ''} in {len(points)} {what}"
+            f"{'s' if len(points) != 1 else ''} (not on this page)"
+        )
+    if late and late.get("penalty_points"):
+        days = late.get("days_late")
+        notes.append(
+            f"after the late penalty: {float(late['penalty_points']):g} points, "
+            f"{float(late['penalty_percent']):g} %, {days} day{'s' if days != 1 else ''} late"
+        )
+    if late and late.get("extension"):
+        notes.append(f"due {late.get('due')}: {late['extension']}")
+    if adjusted.get("points"):
+        notes.append(f"the instructor's adjustments: {float(adjusted['points']):+g}")
+    return notes
 
 
 def write_page(
