@@ -210,11 +210,12 @@ def _score_notes(by_name: dict, shown: list[dict], late: dict | None, adjusted: 
             unseen.setdefault(kind, []).append(float(t["max_score"]))
     notes = []
     for kind, points in sorted(unseen.items()):
-        what = "hidden test" if kind == "hidden" else "test not shown yet"
+        plural = "s" if len(points) != 1 else ""
+        what = f"hidden test{plural}" if kind == "hidden" else f"test{plural} not shown yet"
         total = sum(points)
         notes.append(
-            f"{total:g} point{'s' if total != 1 else ''} in {len(points)} {what}"
-            f"{'s' if len(points) != 1 else ''} (not on this page)"
+            f"{total:g} point{'s' if total != 1 else ''} in {len(points)} {what} "
+            "(not on this page)"
         )
     if late and late.get("penalty_points"):
         days = late.get("days_late")
