@@ -26,7 +26,7 @@ from doorlab.pset.classroom.regrade import Step, changed_tests, plan_step
 from doorlab.pset.classroom.roster import Submission, read_metadata_entries
 from doorlab.pset.grading.grader import pretty_format_json_results
 from doorlab.pset.grading.rescore import NeedsGrading, rejudge, settings_change
-from doorlab.pset.grading.scoring import results_from_jobs
+from doorlab.pset.grading.scoring import results_from_jobs, results_not_graded
 from doorlab.pset.handout.course import COURSE_FILE, course_yaml, load_course
 from doorlab.pset.handout.folder import render_folder
 from doorlab.pset.isolation.worker import import_failure
@@ -360,28 +360,60 @@ def test_the_canvas_export_has_the_columns_canvas_s_gradebook_import_expects():
 
 
 def test_the_class_statistics_count_each_mistake_once_whatever_its_numbers():
+    """Every distinct mistake with its count (numbers as #, the catalogue's diagnosis where
+    the test made one, shortened at a word), the stubs and the uploads not graded apart."""
     graded = _graded()
     other = json.loads(json.dumps(graded))
+    stub = json.loads(json.dumps(graded))
+    swapped = "on 6 of 6 draws your answer is J^T F with the gains swapped"
+    long = "calc_p_Q " + " ".join(["wrongly"] * 60) + " 0.1 m"
     for t in other["tests"]:
         if t["number"] == "2.1":
             t["output"] = "calc_p_Q is off by 0.12 m"
+        if t["number"] == "3.1":
+            t.update(status="failed", score=0.0, output=f"grading seed 5; tol\n{swapped}\ndraw 0")
+    for t in stub["tests"]:
+        if t["number"] == "2.1":
+            t["output"] = "your code raised NotImplementedError: calc_p_Q: your code here"
+        if t["number"] == "3.1":
+            t.update(status="failed", score=0.0, output=long)
     rows = [
         {"submission": "a", "status": "graded", "total": 13.0, "wall_time_s": 8.0},
         {"submission": "b", "status": "graded", "total": 13.0, "wall_time_s": 0.0,
          "same_files_as": "a"},
+        {"submission": "s", "status": "graded", "total": 11.0, "wall_time_s": 2.0},
+        {"submission": "n", "status": "not_graded", "total": 0.0},
         {"submission": "c", "status": "error"},
     ]  # fmt: skip
-    stats = class_statistics(rows, {"a": graded, "b": other})
-    assert stats["by_status"] == {"error": 1, "graded": 2}
-    assert stats["histogram"] == [{"total": 13.0, "submissions": 2}]
-    by_key = {t["key"]: t for t in stats["tests"]}
-    assert by_key["calc_p_Q_unit"]["pass_rate"] == 0.0
-    assert by_key["calc_p_Q_unit"]["messages"] == [
-        {"message": "calc_p_Q is off by # m", "count": 2}
+    not_graded = results_not_graded(TESTS, "none of the student files")
+    stats = class_statistics(rows, {"a": graded, "b": other, "s": stub, "n": not_graded})
+    assert stats["by_status"] == {"error": 1, "graded": 3, "not_graded": 1}
+    assert stats["histogram"] == [
+        {"total": 0.0, "submissions": 1},
+        {"total": 11.0, "submissions": 1},
+        {"total": 13.0, "submissions": 2},
     ]
+    by_key = {t["key"]: t for t in stats["tests"]}
+    assert by_key["calc_p_Q_unit"]["graded"] == 3  # the upload not graded counted apart
+    assert by_key["calc_p_Q_unit"]["pass_rate"] == 0.0
+    assert by_key["calc_p_Q_unit"]["not_attempted"] == 1
+    assert by_key["calc_p_Q_unit"]["messages"] == [
+        {"message": "calc_p_Q is off by # m", "kind": "message", "count": 2}
+    ]
+    impedance = by_key["impedance_unit"]["messages"]
+    assert impedance[1] == {
+        "message": "your answer is J^T F with the gains swapped",
+        "kind": "diagnosis",
+        "count": 1,
+    }
+    cut = impedance[0]["message"]  # shortened at a word, never in the middle of one
+    assert cut.endswith("wrongly ...") and len(cut) <= 300
     assert by_key["ik_unit"]["pass_rate"] == 1.0 and by_key["ik_unit"]["mean_score"] == 2.0
-    assert stats["time_per_submission_s"]["n"] == 1  # a copy's grading is the original's
+    assert stats["time_per_submission_s"]["n"] == 2  # a copy's grading is the original's
     assert stats["identical_files"] == [["a", "b"]]
+    assert [r["page"] for r in stats["rows"]] == [
+        f"feedback/{i}.html" for i in ("a", "b", "s", "n", "c")
+    ]
 
 
 # Messages ----------------------------------------------------------------------------------

@@ -61,14 +61,14 @@ class Adjustment:
     reason: str
 
     def describe(self) -> str:
-        """How the feedback, the sheet and changes.csv say it."""
-        what = (
-            f"{self.test} set to {self.score:g}"
-            if self.score is not None
-            else f"{self.points:+g} point{'s' if abs(self.points or 0) != 1 else ''}"
-            + (f" on {self.test}" if self.test else "")
-        )
-        return f"{what} ({self.reason})"
+        """How the feedback, the sheet and changes.csv say it (never starting with a sign: a
+        spreadsheet would take it for a formula)."""
+        if self.score is not None:
+            return f"{self.test} set to {self.score:g} ({self.reason})"
+        points = abs(self.points or 0.0)
+        what = f"{points:g} point{'s' if points != 1 else ''} "
+        what += "added" if (self.points or 0.0) >= 0 else "taken off"
+        return f"{what} {'on ' + self.test if self.test else 'on the total'} ({self.reason})"
 
 
 @dataclass(frozen=True)

@@ -123,8 +123,10 @@ def write_class_outputs(
 
 
 def _write_all(out, submissions, rows, results, assignment, outputs: Outputs, write) -> list[str]:
+    from doorlab.pset.classroom.similarity import similar_groups
+
     lines = []
-    stats = class_statistics.class_statistics(rows, results)
+    stats = class_statistics.class_statistics(rows, results, similar_groups(submissions))
     write(out, class_statistics.SUMMARY_JSON, json.dumps(stats, indent=1) + "\n")
     write(out, class_statistics.CLASS_HTML, class_statistics.class_page(stats, assignment.title))
     lines.append(
@@ -133,10 +135,12 @@ def _write_all(out, submissions, rows, results, assignment, outputs: Outputs, wr
     if outputs.feedback:
         now = outputs.now or datetime.datetime.now().astimezone()
         visibility = feedback.Visibility(now, outputs.published)
+        by_id = {r["submission"]: r for r in rows}
         pages = [
-            feedback.write_page(out, s, results[s.id], assignment, visibility, write)
+            feedback.write_page(
+                out, s, results.get(s.id), assignment, visibility, write, by_id.get(s.id)
+            )
             for s in submissions
-            if s.id in results
         ]
         chosen = [(p, w) for p, w in pages if not outputs.only or p.stem in outputs.only]
         pdfs = feedback.print_pages(out, chosen) if outputs.pdf and chosen else []

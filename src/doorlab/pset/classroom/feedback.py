@@ -214,8 +214,7 @@ def _score_notes(by_name: dict, shown: list[dict], late: dict | None, adjusted: 
         what = f"hidden test{plural}" if kind == "hidden" else f"test{plural} not shown yet"
         total = sum(points)
         notes.append(
-            f"{total:g} point{'s' if total != 1 else ''} in {len(points)} {what} "
-            "(not on this page)"
+            f"{total:g} point{'s' if total != 1 else ''} in {len(points)} {what} (not on this page)"
         )
     if late and late.get("penalty_points"):
         days = late.get("days_late")
@@ -230,16 +229,44 @@ def _score_notes(by_name: dict, shown: list[dict], late: dict | None, adjusted: 
     return notes
 
 
+def ungraded_context(submission, assignment, row: dict | None) -> dict:
+    """The page of a submission without results: absent (named in the export, nothing
+    uploaded) or its grading failed (the course grades it again)."""
+    status = (row or {}).get("status", "absent")
+    why = (
+        "No submission was received: the course's export names you, with no files."
+        if status == "absent"
+        else "Your submission could not be graded yet (the grader failed, not your code); "
+        "the course grades it again."
+    )
+    people = ", ".join(p.get("name", "") for p in submission.submitters if p.get("name"))
+    return {
+        "title": f"{assignment.title}: feedback for {submission.id}",
+        "meta": [("submission", submission.id), ("students", people or "(not named)")],
+        "tests": [],
+        "later": [],
+        "final": None,
+        "why": why,
+        "adjustments": [],
+        "figures": [],
+        "output": "",
+    }
+
+
 def write_page(
-    out: Path, submission, results: dict, assignment, visibility, write
+    out: Path, submission, results: dict | None, assignment, visibility, write, row=None
 ) -> tuple[Path, bool]:
     """Writes ``out/feedback/<submission>.html`` unless it holds this page already (a page
     depends only on the results and what is shown, not on when it is written); returns it
-    and whether it was written."""
+    and whether it was written. Without ``results`` (absent, or its grading failed: ``row``
+    says which), a page that says so."""
     from doorlab.outputs.pages import render
 
-    context = page_context(submission, results, assignment, visibility)
-    context["figures"] = episode_figures(results, out, context.pop("shown_jobs"), write)
+    if results is None:
+        context = ungraded_context(submission, assignment, row)
+    else:
+        context = page_context(submission, results, assignment, visibility)
+        context["figures"] = episode_figures(results, out, context.pop("shown_jobs"), write)
     rel = f"{FEEDBACK}/{submission.id}.html"
     path = Path(out) / rel
     text = render("pset_feedback.html.j2", **context)

@@ -132,7 +132,7 @@ def finalize(
 
 
 _LATER = {
-    "hidden": "a hidden test (never shown)",
+    "hidden": "a hidden test, never shown",
     "after_due_date": "tests shown after the due date",
     "after_published": "tests shown once grades are published",
 }
@@ -159,7 +159,7 @@ def total_text(results: dict) -> str:
             what = _LATER[visibility]
             if visibility == "hidden":
                 count = sum(t.get("visibility") == "hidden" for t in results["tests"])
-                what = what if count == 1 else f"{count} hidden tests (never shown)"
+                what = what if count == 1 else f"{count} hidden tests, never shown"
             parts.append(f"{points:g} point{'s' if points != 1 else ''} in {what}")
     late = extra.get("late") if isinstance(extra.get("late"), dict) else {}
     if late.get("penalty_points"):
