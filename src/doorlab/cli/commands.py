@@ -28,8 +28,8 @@ from doorlab.runtime.inputs import quote_text
 
 
 def pset(args: argparse.Namespace) -> int:
-    """``doorlab pset {init,grade,grade-all,autograder,handout,assignment}``; returns the exit
-    code."""
+    """``doorlab pset {init,grade,grade-all,feedback,autograder,handout,assignment}``; returns
+    the exit code."""
     from doorlab.pset.handout.folder import init_folder
 
     if args.pset_command == "init":
@@ -45,6 +45,12 @@ def pset(args: argparse.Namespace) -> int:
             f"doorlab pset: wrote {out} (the defaults, a fresh random seed); grade with it: "
             f"doorlab pset grade SUBMISSION --assignment {out}"
         )
+        return 0
+    if args.pset_command == "feedback":
+        from doorlab.pset.classroom.handout_feedback import hand_out
+
+        for line in hand_out(args.class_dir, args.out, pdf=args.pdf, force=args.force):
+            print(f"doorlab pset feedback: {line}")
         return 0
     assignment = _assignment(args.assignment)
     if args.pset_command == "grade-all":

@@ -224,13 +224,14 @@ def _scheduler(parser: argparse.ArgumentParser) -> None:
 
 
 def add_pset_parser(sub) -> None:
-    """``doorlab pset {init,grade,grade-all,autograder,handout,assignment}``: the problem-set
-    folder, its grader (one submission, or a whole class), the grader as a Gradescope
-    autograder zip, the students' handout and the assignment file."""
+    """``doorlab pset {init,grade,grade-all,feedback,autograder,handout,assignment}``: the
+    problem-set folder, its grader (one submission, or a whole class), each student's feedback
+    to hand out, the grader as a Gradescope autograder zip, the students' handout and the
+    assignment file."""
     pset = sub.add_parser("pset", help="write the problem-set folder for students, or grade one")
     actions = pset.add_subparsers(
         dest="pset_command",
-        metavar="{init,grade,grade-all,autograder,handout,assignment}",
+        metavar="{init,grade,grade-all,feedback,autograder,handout,assignment}",
         parser_class=OneLineParser,
         required=True,
     )
@@ -282,6 +283,21 @@ def add_pset_parser(sub) -> None:
         "namespaces); the results and the summary say so",
     )
     add_grade_all_parser(actions)
+    hand_out = actions.add_parser(
+        "feedback",
+        help="write each student's feedback page (or PDF) of a graded class into OUT, named by "
+        "student id and name, with an index.csv: for a course without Gradescope",
+    )
+    hand_out.add_argument(
+        "class_dir", type=Path, metavar="DIR", help="the class's folder (grade-all --out DIR)"
+    )
+    hand_out.add_argument("out", type=Path, metavar="OUT", help="the new folder of the files")
+    hand_out.add_argument(
+        "--pdf", action="store_true", help="PDFs printed by headless Chromium, not HTML pages"
+    )
+    hand_out.add_argument(
+        "--force", action="store_true", help="replace an existing OUT written by doorlab"
+    )
     auto = actions.add_parser(
         "autograder", help="write a Gradescope autograder zip that grades with this doorlab"
     )

@@ -446,21 +446,32 @@ def adjusted_why(old: dict, new: dict) -> str:
         parts.append("adjustments.csv: " + "; ".join(added))
     if removed:
         parts.append("adjustments.csv no longer has: " + "; ".join(removed))
-    late = ("due", "penalty_points", "extension")
     old_late, new_late = before.get("late") or {}, after.get("late") or {}
-    if {k: old_late.get(k) for k in late} != {k: new_late.get(k) for k in late}:
+    if [old_late.get(k) for k in ("due", "extension")] != [
+        new_late.get(k) for k in ("due", "extension")
+    ]:
         extension = new_late.get("extension") or old_late.get("extension")
-        parts.append(
-            f"its due date changed ({extension})" if extension else "its late penalty changed"
-        )
+        parts.append(f"its due date changed ({extension or 'the course due date'})")
+    elif old_late.get("penalty_points") != new_late.get("penalty_points") and not parts:
+        parts.append("its late penalty changed")
     return "; ".join(parts) or "its results' total line (rewritten by this doorlab)"
 
 
 def json_text(results: dict) -> str:
-    """``results`` as canonical text (to compare two results)."""
+    """``results`` as canonical text (to compare two results: keys sorted, every number a
+    float, so 20 and 20.0 are the same)."""
     import json
 
-    return json.dumps(results, sort_keys=True, default=str)
+    def canonical(value):
+        if isinstance(value, dict):
+            return {str(k): canonical(v) for k, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [canonical(v) for v in value]
+        if isinstance(value, int) and not isinstance(value, bool):
+            return float(value)
+        return value
+
+    return json.dumps(canonical(results), sort_keys=True, default=str)
 
 
 def _differs(row: dict, results: dict, submission) -> bool:
