@@ -79,7 +79,7 @@ def lateness(
         due = own_due.due
     late_s = max(0.0, (submitted - due).total_seconds())
     days = math.ceil(late_s / DAY_S) if late_s > policy.grace_minutes * 60.0 else 0
-    percent = min(policy.max_penalty_percent, days * policy.penalty_per_day_percent)
+    percent = float(min(policy.max_penalty_percent, days * policy.penalty_per_day_percent))
     return Lateness(due, submitted, late_s, days, percent)
 
 
