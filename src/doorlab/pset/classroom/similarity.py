@@ -3,16 +3,18 @@
 Identical bytes (the sheet's ``same_files_as``) miss the commonest copy: the same code with
 a comment changed, reformatted, or its variables renamed. :func:`similar_groups` reads each
 submission's three graded files (the one intake; a missing file is its stub), normalizes
-them with Python's tokenizer (:func:`normalized`: comments, blank lines and indentation
-dropped, every name that is not a keyword replaced by one placeholder, strings and numbers
-kept) and groups the submissions whose normalized files are equal. The untouched stubs are
-left out, and so is a group whose code of its own (the tokens that differ from the stubs)
-is shorter than :data:`MIN_OWN_TOKENS`: a one-line answer everyone writes alike is no sign.
+them (:func:`normalized`: parsed and written back by Python's own ``ast``, so comments,
+docstrings and layout are dropped, then tokenized with every name that is not a keyword
+replaced by one placeholder; other strings and the numbers kept) and groups the submissions
+whose normalized files are equal. The untouched stubs are left out, and so is a group whose
+code of its own (the tokens that differ from the stubs) is shorter than
+:data:`MIN_OWN_TOKENS`: a one-line answer everyone writes alike is no sign.
 Nothing here is a verdict: the class page lists the groups for the lecturer to look at.
 """
 
 from __future__ import annotations
 
+import ast
 import difflib
 import functools
 import hashlib
@@ -25,11 +27,35 @@ MIN_OWN_TOKENS = 30
 _DROPPED = {tokenize.COMMENT, tokenize.NL, tokenize.NEWLINE, tokenize.INDENT, tokenize.DEDENT}
 
 
-def normalized(source: bytes) -> list[str]:
-    """The source's tokens without comments and layout, each non-keyword name as ``N``
-    (the raw text's words when it does not tokenize, e.g. a syntax error)."""
+def _without_docstrings(source: bytes) -> bytes:
+    """The source as Python's parser reads it, without its docstrings (a string alone on its
+    line), written back by ``ast.unparse`` (one layout); the source itself when it does not
+    parse."""
     try:
-        tokens = list(tokenize.tokenize(io.BytesIO(source).readline))
+        tree = ast.parse(source)
+    except (SyntaxError, ValueError):
+        return source
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if isinstance(body, list):
+            kept = [
+                n
+                for n in body
+                if not (
+                    isinstance(n, ast.Expr)
+                    and isinstance(n.value, ast.Constant)
+                    and isinstance(n.value.value, str)
+                )
+            ]
+            node.body = kept or [ast.Pass()]
+    return ast.unparse(tree).encode()
+
+
+def normalized(source: bytes) -> list[str]:
+    """The source's tokens without comments, docstrings and layout, each non-keyword name as
+    ``N`` (the raw text's words when it does not tokenize, e.g. a syntax error)."""
+    try:
+        tokens = list(tokenize.tokenize(io.BytesIO(_without_docstrings(source)).readline))
     except (tokenize.TokenError, SyntaxError, UnicodeDecodeError):
         return source.decode("utf-8", "replace").split()
     out = []
