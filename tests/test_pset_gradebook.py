@@ -114,6 +114,7 @@ def test_the_total_names_the_hidden_points_the_late_penalty_and_the_adjustments(
 def test_an_extension_from_the_class_s_file_or_gradescope_s_metadata_costs_nothing(tmp_path):
     course = _course()
     results = _graded(course)
+    results["extra_data"]["episodes"] = {}  # no figures to draw: the due dates are the point
     submissions = _class()[:2]
     _write(
         tmp_path, "extensions.csv", "student,due,reason\nada@x.edu,2024-03-04T09:00:00-05:00,ill\n"
@@ -365,3 +366,91 @@ def test_force_keeps_the_instructor_s_files_and_nothing_else(tmp_path):
     assert (out / "adjustments.csv").read_text() == "student,points,reason\n"
     manifest = json.loads((out / ".doorlab-manifest.json").read_text())["files"]
     assert "adjustments.csv" not in manifest  # still the instructor's, not doorlab's
+
+
+# A regrade interrupted, and resumed --------------------------------------------------------
+
+
+def _small_class(root: Path) -> Path:
+    """Two uploads that fail fast (the stubs; calc_p_Q and calc_R_WL7_ref done: 2 points)."""
+    from test_pset_batch import _put
+
+    from doorlab.pset.handout.folder import init_folder
+
+    stubs = init_folder(root / "stubs")
+    key = init_folder(root / "key", solutions=True)
+    export = root / "export"
+    files = {rel: (stubs / rel).read_text() for rel in STUDENT_FILES}
+    _put(export / "s1", files)
+    _put(export / "s2", {**files, "open_left_door.py": (key / "open_left_door.py").read_text()})
+    lines = [
+        f"{sid}:\n  :submitters:\n  - :name: Student {n}\n    :sid: '{n}'\n    :email: "
+        f"s{n}@x.edu\n  :created_at: 2024-03-03 01:30:00.000000000 -05:00\n"
+        for n, sid in ((1, "s1"), (2, "s2"))
+    ]
+    (export / "submission_metadata.yml").write_text("".join(lines))
+    return export
+
+
+@pytest.mark.slow
+def test_an_interrupted_regrade_leaves_the_sheet_and_exports_and_adjustments_survive(
+    tmp_path, monkeypatch
+):
+    """A regrade (a new random seed: every submission simulated again) interrupted after its
+    first grading leaves the sheet and the exports as they were; the next --resume keeps
+    that grading, lists it in changes.csv and grades the rest; the adjustment (kept across
+    the regrade) is in the results, the sheet, changes.csv and the export; without
+    --assignment a regrade grades with the class's (its late policy kept)."""
+    import pset_fixtures
+
+    from doorlab.pset.classroom import grade_all
+    from doorlab.pset.classroom.class_outputs import Outputs
+
+    export, out = _small_class(tmp_path), tmp_path / "grades"
+    reference = pset_fixtures.reference()
+    course = _course()
+    _write(out, "adjustments.csv", "student,points,reason\ns2,1.5,office hours\n")
+    grade_class = grade_all.grade_class
+    grade_class(export, out, assignment=course, reference=reference, jobs=1,
+                outputs=Outputs(exports=("canvas",)))  # fmt: skip
+    sheet, exported = (out / "grades.csv").read_bytes(), (out / "canvas.csv").read_bytes()
+    totals = {r["submission"]: r["total"] for r in csv.DictReader(sheet.decode().splitlines())}
+    assert totals == {"s1": "0", "s2": "3.100"}  # (2 less 20 %) + 1.5
+    reseeded = copy.deepcopy(course)
+    reseeded.seed = 99
+    notices = []
+    done = grade_all._ClassRun.done
+
+    def interrupt_after_one(self, submission, outcome):
+        done(self, submission, outcome)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(grade_all._ClassRun, "done", interrupt_after_one)
+    with pytest.raises(KeyboardInterrupt) as interrupted:
+        grade_class(export, out, assignment=reseeded, reference=reference, resume=True,
+                    jobs=1, notice=notices.append)  # fmt: skip
+    assert notices == [
+        "the assignment differs from the class's (seed: 0 -> 99): 0 submission(s) re-scored "
+        f"from their stored figures, 2 graded again, simulated (their last gradings took "
+        f"{notices[0].split('took ')[1].split(' s')[0]} s of worker time)"
+    ]
+    assert "the sheet and the exports" in interrupted.value.doorlab_left
+    assert (out / "grades.csv").read_bytes() == sheet  # untouched
+    assert (out / "canvas.csv").read_bytes() == exported
+    monkeypatch.setattr(grade_all._ClassRun, "done", done)
+    outcome = grade_class(export, out, reference=reference, resume=True, jobs=1)  # no --assignment
+    changes = list(csv.DictReader((out / "changes.csv").read_text().splitlines()))
+    assert sorted(c["submission"] for c in changes) == ["s1", "s2"]
+    assert len(outcome.graded) == 1  # the interrupted run's grading kept
+    why = {c["submission"]: c["why"] for c in changes}
+    assert any(w.startswith("graded by an earlier run that was interrupted") for w in why.values())
+    rows = {
+        r["submission"]: r for r in csv.DictReader((out / "grades.csv").read_text().splitlines())
+    }
+    assert rows["s2"]["total"] == "3.100" and rows["s2"]["adjustments"] == (
+        "1.5 points added on the total (office hours)"
+    )  # the late policy of the class's assignment, the adjustment kept
+    first = {r["submission"]: r for r in csv.DictReader(sheet.decode().splitlines())}
+    assert all(rows[i]["seed"] != first[i]["seed"] for i in rows)  # graded with seed 99
+    canvas_rows = list(csv.reader((out / "canvas.csv").read_text().splitlines()))[2:]
+    assert [r[5] for r in canvas_rows] == ["0", "3.100"]  # the export equals the sheet

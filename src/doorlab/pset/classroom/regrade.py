@@ -426,6 +426,9 @@ class Ledger:
                     )
                 continue
             old = self.old.get(submission.id)
+            notes = adjustment_notes(old, new) if step.action != "adjust" else []
+            if notes:  # graded or re-scored, and adjusted: both said
+                step = Step(step.action, "; ".join([step.why, *notes]))
             rows.append(
                 change_row(submission.id, names, step, old, new, errors.get(submission.id, ""))
             )
@@ -437,15 +440,7 @@ def adjusted_why(old: dict, new: dict) -> str:
     if json_text(old) == json_text(new):
         return ""
     before, after = old.get("extra_data") or {}, new.get("extra_data") or {}
-    parts = []
-    old_adj = (before.get("adjusted") or {}).get("reasons") or []
-    new_adj = (after.get("adjusted") or {}).get("reasons") or []
-    added = [a for a in new_adj if a not in old_adj]
-    removed = [a for a in old_adj if a not in new_adj]
-    if added:
-        parts.append("adjustments.csv: " + "; ".join(added))
-    if removed:
-        parts.append("adjustments.csv no longer has: " + "; ".join(removed))
+    parts = adjustment_notes(old, new)
     old_late, new_late = before.get("late") or {}, after.get("late") or {}
     if [old_late.get(k) for k in ("due", "extension")] != [
         new_late.get(k) for k in ("due", "extension")
@@ -455,6 +450,22 @@ def adjusted_why(old: dict, new: dict) -> str:
     elif old_late.get("penalty_points") != new_late.get("penalty_points") and not parts:
         parts.append("its late penalty changed")
     return "; ".join(parts) or "its results' total line (rewritten by this doorlab)"
+
+
+def adjustment_notes(old: dict | None, new: dict | None) -> list[str]:
+    """What changed of the instructor's adjustments between two results (added, removed)."""
+
+    def reasons(results):
+        extra = (results or {}).get("extra_data") or {}
+        return list((extra.get("adjusted") or {}).get("reasons") or [])
+
+    before, after = reasons(old), reasons(new)
+    added = [a for a in after if a not in before]
+    removed = [a for a in before if a not in after]
+    parts = ["adjustments.csv: " + "; ".join(added)] if added else []
+    if removed:
+        parts.append("adjustments.csv no longer has: " + "; ".join(removed))
+    return parts
 
 
 def json_text(results: dict) -> str:
@@ -480,7 +491,14 @@ def _differs(row: dict, results: dict, submission) -> bool:
     from doorlab.pset.classroom.roster import _cell, sheet_row
 
     new = sheet_row(submission, results)
-    keys = ["total", *(t.key for t in verdicts.TESTS)]
+    keys = [
+        "total",
+        "status",
+        "seed",
+        "late_penalty",
+        "adjustment",
+        *(t.key for t in verdicts.TESTS),
+    ]
     return any(str(row.get(k, "")) != _cell(new.get(k)) for k in keys)
 
 
