@@ -96,12 +96,15 @@ def class_statistics(
     totals = [float(r["total"]) for r in scored if r.get("total") is not None]
     best = max((float(r.get("max_total") or 0) for r in scored), default=0.0)
     histogram = sorted(Counter(totals).items())
+    from doorlab.pset.classroom.final_grade import restore
+
+    judged = {sid: restore(results[sid]) for sid in graded if sid in results}  # no adjustment
     tests = []
     for spec in verdicts.TESTS:
         entries = [
             t
             for sid in graded
-            for t in (results.get(sid) or {}).get("tests", [])
+            for t in (judged.get(sid) or {}).get("tests", [])
             if t.get("name") == spec.name
         ]
         if entries:
