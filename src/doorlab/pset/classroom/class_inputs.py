@@ -70,9 +70,9 @@ def read_inputs(
     count = sum(len(v) for v in adjustments.grades.values())
     if count or adjustments.identities or own_dues:
         notes.append(
-            f"the instructor's files: {count} adjustment(s) of {len(adjustments.grades)} "
-            f"submission(s), {len(adjustments.identities)} identit(ies) corrected "
-            f"(adjustments.csv); {len(own_dues)} extension(s) (extensions.csv)"
+            f"the instructor's files: adjustments.csv, {count} change(s) of a grade in "
+            f"{len(adjustments.grades)} submission(s) and {len(adjustments.identities)} of an "
+            f"identity; extensions.csv, {len(own_dues)} extension(s)"
         )
     return ClassInputs(assignment, submissions, own_dues, adjustments, exports, notes)
 
