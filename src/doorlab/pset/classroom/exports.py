@@ -56,10 +56,7 @@ def plan_exports(out: Path, requested, roster_path: Path | None) -> ExportPlan:
         plan.roster, plan.roster_bytes = canvas.read_roster(Path(roster_path))
         plan.roster_source = str(roster_path)
     elif (out / canvas.ROSTER_COPY).is_file():
-        copy = out / canvas.ROSTER_COPY
-        text = copy.read_text(errors="replace")
-        plan.roster = canvas.parse_roster(text, str(copy))
-        plan.roster_bytes = text.encode()  # kept across --force
+        plan.roster, plan.roster_bytes = canvas.read_roster(out / canvas.ROSTER_COPY)
         plan.roster_source = f"{canvas.ROSTER_COPY} (the roster an earlier run was given)"
     return plan
 
