@@ -92,7 +92,7 @@ def hand_out(class_dir: Path, out: Path, *, pdf: bool = False, force: bool = Fal
                 if page.is_file() and not page.is_symlink():
                     name = file_name(person, row["submission"], ".pdf" if pdf else ".html")
                     if (staging / name).exists():  # two students of one name and no SID
-                        name = name.replace(".", f"_{len(index)}.", 1)
+                        name = f"{Path(name).stem}_{len(index)}{Path(name).suffix}"
                     if pdf:
                         print_pdf(page, staging / name, chromium=chromium)
                     else:
