@@ -454,3 +454,34 @@ def test_an_interrupted_regrade_leaves_the_sheet_and_exports_and_adjustments_sur
     assert all(rows[i]["seed"] != first[i]["seed"] for i in rows)  # graded with seed 99
     canvas_rows = list(csv.reader((out / "canvas.csv").read_text().splitlines()))[2:]
     assert [r[5] for r in canvas_rows] == ["0", "3.100"]  # the export equals the sheet
+
+
+def test_feedback_files_are_named_for_upload_and_refused_without_a_class(tmp_path, capsys):
+    from doorlab.cli.parser import main
+    from doorlab.pset.classroom.handout_feedback import hand_out
+
+    with pytest.raises(OutputError, match="holds no graded class"):
+        hand_out(tmp_path, tmp_path / "out")
+    grades = _write(tmp_path / "grades", "grades.csv", (
+        "submission,names,sids,emails,total,max_total,status\n"
+        "s1,Ada Lovelace,101,ada@x.edu,12,16,graded\n"
+        "s2,Grace Hopper; Alan Turing,102; 103,g@x.edu; a@x.edu,16,16,graded\n"
+        "s3,'=Eve,104,e@x.edu,,,absent\n"
+    ))  # fmt: skip
+    for sid in ("s1", "s2"):
+        _write(grades / "feedback", f"{sid}.html", f"<p>{sid}</p>")
+    assert main(["pset", "feedback", str(grades), str(tmp_path / "files")]) == 0
+    files = tmp_path / "files"
+    assert sorted(p.name for p in files.iterdir() if not p.name.startswith(".")) == [
+        "101_Lovelace_Ada_s1.html", "102_Hopper_Grace_s2.html", "103_Turing_Alan_s2.html",
+        "index.csv",
+    ]  # fmt: skip
+    index = list(csv.DictReader((files / "index.csv").read_text().splitlines()))
+    assert index[3] == {"name": "'=Eve", "sid": "104", "email": "e@x.edu", "submission": "s3",
+                        "total": "", "max_total": "", "file": ""}  # fmt: skip
+    assert "no page for 1 student(s): =Eve" in capsys.readouterr().out
+    assert main(["pset", "feedback", str(grades), str(files)]) == 2  # exists: --force
+    assert (
+        main(["pset", "grade-all", str(tmp_path), "--out", str(grades), "--roster", "r.csv"]) == 2
+    )
+    assert "--roster fills the Canvas export" in capsys.readouterr().err
