@@ -681,6 +681,10 @@ def test_the_canvas_export_is_the_course_s_own_gradebook_filled_in(semester):
     assert rows["gone@example.edu"][5] == ""  # in the roster, no submission
     gradescope = list(csv.DictReader((semester.grades / "gradescope.csv").read_text().splitlines()))
     assert len(gradescope) == 18 and gradescope[0]["Email"] == "ada@example.edu"
+    seven = next(r for r in gradescope if r["Email"] == "s7@example.edu")
+    assert (seven["Total Score"], seven["Adjustment"]) == ("6.500", "0.500")  # the adjustment
+    page = (semester.grades / "class.html").read_text()
+    assert "<td>+0.5</td>" in page.split(">submission_7<", 1)[1].split("</tr>", 1)[0]
     out = semester.outputs["grade-all"].stdout
     assert "1 student(s) of the roster have no submission" in out and "Out, Dropped" in out
 
