@@ -314,12 +314,20 @@ def test_run_autograder_gives_a_correct_submission_full_marks(root):
     assert "Graded from your submission: " + ", ".join(STUDENT_FILES) in results["output"]
     assert f"doorlab {doorlab.__version__}" in results["output"]
     assert f"Total score: {FULL_MARKS:g} / {FULL_MARKS:g}" in proc.stdout
-    # Gradescope's fields (its Autograder Specifications): plain text, never HTML; the
-    # zip's (default) visibility; each test's number and status; which zip graded.
+    # Gradescope's fields (its Autograder Specifications): plain text but the episodes'
+    # figures (HTML, the text escaped in it); the zip's (default) visibility; each test's
+    # number and status; which zip graded; the total's line.
     assert results["output_format"] == results["test_output_format"] == "text"
     assert results["visibility"] == "visible"
     assert [t["number"] for t in results["tests"]] == [t.number for t in TESTS]
-    assert all(t["status"] == "passed" and t["output_format"] == "text" for t in results["tests"])
+    assert all(t["status"] == "passed" for t in results["tests"])
+    formats = {t["number"]: t["output_format"] for t in results["tests"]}
+    assert [n for n, f in formats.items() if f == "html"] == ["1.2", "2.4", "3.2"]
+    for test in results["tests"]:
+        if test["output_format"] == "html":
+            assert test["output"].count('<img src="data:image/png;base64,') == 1
+            assert test["output"].startswith("<pre>") and test["extra_data"]["text_output"]
+    assert results["output"].splitlines()[-1] == f"Total: {FULL_MARKS:g} / {FULL_MARKS:g} points"
     settings = json.loads((root / "source" / gradescope.SETTINGS_NAME).read_text())
     assert results["extra_data"]["autograder"]["digest"] == settings["digest"]
 

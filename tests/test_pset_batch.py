@@ -33,6 +33,7 @@ import pytest
 
 from doorlab.cli.parser import main
 from doorlab.errors import ConfigError
+from doorlab.pset.classroom.final_grade import restore
 from doorlab.pset.classroom.grade_all import GRADES_CSV, RESULTS_JSON, summarize
 from doorlab.pset.classroom.roster import (
     Submission,
@@ -354,7 +355,7 @@ def test_the_sheet_holds_the_expected_scores_names_and_statuses(klass, resumed):
 def test_each_submission_graded_alone_gives_its_row(klass, resumed):
     """grade_submission on each submission folder of the export (the one intake, as
     ``doorlab pset grade`` runs it; two gradings at a time): the row of the class's sheet,
-    times aside; and the same results file, times aside.
+    times aside; and the same results file, times and the total's line aside.
 
     The 11 unfinished ones the class has for its size (submission_120-130, three flat files
     as 102's or 111's) are not graded alone again: each gets the results of the submission
@@ -384,7 +385,8 @@ def test_each_submission_graded_alone_gives_its_row(klass, resumed):
         text = sheet_text([sheet_row(submission, results)], [t.key for t in TESTS])
         row = next(csv.DictReader(text.splitlines()))
         assert without_times([row]) == without_times([rows[sid]]), sid
-        batch = json.loads((resumed["out"] / sid / RESULTS_JSON).read_text())
+        # The class's results as graded (its total's line, written for the student, out).
+        batch = restore(json.loads((resumed["out"] / sid / RESULTS_JSON).read_text()))
         for data in (batch, results):
             data.pop("execution_time", None)
             data["extra_data"].pop("batch", None)

@@ -26,7 +26,7 @@ from doorlab.pset.classroom.regrade import Step, changed_tests, plan_step
 from doorlab.pset.classroom.roster import Submission, read_metadata_entries
 from doorlab.pset.grading.grader import pretty_format_json_results
 from doorlab.pset.grading.rescore import NeedsGrading, rejudge, settings_change
-from doorlab.pset.grading.scoring import results_from_jobs
+from doorlab.pset.grading.scoring import results_from_jobs, results_not_graded
 from doorlab.pset.handout.course import COURSE_FILE, course_yaml, load_course
 from doorlab.pset.handout.folder import render_folder
 from doorlab.pset.isolation.worker import import_failure
@@ -288,8 +288,9 @@ def test_the_self_check_summary_prints_the_course_s_points_and_total(tmp_path):
         "after the due date)"
     ) in text
     assert "[LATER] Task 1 episode: IK with 10 knots, doors open: 2 points, not run here" in text
-    assert text.splitlines()[-1] == (
-        "Total score: 13 / 15 (2 of them in tests this check does not run)"
+    assert text.splitlines()[-1] == (  # the course's 16 points, the hidden test's 1 named
+        "Total score: 13 / 16 (2 of them in tests this check does not run; 1 in hidden tests: "
+        "graded by your course, not shown or run here)"
     )
 
 
@@ -321,18 +322,19 @@ def _class():
 def test_the_canvas_export_has_the_columns_canvas_s_gradebook_import_expects():
     """Canvas's guide: Student, ID, SIS User ID, SIS Login ID, Section, then the assignment's
     column; its export's Points Possible row; one row per student (a group's members each
-    get the group's grade); no cell a spreadsheet runs; no grade: an empty cell."""
+    get the group's grade) named as Canvas does ("Last, First"); no cell a spreadsheet runs;
+    no grade: an empty cell."""
     submissions, rows = _class()
     text, notes = gradebook.canvas_text(submissions, rows, Assignment(title="Problem set 5"))
     table = list(csv.reader(text.splitlines()))
     assert table[0] == ["Student", "ID", "SIS User ID", "SIS Login ID", "Section", "Problem set 5"]
     assert table[1] == ["Points Possible", "", "", "", "", "16"]
     assert table[2:] == [
-        ["Ada Key", "", "101", "ada@x.edu", "", "16"],
-        ["'=cmd|' /C calc'!A0", "", "102", "b@x.edu", "", "12.800"],
-        ["Grace One", "", "103", "g@x.edu", "", "12.800"],
-        ["Absent Al", "", "104", "al@x.edu", "", ""],
-        ["Error Eve", "", "105", "eve@x.edu", "", ""],
+        ["Key, Ada", "", "101", "ada@x.edu", "", "16"],
+        ["calc'!A0, =cmd|' /C", "", "102", "b@x.edu", "", "12.800"],
+        ["One, Grace", "", "103", "g@x.edu", "", "12.800"],
+        ["Al, Absent", "", "104", "al@x.edu", "", ""],
+        ["Eve, Error", "", "105", "eve@x.edu", "", ""],
     ]
     assert notes == []
     text, _ = gradebook.gradescope_text(submissions, rows)
@@ -344,38 +346,74 @@ def test_the_canvas_export_has_the_columns_canvas_s_gradebook_import_expects():
         "al@x.edu",
         "eve@x.edu",
     ]
+    assert table[1]["Name"] == "'=cmd|' /C calc'!A0"  # the guard: no formula
     assert table[2]["Total Score"] == "12.800" and table[2]["Late Penalty"] == "3.200"
-    # A student in two submissions: the later one counts, and the export says so.
+    # A student in two submissions (one SID): refused, never one row replacing the other.
     again = Submission("s5", Path("s5"), submissions[0].submitters, "2024-03-02T12:00:00-05:00")
-    rows["s5"] = {"status": "graded", "total": 10.0, "max_total": 16.0}
-    text, notes = gradebook.canvas_text([*submissions, again], rows, Assignment())
-    assert notes == ["101 is in s1 and s5: s5 (the later) counts"]
-    assert list(csv.reader(text.splitlines()))[2][5] == "10"
+    with pytest.raises(ConfigError) as error:
+        gradebook.check_exports(["canvas"], [*submissions, again])
+    assert str(error.value).startswith(
+        "--export canvas: SID '101' is both s1 (Ada Key, ada@x.edu)'s and s5 (Ada Key, "
+        "ada@x.edu)'s: one row would replace the other; correct the student's identity in "
+        "the class's adjustments.csv"
+    )
 
 
 def test_the_class_statistics_count_each_mistake_once_whatever_its_numbers():
+    """Every distinct mistake with its count (numbers as #, the catalogue's diagnosis where
+    the test made one, shortened at a word), the stubs and the uploads not graded apart."""
     graded = _graded()
     other = json.loads(json.dumps(graded))
+    stub = json.loads(json.dumps(graded))
+    swapped = "on 6 of 6 draws your answer is J^T F with the gains swapped"
+    long = "calc_p_Q " + " ".join(["wrongly"] * 60) + " 0.1 m"
     for t in other["tests"]:
         if t["number"] == "2.1":
             t["output"] = "calc_p_Q is off by 0.12 m"
+        if t["number"] == "3.1":
+            t.update(status="failed", score=0.0, output=f"grading seed 5; tol\n{swapped}\ndraw 0")
+    for t in stub["tests"]:
+        if t["number"] == "2.1":
+            t["output"] = "your code raised NotImplementedError: calc_p_Q: your code here"
+        if t["number"] == "3.1":
+            t.update(status="failed", score=0.0, output=long)
     rows = [
         {"submission": "a", "status": "graded", "total": 13.0, "wall_time_s": 8.0},
         {"submission": "b", "status": "graded", "total": 13.0, "wall_time_s": 0.0,
          "same_files_as": "a"},
+        {"submission": "s", "status": "graded", "total": 11.0, "wall_time_s": 2.0},
+        {"submission": "n", "status": "not_graded", "total": 0.0},
         {"submission": "c", "status": "error"},
     ]  # fmt: skip
-    stats = class_statistics(rows, {"a": graded, "b": other})
-    assert stats["by_status"] == {"error": 1, "graded": 2}
-    assert stats["histogram"] == [{"total": 13.0, "submissions": 2}]
-    by_key = {t["key"]: t for t in stats["tests"]}
-    assert by_key["calc_p_Q_unit"]["pass_rate"] == 0.0
-    assert by_key["calc_p_Q_unit"]["messages"] == [
-        {"message": "calc_p_Q is off by # m", "count": 2}
+    not_graded = results_not_graded(TESTS, "none of the student files")
+    stats = class_statistics(rows, {"a": graded, "b": other, "s": stub, "n": not_graded})
+    assert stats["by_status"] == {"error": 1, "graded": 3, "not_graded": 1}
+    assert stats["histogram"] == [
+        {"total": 0.0, "submissions": 1},
+        {"total": 11.0, "submissions": 1},
+        {"total": 13.0, "submissions": 2},
     ]
+    by_key = {t["key"]: t for t in stats["tests"]}
+    assert by_key["calc_p_Q_unit"]["graded"] == 3  # the upload not graded counted apart
+    assert by_key["calc_p_Q_unit"]["pass_rate"] == 0.0
+    assert by_key["calc_p_Q_unit"]["not_attempted"] == 1
+    assert by_key["calc_p_Q_unit"]["messages"] == [
+        {"message": "calc_p_Q is off by # m", "kind": "message", "count": 2}
+    ]
+    impedance = by_key["impedance_unit"]["messages"]
+    assert impedance[1] == {
+        "message": "your answer is J^T F with the gains swapped",
+        "kind": "diagnosis",
+        "count": 1,
+    }
+    cut = impedance[0]["message"]  # shortened at a word, never in the middle of one
+    assert cut.endswith("wrongly ...") and len(cut) <= 300
     assert by_key["ik_unit"]["pass_rate"] == 1.0 and by_key["ik_unit"]["mean_score"] == 2.0
-    assert stats["time_per_submission_s"]["n"] == 1  # a copy's grading is the original's
+    assert stats["time_per_submission_s"]["n"] == 2  # a copy's grading is the original's
     assert stats["identical_files"] == [["a", "b"]]
+    assert [r["page"] for r in stats["rows"]] == [
+        f"feedback/{i}.html" for i in ("a", "b", "s", "n", "c")
+    ]
 
 
 # Messages ----------------------------------------------------------------------------------
@@ -450,7 +488,12 @@ def test_the_feedback_page_shows_each_test_as_its_visibility_allows():
         f"shown after the due date ({DUE})",
         "shown once the course publishes its grades",
     ]
-    assert context["final"] is None  # the score shown is the shown tests'
+    # The score is the grade with the course's points, naming the points not on the page.
+    assert context["final"] == results["score"] and context["max_score"] == 14
+    assert context["notes"] == [
+        "1 point in 1 hidden test (not on this page)",
+        "4 points in 2 tests not shown yet (not on this page)",
+    ]
     assert context["score"] == sum(t["score"] for t in context["tests"])
     after, _ = shown(due + datetime.timedelta(hours=1))
     assert after == ["1.1", "1.2", "2.2", "2.3", "2.4", "3.1"]

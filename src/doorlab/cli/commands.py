@@ -28,8 +28,8 @@ from doorlab.runtime.inputs import quote_text
 
 
 def pset(args: argparse.Namespace) -> int:
-    """``doorlab pset {init,grade,grade-all,autograder,handout,assignment}``; returns the exit
-    code."""
+    """``doorlab pset {init,grade,grade-all,feedback,autograder,handout,assignment}``; returns
+    the exit code."""
     from doorlab.pset.handout.folder import init_folder
 
     if args.pset_command == "init":
@@ -45,6 +45,12 @@ def pset(args: argparse.Namespace) -> int:
             f"doorlab pset: wrote {out} (the defaults, a fresh random seed); grade with it: "
             f"doorlab pset grade SUBMISSION --assignment {out}"
         )
+        return 0
+    if args.pset_command == "feedback":
+        from doorlab.pset.classroom.handout_feedback import hand_out
+
+        for line in hand_out(args.class_dir, args.out, pdf=args.pdf, force=args.force):
+            print(f"doorlab pset feedback: {line}")
         return 0
     assignment = _assignment(args.assignment)
     if args.pset_command == "grade-all":
@@ -140,6 +146,9 @@ def _pset_grade_all(args: argparse.Namespace, assignment) -> int:
     reference = None if args.reference is None else grader.load_reference(args.reference)
     if args.scheduler is not None:
         _probe(args)
+    has_canvas = "canvas" in args.export or (Path(args.out) / "canvas.csv").is_file()
+    if args.roster is not None and not has_canvas:
+        raise ConfigError("--roster fills the Canvas export: give it with --export canvas")
     jobs = args.jobs or os.cpu_count() or 1
     try:
         outcome = grade_class(
@@ -156,17 +165,21 @@ def _pset_grade_all(args: argparse.Namespace, assignment) -> int:
             progress=True,
             only=args.only,
             outputs=outputs,
+            roster=args.roster,
+            notice=lambda line: print(f"doorlab pset grade-all: {line}", file=sys.stderr),
         )
     except KeyboardInterrupt as e:
-        print(f"doorlab pset grade-all: interrupted; {_class_left(args.out)}", file=sys.stderr)
+        left = getattr(e, "doorlab_left", None) or _class_left(args.out)
+        print(f"doorlab pset grade-all: interrupted; {left}", file=sys.stderr)
         return interrupt_exit_code(e)
     for line in outcome.summary:
         print(f"  {line}")
     kept = f" ({len(outcome.kept)} kept from {args.out})" if outcome.kept else ""
     if outcome.rescored:
         kept += f" ({len(outcome.rescored)} re-scored from their stored figures)"
+    count = len(outcome.graded)
     print(
-        f"doorlab pset grade-all: graded {len(outcome.graded)} submissions{kept} on "
+        f"doorlab pset grade-all: graded {count} submission{'' if count == 1 else 's'}{kept} on "
         f"{outcome.executor}; sheet: {args.out / GRADES_CSV}; results: "
         f"{args.out}/<submission>/results.json"
     )

@@ -224,13 +224,14 @@ def _scheduler(parser: argparse.ArgumentParser) -> None:
 
 
 def add_pset_parser(sub) -> None:
-    """``doorlab pset {init,grade,grade-all,autograder,handout,assignment}``: the problem-set
-    folder, its grader (one submission, or a whole class), the grader as a Gradescope
-    autograder zip, the students' handout and the assignment file."""
+    """``doorlab pset {init,grade,grade-all,feedback,autograder,handout,assignment}``: the
+    problem-set folder, its grader (one submission, or a whole class), each student's feedback
+    to hand out, the grader as a Gradescope autograder zip, the students' handout and the
+    assignment file."""
     pset = sub.add_parser("pset", help="write the problem-set folder for students, or grade one")
     actions = pset.add_subparsers(
         dest="pset_command",
-        metavar="{init,grade,grade-all,autograder,handout,assignment}",
+        metavar="{init,grade,grade-all,feedback,autograder,handout,assignment}",
         parser_class=OneLineParser,
         required=True,
     )
@@ -282,6 +283,21 @@ def add_pset_parser(sub) -> None:
         "namespaces); the results and the summary say so",
     )
     add_grade_all_parser(actions)
+    hand_out = actions.add_parser(
+        "feedback",
+        help="write each student's feedback page (or PDF) of a graded class into OUT, named by "
+        "student id and name, with an index.csv: for a course without Gradescope",
+    )
+    hand_out.add_argument(
+        "class_dir", type=Path, metavar="DIR", help="the class's folder (grade-all --out DIR)"
+    )
+    hand_out.add_argument("out", type=Path, metavar="OUT", help="the new folder of the files")
+    hand_out.add_argument(
+        "--pdf", action="store_true", help="PDFs printed by headless Chromium, not HTML pages"
+    )
+    hand_out.add_argument(
+        "--force", action="store_true", help="replace an existing OUT written by doorlab"
+    )
     auto = actions.add_parser(
         "autograder", help="write a Gradescope autograder zip that grades with this doorlab"
     )
@@ -378,7 +394,17 @@ def add_grade_all_parser(actions) -> None:
         default=[],
         choices=("canvas", "gradescope"),
         help="also write DIR/canvas.csv (Canvas's gradebook import) or DIR/gradescope.csv "
-        "(Gradescope's roster columns with the grade): one row per student; repeat for both",
+        "(one row per student by Gradescope's name, e-mail and SID, for another gradebook's CSV "
+        "import); repeat for both; every later run rewrites the exports DIR holds",
+    )
+    grade_all.add_argument(
+        "--roster",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="the course's Canvas gradebook export (Grades, Export): --export canvas fills its "
+        "students (matched by e-mail, then SIS User ID) with Canvas's ID, names and sections; "
+        "kept in DIR for later runs",
     )
     grade_all.add_argument(
         "--pdf",

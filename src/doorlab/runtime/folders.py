@@ -104,14 +104,14 @@ def _walk_files(folder: Path) -> Iterator[Path]:
             yield path
 
 
-def write_manifest(folder: Path) -> None:
+def write_manifest(folder: Path, *, exclude: Iterable[str] = ()) -> None:
     """Records every file now under ``folder`` as written by doorlab (a complete staging
-    folder, just before it is committed)."""
+    folder, just before it is committed), but the top-level names ``exclude`` (a user's)."""
     folder = Path(folder)
     files = {
         p.relative_to(folder).as_posix(): _entry(p)
         for p in _walk_files(folder)
-        if p.relative_to(folder).as_posix() != MANIFEST_NAME
+        if p.relative_to(folder).as_posix() not in (MANIFEST_NAME, *exclude)
     }
     _write_manifest(folder, files)
 
@@ -157,13 +157,16 @@ def _unchanged(path: Path, entry: dict) -> bool:
         return False
 
 
-def foreign_file(folder: Path, *, only: Iterable[str] | None = None) -> tuple[str, str] | None:
+def foreign_file(
+    folder: Path, *, only: Iterable[str] | None = None, keep: Iterable[str] = ()
+) -> tuple[str, str] | None:
     """The first thing under ``folder`` that replacing it would lose, and why; None if it holds
     nothing but the files doorlab wrote, unchanged (or is empty, or does not exist).
 
     Args:
         folder: The folder (not followed if it is a link: callers resolve it first).
         only: Check only these top-level names (what a resumed sweep rewrites).
+        keep: Top-level names of a user's files that a replacement keeps (not counted).
 
     Returns:
         (path relative to ``folder``, why), e.g. ``("p.txt", "which doorlab did not write")``.
@@ -172,7 +175,7 @@ def foreign_file(folder: Path, *, only: Iterable[str] | None = None) -> tuple[st
     if not folder.is_dir():
         return None
     files = read_manifest(folder)
-    names = sorted(os.listdir(folder))
+    names = [n for n in sorted(os.listdir(folder)) if n not in set(keep)]
     if only is not None:
         names = [n for n in names if n in set(only)]
     if files is None:
@@ -213,7 +216,9 @@ def _target(out_dir: Path) -> Path:
     return out_dir.resolve() if out_dir.is_symlink() else Path(os.path.abspath(out_dir))
 
 
-def check_replaceable(out_dir: Path, *, force: bool, label: str | None = None) -> Path:
+def check_replaceable(
+    out_dir: Path, *, force: bool, label: str | None = None, keep: Iterable[str] = ()
+) -> Path:
     """Checks that ``out_dir`` may be written, writing nothing; returns the folder it names.
 
     The rule: a missing or empty folder may be written; one holding only files doorlab wrote,
@@ -224,6 +229,8 @@ def check_replaceable(out_dir: Path, *, force: bool, label: str | None = None) -
         out_dir: The output folder (a link to a folder names that folder).
         force: Replace a folder doorlab wrote.
         label: How messages name the folder (default ``--out 'DIR'``).
+        keep: Top-level names of a user's files that a replacement keeps
+            (:func:`commit_output`).
 
     Raises:
         OutputError: ``out_dir`` is a file, under a file, the root, exists without ``force``,
@@ -241,8 +248,8 @@ def check_replaceable(out_dir: Path, *, force: bool, label: str | None = None) -
     if not target.is_dir():
         return target
     try:
-        found = foreign_file(target)
-        empty = not any(target.iterdir())
+        found = foreign_file(target, keep=keep)
+        empty = not any(p.name not in set(keep) for p in target.iterdir())
     except OSError as e:
         raise OutputError(f"cannot read {name}: {e.strerror or e}") from None
     if found is not None:
@@ -257,7 +264,9 @@ def check_replaceable(out_dir: Path, *, force: bool, label: str | None = None) -
     return target
 
 
-def prepare_output(out_dir: Path, *, force: bool, label: str | None = None) -> Path:
+def prepare_output(
+    out_dir: Path, *, force: bool, label: str | None = None, keep: Iterable[str] = ()
+) -> Path:
     """Checks that ``out_dir`` may be written (:func:`check_replaceable`) and returns a fresh
     staging folder beside it; :func:`commit_output` moves it into place, :func:`discard_output`
     removes it. A staging folder neither committed nor discarded is removed at exit.
@@ -267,7 +276,7 @@ def prepare_output(out_dir: Path, *, force: bool, label: str | None = None) -> P
             parent cannot be created or written.
     """
     name = label or f"--out {str(out_dir)!r}"
-    target = check_replaceable(out_dir, force=force, label=label)
+    target = check_replaceable(out_dir, force=force, label=label, keep=keep)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         with deferred_signals():
@@ -281,28 +290,37 @@ def prepare_output(out_dir: Path, *, force: bool, label: str | None = None) -> P
         raise OutputError(f"cannot write {name}: {e.strerror or e}") from None
 
 
-def commit_output(staging: Path, out_dir: Path) -> None:
+def commit_output(staging: Path, out_dir: Path, *, keep: Iterable[str] = ()) -> None:
     """Moves a complete staging folder into place, with its manifest, replacing ``out_dir``
     (checked again: it may have changed since :func:`prepare_output`). The swap is not cut
-    short by a signal (which is raised right after it).
+    short by a signal (which is raised right after it). The user's files ``keep`` (top-level
+    names) of the folder replaced are copied into the new one first (not in its manifest).
 
     Raises:
         OutputError: ``out_dir`` now holds a file doorlab did not write (nothing is moved).
     """
     staging, target = Path(staging), _target(out_dir)
-    write_manifest(staging)
+    keep = tuple(keep)
     try:
-        _swap(staging, target, out_dir)
+        for name in keep:
+            kept = target / name
+            if kept.is_file() and not kept.is_symlink() and not (staging / name).exists():
+                shutil.copy2(kept, staging / name)
+    except OSError as e:
+        raise OutputError(f"cannot write {str(out_dir)!r}: {e.strerror or e}") from None
+    write_manifest(staging, exclude=keep)
+    try:
+        _swap(staging, target, out_dir, keep)
     except OSError as e:
         raise OutputError(f"cannot write {str(out_dir)!r}: {e.strerror or e}") from None
 
 
-def _swap(staging: Path, target: Path, out_dir: Path) -> None:
+def _swap(staging: Path, target: Path, out_dir: Path, keep: tuple[str, ...] = ()) -> None:
     with deferred_signals():
         if target.exists() and not target.is_dir():
             raise OutputError(f"{str(out_dir)!r} is now a file; it was not replaced")
         if target.is_dir():
-            found = foreign_file(target)
+            found = foreign_file(target, keep=keep)
             if found is not None:
                 raise OutputError(
                     f"{str(out_dir)!r} now holds {found[0]!r}, {found[1]}; it was not replaced"
@@ -334,13 +352,16 @@ def discard_output(staging: Path) -> None:
 
 
 @contextmanager
-def staged_output(out_dir: Path, *, force: bool, label: str | None = None) -> Iterator[Path]:
+def staged_output(
+    out_dir: Path, *, force: bool, label: str | None = None, keep: Iterable[str] = ()
+) -> Iterator[Path]:
     """A staging folder for the ``with`` block, committed to ``out_dir`` when the block ends
-    normally and removed when it ends by any exception (Ctrl-C and SIGTERM included)."""
-    staging = prepare_output(out_dir, force=force, label=label)
+    normally and removed when it ends by any exception (Ctrl-C and SIGTERM included);
+    ``keep``: the top-level names of a user's files the new folder keeps."""
+    staging = prepare_output(out_dir, force=force, label=label, keep=keep)
     try:
         yield staging
-        commit_output(staging, out_dir)
+        commit_output(staging, out_dir, keep=keep)
     finally:
         discard_output(staging)
 

@@ -2,7 +2,7 @@
 and the sheet replaced (:mod:`doorlab.pset.classroom.regrade`), each submission's feedback page
 (:mod:`doorlab.pset.classroom.feedback`), the class's statistics
 (:mod:`doorlab.pset.classroom.class_statistics`: ``summary.json``, ``class.html``) and the gradebook
-exports (:mod:`doorlab.pset.classroom.gradebook`).
+exports (:mod:`doorlab.pset.classroom.exports`: those asked for and those the folder has).
 
 All of it is rebuilt from the class folder's results on every run (a figure is rendered once:
 the feedback's cache), each file written atomically and recorded as doorlab's, so ``--force``
@@ -17,7 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from doorlab.pset.classroom import class_statistics, feedback, gradebook, regrade
+from doorlab.pset.classroom import class_statistics, feedback, regrade
 
 
 @dataclass(frozen=True)
@@ -33,6 +33,7 @@ class Outputs:
         feedback: Write the feedback pages.
         only: Print only these submissions' pages (``--only``); empty: every page that is
             new, changed or without its PDF.
+        roster: Canvas's gradebook export the ``canvas`` export is filled from (``--roster``).
     """
 
     exports: tuple[str, ...] = ()
@@ -41,6 +42,7 @@ class Outputs:
     now: datetime.datetime | None = None
     feedback: bool = True
     only: tuple[str, ...] = ()
+    roster: Path | None = None
 
 
 Write = Callable[[Path, str, "str | bytes"], None]
@@ -92,8 +94,10 @@ def write_class_outputs(
     assignment,
     outputs: Outputs | None,
     write: Write,
+    exports=None,
 ) -> list[str]:
-    """The feedback pages, ``summary.json``, ``class.html`` and the exports; returns the
+    """The feedback pages, ``summary.json``, ``class.html`` and the exports (``exports``: a
+    :class:`doorlab.pset.classroom.exports.ExportPlan`; None: ``outputs.exports``); returns the
     summary's lines about them. (``write`` takes ``record=False``: the files are recorded in
     the folder's manifest together, once, not one rewrite of it per file.)"""
     from doorlab.runtime.folders import record_written
@@ -105,15 +109,24 @@ def write_class_outputs(
         write(folder, rel, data, record=False)
         written.append(Path(folder) / rel)
 
+    if exports is None:
+        from doorlab.pset.classroom.exports import ExportPlan
+
+        exports = ExportPlan(tuple(outputs.exports))
     try:
-        return _write_all(out, submissions, rows, results, assignment, outputs, deferred)
+        lines = _write_all(out, submissions, rows, results, assignment, outputs, deferred)
+        from doorlab.pset.classroom.exports import write_exports
+
+        return lines + write_exports(out, exports, submissions, rows, assignment, deferred)
     finally:
         record_written(out, written)
 
 
 def _write_all(out, submissions, rows, results, assignment, outputs: Outputs, write) -> list[str]:
+    from doorlab.pset.classroom.similarity import similar_groups
+
     lines = []
-    stats = class_statistics.class_statistics(rows, results)
+    stats = class_statistics.class_statistics(rows, results, similar_groups(submissions))
     write(out, class_statistics.SUMMARY_JSON, json.dumps(stats, indent=1) + "\n")
     write(out, class_statistics.CLASS_HTML, class_statistics.class_page(stats, assignment.title))
     lines.append(
@@ -122,10 +135,12 @@ def _write_all(out, submissions, rows, results, assignment, outputs: Outputs, wr
     if outputs.feedback:
         now = outputs.now or datetime.datetime.now().astimezone()
         visibility = feedback.Visibility(now, outputs.published)
+        by_id = {r["submission"]: r for r in rows}
         pages = [
-            feedback.write_page(out, s, results[s.id], assignment, visibility, write)
+            feedback.write_page(
+                out, s, results.get(s.id), assignment, visibility, write, by_id.get(s.id)
+            )
             for s in submissions
-            if s.id in results
         ]
         chosen = [(p, w) for p, w in pages if not outputs.only or p.stem in outputs.only]
         pdfs = feedback.print_pages(out, chosen) if outputs.pdf and chosen else []
@@ -134,11 +149,4 @@ def _write_all(out, submissions, rows, results, assignment, outputs: Outputs, wr
             f"feedback: {len(pages)} pages in {feedback.FEEDBACK}/ ({changed} new or changed)"
             + (f", {len(pdfs)} printed to PDF" if pdfs else "")
         )
-    by_id = {r["submission"]: r for r in rows}
-    for fmt in outputs.exports:
-        text, notes = gradebook.export_text(fmt, submissions, by_id, assignment)
-        write(out, gradebook.FILES[fmt], text)
-        count = len(text.splitlines()) - (2 if fmt == "canvas" else 1)
-        lines.append(f"{fmt} export: {gradebook.FILES[fmt]} ({count} students)")
-        lines += [f"  {note}" for note in notes[:10]]
     return lines

@@ -23,22 +23,31 @@ SUMMARY_JSON = "summary.json"
 CLASS_HTML = "class.html"
 SHOWN_SCORES = 12
 """Distinct total scores listed in the summary's distribution (the rest summed up)."""
-TOP_MESSAGES = 3
-"""Most common messages listed per test."""
-MESSAGE_CHARS = 240
-"""Longest message listed [characters]."""
+MESSAGE_CHARS = 300
+"""Longest message listed [characters] (shortened at a word)."""
+NOT_ATTEMPTED = "NotImplementedError"
+"""What a test left as its stub says (the stubs raise it)."""
+_DIAGNOSIS = re.compile(r"^on \d+ of \d+ draws your answer is (.+)$")
+"""A unit test's diagnosis line (:mod:`doorlab.pset.grading.checks`)."""
 _NUMBER = re.compile(r"(?<![\w.])[-+]?(\d+\.\d*|\.\d+|\d+)([eE][-+]?\d+)?(?![\w])")
 """A number that is not part of a name (``calc_R_WL7_ref`` keeps its 7)."""
 
 
-def _message(output: str) -> str:
-    """A failed test's message as a class-wide key: its first failing line (an episode's
-    ``FAILED`` check, else the first line), numbers as ``#``."""
+def _message(output: str) -> tuple[str, str]:
+    """A failed test's mistake as a class-wide key, and its kind: the catalogue's diagnosis
+    (``diagnosis``), else its first failing line (an episode's ``FAILED`` check, else the
+    first line) with its numbers as ``#`` (``message``)."""
+    import textwrap
+
     lines = [line.strip() for line in str(output).splitlines() if line.strip()]
     lines = [line for line in lines if not line.startswith("grading seed ")]  # a unit's header
+    for line in lines:
+        if match := _DIAGNOSIS.match(line):
+            return "your answer is " + match.group(1), "diagnosis"
     failing = [line for line in lines if line.startswith("FAILED")]
     line = (failing or lines or ["(no message)"])[0].removeprefix("FAILED").strip()
-    return " ".join(_NUMBER.sub("#", line).split())[:MESSAGE_CHARS]
+    text = " ".join(_NUMBER.sub("#", line).split())
+    return textwrap.shorten(text, MESSAGE_CHARS, placeholder=" ..."), "message"
 
 
 def _quantiles(values: list[float]) -> dict:
@@ -54,45 +63,63 @@ def _quantiles(values: list[float]) -> dict:
     }
 
 
-def class_statistics(rows: list[dict], results: dict[str, dict]) -> dict:
-    """The class's figures (``summary.json``): ``rows`` the sheet's, ``results`` by id."""
+def _test_figures(spec, entries: list[dict]) -> dict:
+    """One test's figures over the graded submissions' ``entries`` (its results entries)."""
+    failed = [t for t in entries if t.get("status") != "passed"]
+    stubs = [t for t in failed if NOT_ATTEMPTED in str(t.get("text_output", t.get("output")))]
+    mistakes = Counter(
+        _message(str(t.get("output", ""))) for t in failed if not any(t is x for x in stubs)
+    )
+    return {
+        "key": spec.key,
+        "number": spec.number,
+        "name": spec.name,
+        "max_score": max(float(t.get("max_score") or 0) for t in entries),
+        "pass_rate": round(1 - len(failed) / len(entries), 4),
+        "mean_score": round(statistics.fmean(float(t["score"]) for t in entries), 3),
+        "graded": len(entries),
+        "not_attempted": len(stubs),
+        "messages": [
+            {"message": m, "kind": kind, "count": n}
+            for (m, kind), n in sorted(mistakes.items(), key=lambda x: (-x[1], x[0]))
+        ],
+    }
+
+
+def class_statistics(
+    rows: list[dict], results: dict[str, dict], similar: list[dict] | None = None
+) -> dict:
+    """The class's figures (``summary.json``): ``rows`` the sheet's, ``results`` by id,
+    ``similar`` the groups of :func:`doorlab.pset.classroom.similarity.similar_groups`."""
     scored = [r for r in rows if r.get("status") in ("graded", "not_graded")]
+    graded = [r["submission"] for r in rows if r.get("status") == "graded"]
     totals = [float(r["total"]) for r in scored if r.get("total") is not None]
     best = max((float(r.get("max_total") or 0) for r in scored), default=0.0)
     histogram = sorted(Counter(totals).items())
+    from doorlab.pset.classroom.final_grade import restore
+
+    judged = {sid: restore(results[sid]) for sid in graded if sid in results}  # no adjustment
     tests = []
     for spec in verdicts.TESTS:
         entries = [
             t
-            for sid in (r["submission"] for r in scored)
-            for t in (results.get(sid) or {}).get("tests", [])
+            for sid in graded
+            for t in (judged.get(sid) or {}).get("tests", [])
             if t.get("name") == spec.name
         ]
-        if not entries:
-            continue
-        failed = [t for t in entries if t.get("status") != "passed"]
-        messages = Counter(_message(t.get("output", "")) for t in failed)
-        tests.append(
-            {
-                "key": spec.key,
-                "number": spec.number,
-                "name": spec.name,
-                "max_score": max(float(t.get("max_score") or 0) for t in entries),
-                "pass_rate": round(1 - len(failed) / len(entries), 4),
-                "mean_score": round(statistics.fmean(float(t["score"]) for t in entries), 3),
-                "messages": [
-                    {"message": m, "count": n} for m, n in messages.most_common(TOP_MESSAGES)
-                ],
-            }
-        )
+        if entries:
+            tests.append(_test_figures(spec, entries))
     times = [float(r["wall_time_s"]) for r in scored if _positive(r.get("wall_time_s"))]
     times_by_id = {
         r["submission"]: float(r["wall_time_s"]) for r in scored if _positive(r.get("wall_time_s"))
     }
     groups: dict[str, list[str]] = {}
+    stubs = _stubs_digest()
     for r in rows:
-        if r.get("same_files_as"):
-            groups.setdefault(r["same_files_as"], [r["same_files_as"]]).append(r["submission"])
+        original = r.get("same_files_as")
+        batch = ((results.get(original) or {}).get("extra_data") or {}).get("batch") or {}
+        if original and batch.get("files_sha256") != stubs:  # the untouched stubs left out
+            groups.setdefault(original, [original]).append(r["submission"])
     late = [r for r in scored if _positive(r.get("late_penalty"))]
     return {
         "submissions": len(rows),
@@ -105,7 +132,26 @@ def class_statistics(rows: list[dict], results: dict[str, dict]) -> dict:
         "times_s": times_by_id,
         "late": {"submissions": len(late), "points": sum(float(r["late_penalty"]) for r in late)},
         "identical_files": sorted(groups.values()),
+        "similar_code": similar or [],
+        "rows": [_student_row(r) for r in rows],
     }
+
+
+def _stubs_digest() -> str:
+    """The graded files' SHA-256 of the untouched stubs (as a grading records it)."""
+    from doorlab.pset.classroom.regrade import _stubs
+    from doorlab.pset.rules.assignment import bytes_digest
+
+    return bytes_digest(dict(_stubs()))
+
+
+def _student_row(row: dict) -> dict:
+    """A submission's row of the page's table (its feedback page's link)."""
+    keep = ("submission", "names", "total", "max_total", "status", "late_penalty", "adjustment")
+    out = {k: row.get(k) for k in keep}
+    out["page"] = f"feedback/{row['submission']}.html"
+    out["note"] = row.get("error") or row.get("missing_files") or ""
+    return out
 
 
 def _positive(value: object) -> bool:

@@ -8,9 +8,11 @@ orientation error along the 10 s arc), drawn from the series the grading stored 
 results (:func:`doorlab.pset.grading.episodes.episode_series`): nothing is simulated here.
 
 What the page shows follows the tests' Gradescope visibility: a ``hidden`` test is never on
-it (nor counted in the score shown), an ``after_due_date`` test once the due date (the
-assignment's late policy) has passed, an ``after_published`` test once the course says its
-grades are published (``published``). A figure depends only on the two series it draws, so it
+it, an ``after_due_date`` test once the due date (the assignment's late policy) has passed, an
+``after_published`` test once the course says its grades are published (``published``). The
+score is always the grade with the course's points, and says how many of them are in tests
+the page does not show, the late penalty (and an extension) and the instructor's adjustments
+(:mod:`doorlab.pset.classroom.final_grade`). A figure depends only on the two series it draws, so it
 is rendered once and kept (``feedback/figures/<sha256>.png``): a regrade that changes points
 or margins re-renders the pages, not the figures.
 """
@@ -95,9 +97,10 @@ def _figure_png(title: str, yours: dict, reference: dict | None) -> bytes:
     # third of the figure's time (0.16 against 0.11 CPU-s), for the same look here.
     fig.subplots_adjust(left=0.075, right=0.99, bottom=0.17, top=0.88, wspace=0.36)
     for ax, (key, label) in zip(axes, PANELS, strict=True):
-        if reference is not None:
+        if reference is not None and key in reference:
             ax.plot(reference["t_s"], reference[key], color="0.45", lw=2.2, label="reference")
-        ax.plot(yours["t_s"], yours[key], color="#c0392b", lw=1.3, label="yours")
+        if key in yours:
+            ax.plot(yours["t_s"], yours[key], color="#c0392b", lw=1.3, label="yours")
         ax.set_xlabel("time from the arc's start [s]")
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.4)
@@ -172,9 +175,9 @@ def page_context(submission, results: dict, assignment, visibility: Visibility) 
             }
         )
     late = extra.get("late") if isinstance(extra.get("late"), dict) else None
-    everything = not later and len(tests) == len(by_name)
     people = ", ".join(p.get("name", "") for p in submission.submitters if p.get("name"))
     seed = extra.get("seed") if isinstance(extra.get("seed"), dict) else {}
+    adjusted = extra.get("adjusted") if isinstance(extra.get("adjusted"), dict) else {}
     return {
         "title": f"{assignment.title}: feedback for {submission.id}",
         "meta": [
@@ -188,23 +191,83 @@ def page_context(submission, results: dict, assignment, visibility: Visibility) 
         "later": later,
         "shown_jobs": shown_jobs,
         "score": sum(t["score"] for t in tests),
-        "max_score": sum(t["max_score"] for t in tests),
-        "final": results.get("score") if everything else None,
+        "max_score": float(extra.get("max_score") or sum(t["max_score"] for t in tests)),
+        "final": float(results.get("score") or 0.0),
+        "notes": _score_notes(by_name, tests, late, adjusted),
         "late": late if late and late.get("penalty_points") else None,
+        "adjustments": list(adjusted.get("lines") or []),
         "output": str(results.get("output") or ""),
     }
 
 
+def _score_notes(by_name: dict, shown: list[dict], late: dict | None, adjusted: dict) -> list:
+    """What the page's score says besides the grade: the points in tests not shown (hidden,
+    or shown later), the late penalty (and an extension), the instructor's adjustments."""
+    names = {t["name"] for t in shown}
+    unseen: dict[str, list[float]] = {}
+    for name, t in by_name.items():
+        if name not in names:
+            kind = "hidden" if t.get("visibility") == "hidden" else "later"
+            unseen.setdefault(kind, []).append(float(t["max_score"]))
+    notes = []
+    for kind, points in sorted(unseen.items()):
+        plural = "s" if len(points) != 1 else ""
+        what = f"hidden test{plural}" if kind == "hidden" else f"test{plural} not shown yet"
+        total = sum(points)
+        notes.append(
+            f"{total:g} point{'s' if total != 1 else ''} in {len(points)} {what} (not on this page)"
+        )
+    if late and late.get("penalty_points"):
+        days = late.get("days_late")
+        notes.append(
+            f"after the late penalty: {float(late['penalty_points']):g} points, "
+            f"{float(late['penalty_percent']):g} %, {days} day{'s' if days != 1 else ''} late"
+        )
+    if late and late.get("extension"):
+        notes.append(f"due {late.get('due')}: {late['extension']}")
+    if adjusted.get("points"):
+        notes.append(f"the instructor's adjustments: {float(adjusted['points']):+g}")
+    return notes
+
+
+def ungraded_context(submission, assignment, row: dict | None) -> dict:
+    """The page of a submission without results: absent (named in the export, nothing
+    uploaded) or its grading failed (the course grades it again)."""
+    status = (row or {}).get("status", "absent")
+    why = (
+        "No submission was received: the course's export names you, with no files."
+        if status == "absent"
+        else "Your submission could not be graded yet (the grader failed, not your code); "
+        "the course grades it again."
+    )
+    people = ", ".join(p.get("name", "") for p in submission.submitters if p.get("name"))
+    return {
+        "title": f"{assignment.title}: feedback for {submission.id}",
+        "meta": [("submission", submission.id), ("students", people or "(not named)")],
+        "tests": [],
+        "later": [],
+        "final": None,
+        "why": why,
+        "adjustments": [],
+        "figures": [],
+        "output": "",
+    }
+
+
 def write_page(
-    out: Path, submission, results: dict, assignment, visibility, write
+    out: Path, submission, results: dict | None, assignment, visibility, write, row=None
 ) -> tuple[Path, bool]:
     """Writes ``out/feedback/<submission>.html`` unless it holds this page already (a page
     depends only on the results and what is shown, not on when it is written); returns it
-    and whether it was written."""
+    and whether it was written. Without ``results`` (absent, or its grading failed: ``row``
+    says which), a page that says so."""
     from doorlab.outputs.pages import render
 
-    context = page_context(submission, results, assignment, visibility)
-    context["figures"] = episode_figures(results, out, context.pop("shown_jobs"), write)
+    if results is None:
+        context = ungraded_context(submission, assignment, row)
+    else:
+        context = page_context(submission, results, assignment, visibility)
+        context["figures"] = episode_figures(results, out, context.pop("shown_jobs"), write)
     rel = f"{FEEDBACK}/{submission.id}.html"
     path = Path(out) / rel
     text = render("pset_feedback.html.j2", **context)

@@ -28,8 +28,15 @@ cluster with ``scheduler``):
   pages, ``class.html``, ``summary.json``, gradebook exports).
 
 ``DIR`` is doorlab's folder (:mod:`doorlab.outputs.runs`: a manifest of what doorlab wrote;
-``--force`` replaces only such a folder). ``DIR/class.json`` holds the reference figures and the
-assignment's digest, so a resumed class is graded against the same reference and assignment.
+``--force`` replaces only such a folder), but for the instructor's ``extensions.csv`` and
+``adjustments.csv`` (:mod:`doorlab.pset.classroom.extensions`,
+:mod:`doorlab.pset.classroom.adjustments`), which every run reads and none writes.
+``DIR/class.json`` holds the reference figures and the assignment, so a resumed class
+(``--resume``, ``--only``) is graded against the same reference and, without ``--assignment``,
+the same assignment; a different ``--assignment`` is named, with what it costs, before anything
+is simulated. A run over an existing sheet rewrites the sheet and the exports only when it
+ends: an interrupted one leaves them as they were (its finished results are kept, and the next
+run's ``changes.csv`` lists them).
 """
 
 from __future__ import annotations
@@ -45,9 +52,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from doorlab.errors import ConfigError, DoorlabError, OutputError
+from doorlab.pset.classroom.class_inputs import assignment_changes, cost_line, read_inputs
 from doorlab.pset.classroom.class_statistics import summarize
 from doorlab.pset.classroom.regrade import check_only, old_sheet, settings_of
 from doorlab.pset.classroom.roster import Submission, find_submissions, sheet_row, sheet_text
+from doorlab.pset.classroom.tables import INSTRUCTOR_FILES
 from doorlab.runtime.interrupts import POLL_S, raise_if_interrupted
 
 GRADES_CSV = "grades.csv"
@@ -69,6 +78,7 @@ CLASS_FILES = (
     "summary.json",
     "canvas.csv",
     "gradescope.csv",
+    "canvas_roster.csv",
 )
 """What a run rewrites in ``DIR`` besides the submissions' folders
 (:mod:`doorlab.pset.classroom.regrade`, :mod:`doorlab.pset.classroom.class_outputs`)."""
@@ -160,6 +170,13 @@ class _Previous:
     history: dict[str, bytes] = field(default_factory=dict)
     failed: set[str] = field(default_factory=set)
 
+    @property
+    def rows(self) -> dict[str, dict]:
+        """The previous sheet's rows (as read), by submission."""
+        import csv
+
+        return {r.get("submission", ""): r for r in csv.DictReader((self.sheet or "").splitlines())}
+
 
 def _check_out(out: Path, submissions: list[Submission], *, resume: bool, force: bool):
     """Checks that ``out`` may be written (writing nothing); returns what ``--resume`` keeps
@@ -168,14 +185,14 @@ def _check_out(out: Path, submissions: list[Submission], *, resume: bool, force:
 
     if out.exists() and not out.is_dir():
         raise OutputError(f"--out {str(out)!r} is a file, not a folder")
-    existing = out.is_dir() and any(out.iterdir())
+    existing = out.is_dir() and any(p.name not in INSTRUCTOR_FILES for p in out.iterdir())
     if not (existing and resume):
         if existing and not force:
             raise OutputError(
                 f"--out {str(out)!r} already exists; pass --resume to grade the rest of its "
                 "class or --force to start over"
             )
-        check_replaceable(out, force=force)
+        check_replaceable(out, force=force, keep=INSTRUCTOR_FILES)
         if not existing:
             return None
         sheet, history, _ = old_sheet(out)  # --force: the old sheet goes to the history
@@ -297,6 +314,8 @@ def grade_class(
     only: Sequence[str] = (),
     outputs: object = None,
     security: object = None,
+    roster: str | Path | None = None,
+    notice=None,
 ) -> ClassOutcome:
     """Grades every submission in ``source`` into ``out`` (see the module docstring).
 
@@ -327,7 +346,10 @@ def grade_class(
             certificates; default: Dask's configuration's). With a scheduler, a cluster whose
             workers would run the student's code without a network namespace is refused
             (:func:`doorlab.pset.classroom.cluster.check_workers`).
-
+        roster: The course's Canvas gradebook export, to fill ``canvas.csv`` from
+            (:mod:`doorlab.pset.classroom.canvas`).
+        notice: Called with each line to say before grading (what a different assignment
+            costs); None: the lines go to the summary only.
 
     Raises:
         ConfigError: No submissions; bad metadata; bad ``jobs``, ``scheduler`` or ``only``;
@@ -346,9 +368,19 @@ def grade_class(
         check_scheduler(scheduler)
     elif not isinstance(jobs, int) or isinstance(jobs, bool) or jobs < 1:
         raise ConfigError(f"jobs must be an integer >= 1, got {jobs!r}")
-    digest = assignment_digest(assignment)
     previous = _check_out(out, submissions, resume=resume or bool(only), force=force)
     resumed = previous is not None and bool(previous.digest)
+    given = assignment
+    inputs = read_inputs(
+        out,
+        submissions,
+        assignment,
+        previous if resumed else None,
+        requested=tuple(getattr(outputs, "exports", ()) or ()),
+        roster=roster,
+    )
+    assignment, submissions = inputs.assignment, inputs.submissions
+    digest = assignment_digest(assignment)
     check_only(only, submissions, previous if resumed else None, assignment, out)
     if resumed:
         reference_changed = reference is not None and reference != previous.reference
@@ -365,9 +397,16 @@ def grade_class(
 
         reference = grade_reference(jobs=min(3, max(1, jobs)) if scheduler is None else 3)
     run = _ClassRun(out, submissions, reference, assignment, isolation, progress)
-    run.previous, run.outputs = previous, outputs
+    run.previous, run.outputs, run.inputs = previous, outputs, inputs
+    run.ledger.own_dues, run.ledger.adjustments = inputs.own_dues, inputs.adjustments.grades
+    run.summary_notes = list(inputs.notes)
     if resumed:
         run.plan(submissions, previous, set(only), reference_changed)
+        changes = assignment_changes(previous.settings, settings_of(assignment))
+        if given is not None and changes:  # named, with its cost, before simulating
+            run.summary_notes.append(cost_line(changes, run.ledger))
+            if notice is not None:
+                notice(run.summary_notes[-1])
     elif previous is not None:  # --force over a class: every submission graded again
         from doorlab.pset.classroom.regrade import Step
 
@@ -375,6 +414,7 @@ def grade_class(
         why = Step("grade", "--force: the class graded again from scratch")
         run.ledger.steps = {s.id: why for s in submissions if s.path is not None}
     run.network_isolated = scheduler is not None
+    run.deferred = resumed and previous.sheet is not None
     for submission in submissions:
         if submission.id not in run.rows and submission.path is None:
             run.rows[submission.id] = sheet_row(submission, None)
@@ -401,6 +441,9 @@ def grade_class(
                 run.executor = executor.description
                 run.grade(executor, todo)
         interrupted = False
+    except KeyboardInterrupt as e:
+        e.doorlab_left = run.left_text()  # what the command line says was left
+        raise
     finally:
         run.finish(interrupted=interrupted)
     return ClassOutcome(
@@ -443,6 +486,21 @@ class _ClassRun:
         self.errors: dict[str, str] = {}
         self.rescored: list[str] = []
         self.changes: list[dict] = []
+        self.inputs = None  # class_inputs.ClassInputs
+        self.summary_notes: list[str] = []
+        self.deferred = False  # over an existing sheet: the sheet is written when the run ends
+
+    def left_text(self) -> str | None:
+        """What an interrupted run over an existing sheet left (None: a new class's sheet
+        of the finished submissions, as the command line says it)."""
+        if not self.deferred:
+            return None
+        done = len(self.graded) + len(self.planned)
+        return (
+            f"the sheet and the exports in {str(self.out)!r} are the previous run's, unchanged; "
+            f"{done} submission(s) finished and their results are kept (the next --resume "
+            "lists them in changes.csv and grades the rest)"
+        )
 
     def plan(self, submissions, previous, only: set[str], reference_changed: bool) -> None:
         """A class graded before: what to keep, re-score and grade
@@ -461,7 +519,7 @@ class _ClassRun:
             _commit(self.out, sid, results)
             self.rows[sid] = sheet_row(self.submissions[sid], results)
             self.results[sid] = results
-        if self.planned:
+        if self.planned and not self.deferred:
             self.write_sheet()
 
     def start(self, info: dict, *, resume: bool, force: bool, todo: list) -> None:
@@ -469,11 +527,12 @@ class _ClassRun:
         from doorlab.runtime.folders import staged_output
 
         if not (resume and self.out.is_dir()):
-            with staged_output(self.out, force=force):
+            with staged_output(self.out, force=force, keep=INSTRUCTOR_FILES):
                 pass
         self.started = True
         _write_text(self.out, CLASS_JSON, json.dumps(info, indent=1) + "\n")
-        self.write_sheet()
+        if not self.deferred:
+            self.write_sheet()
         if self.progress and todo:
             from tqdm import tqdm
 
@@ -563,7 +622,8 @@ class _ClassRun:
             self.rows[submission.id] = sheet_row(submission, None, error=error)
             self.errors[submission.id] = error
         self.graded.append(submission.id)
-        self.write_sheet()
+        if not self.deferred:
+            self.write_sheet()
         if self.bar is not None:
             bad = sum(r.get("status") == "error" for r in self.rows.values())
             self.bar.set_postfix_str(f"{bad} grading errors", refresh=False)
@@ -582,13 +642,14 @@ class _ClassRun:
 
         if self.bar is not None:
             self.bar.close()
-        if not self.started:
-            return
+        if not self.started or (interrupted and self.deferred):
+            return  # an interrupted regrade: the previous sheet and exports stay
         self.write_sheet()
         rows = [self.rows[i] for i in self.order if i in self.rows]
-        self.summary = summarize(rows, self.keys, len(self.order))
+        self.summary = self.summary_notes + summarize(rows, self.keys, len(self.order))
         order = [self.submissions[i] for i in self.order]
-        self.changes = self.ledger.changes(order, self.results, self.errors)
+        before = self.previous.rows if self.deferred else None
+        self.changes = self.ledger.changes(order, self.results, self.errors, before)
         if self.previous is not None and self.previous.sheet is not None:
             class_outputs.write_changes(self.out, self.previous, self.changes, _write_text)
             self.summary.append(class_outputs.changes_line(self.changes))
@@ -602,5 +663,6 @@ class _ClassRun:
                 self.ledger.assignment,
                 self.outputs,
                 _write_text,
+                None if self.inputs is None else self.inputs.exports,
             )
             _write_text(self.out, SUMMARY_TXT, "\n".join(self.summary) + "\n")

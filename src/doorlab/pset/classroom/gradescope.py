@@ -285,7 +285,8 @@ def run_autograder(
 
     Returns:
         The results written (Gradescope's format; the zip's late policy applied from
-        ``submission_metadata.json``'s ``created_at``).
+        ``submission_metadata.json``'s ``created_at`` and the submission's own due date;
+        the episode tests' outputs as HTML with their figures: :func:`finalize_for_gradescope`).
 
     Raises:
         AutograderError: See :func:`read_settings`; no submission folder.
@@ -299,7 +300,7 @@ def run_autograder(
         raise AutograderError(f"{submission} is not a folder: there is no submission to grade")
     results_dir = root / "results"
     results_dir.mkdir(parents=True, exist_ok=True)
-    submitted = submission_time(root)  # read before the fallback makes the file root's alone
+    metadata = submission_metadata(root)  # read before the fallback makes it root's alone
     results = grade_submission(
         submission,
         jobs=jobs or int(settings.get("jobs", 1)),
@@ -310,20 +311,35 @@ def run_autograder(
         harden=[root / name for name in HARDENED],
     )
     results["extra_data"]["autograder"] = {"digest": settings.get("digest")}
-    if assignment is not None:  # the course's late policy, from Gradescope's submission time
-        from doorlab.pset.classroom.late import apply_late
-
-        apply_late(results, assignment.late, submitted)
+    results = finalize_for_gradescope(results, assignment, metadata)
     write_results(results, results_dir / "results.json")
     return results
 
 
-def submission_time(root: Path):
-    """The submission's time in Gradescope's ``submission_metadata.json`` (its ``created_at``;
-    https://gradescope-autograders.readthedocs.io/en/latest/submission_metadata/), None
-    without one. The file is Gradescope's, read within bounds."""
-    from doorlab.errors import ConfigError
+def finalize_for_gradescope(results: dict, assignment, metadata: dict | None) -> dict:
+    """The results as Gradescope gets them: the course's late policy from the submission's
+    time and its own due date in Gradescope's metadata (an extension,
+    :func:`doorlab.pset.classroom.extensions.gradescope_due`), the total's line (the course's
+    points, those in tests students do not see), the episode tests' figures as HTML
+    (:mod:`doorlab.pset.classroom.gradescope_html`)."""
+    from doorlab.pset.classroom.extensions import gradescope_due
+    from doorlab.pset.classroom.final_grade import finalize
+    from doorlab.pset.classroom.gradescope_html import with_figures
     from doorlab.pset.classroom.late import submission_time as parse_time
+    from doorlab.pset.rules.assignment import Assignment
+
+    submitted = parse_time(metadata.get("created_at")) if metadata else None
+    results = finalize(
+        results, assignment or Assignment(), submitted, own_due=gradescope_due(metadata)
+    )
+    return with_figures(results)
+
+
+def submission_metadata(root: Path) -> dict | None:
+    """Gradescope's ``submission_metadata.json`` (the submission's time, ``created_at``, and
+    its due dates; https://gradescope-autograders.readthedocs.io/en/latest/submission_metadata/),
+    None without one. The file is Gradescope's, read within bounds."""
+    from doorlab.errors import ConfigError
     from doorlab.runtime.inputs import read_text_file
 
     path = root / "submission_metadata.json"
@@ -333,7 +349,16 @@ def submission_time(root: Path):
         data = json.loads(read_text_file(path, what="submission_metadata.json", max_bytes=64 << 20))
     except (ConfigError, ValueError):
         return None
-    return parse_time(data.get("created_at")) if isinstance(data, dict) else None
+    return data if isinstance(data, dict) else None
+
+
+def submission_time(root: Path):
+    """The submission's time in Gradescope's ``submission_metadata.json`` (its
+    ``created_at``), None without one."""
+    from doorlab.pset.classroom.late import submission_time as parse_time
+
+    metadata = submission_metadata(root)
+    return parse_time(metadata.get("created_at")) if metadata else None
 
 
 def main(argv: Sequence[str] | None = None) -> int:

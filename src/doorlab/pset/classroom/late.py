@@ -66,14 +66,20 @@ class Lateness:
     percent: float
 
 
-def lateness(policy: LatePolicy, submitted: datetime.datetime | None) -> Lateness | None:
-    """The submission's lateness under ``policy`` (None: no due date, or no submission time)."""
+def lateness(
+    policy: LatePolicy, submitted: datetime.datetime | None, own_due=None
+) -> Lateness | None:
+    """The submission's lateness under ``policy`` (None: no due date, or no submission time);
+    ``own_due``: its own due date (:class:`doorlab.pset.classroom.extensions.OwnDue`), which
+    counts when it is later than the course's."""
     due = parse_due(policy.due)
     if due is None or submitted is None:
         return None
+    if own_due is not None and own_due.due > due:
+        due = own_due.due
     late_s = max(0.0, (submitted - due).total_seconds())
     days = math.ceil(late_s / DAY_S) if late_s > policy.grace_minutes * 60.0 else 0
-    percent = min(policy.max_penalty_percent, days * policy.penalty_per_day_percent)
+    percent = float(min(policy.max_penalty_percent, days * policy.penalty_per_day_percent))
     return Lateness(due, submitted, late_s, days, percent)
 
 
@@ -86,10 +92,13 @@ def _duration(seconds: float) -> str:
     return " ".join(parts)
 
 
-def apply_late(results: dict, policy: LatePolicy, submitted: datetime.datetime | None) -> dict:
+def apply_late(
+    results: dict, policy: LatePolicy, submitted: datetime.datetime | None, own_due=None
+) -> dict:
     """Applies ``policy`` to ``results`` (in place; returned): the top-level score is the
     tests' sum less the penalty, ``extra_data.late`` says why, and so does one line of the
-    top-level output (a line an earlier policy wrote is replaced)."""
+    top-level output (a line an earlier policy wrote is replaced). ``own_due``: the
+    submission's own due date (an extension, :mod:`doorlab.pset.classroom.extensions`)."""
     tests = results.get("tests") or []
     raw = float(sum(t.get("score") or 0.0 for t in tests))
     extra = results.setdefault("extra_data", {})
@@ -98,7 +107,9 @@ def apply_late(results: dict, policy: LatePolicy, submitted: datetime.datetime |
         for line in str(results.get("output") or "").split("\n")
         if not line.startswith(LINE_PREFIX)
     ]
-    found = lateness(policy, submitted)
+    found = lateness(policy, submitted, own_due)
+    extended = own_due is not None and found is not None and found.due == own_due.due
+    extended = extended and own_due.due != parse_due(policy.due)
     extra.pop("late", None)
     results["score"] = raw
     if found is None:
@@ -118,6 +129,9 @@ def apply_late(results: dict, policy: LatePolicy, submitted: datetime.datetime |
         "penalty_points": penalty,
         "score_before": raw,
     }
+    if extended:
+        extra["late"]["extension"] = own_due.why
+    due_text = f"the due date {found.due.isoformat()}" + (f", {own_due.why}" if extended else "")
     if found.late_s > 0:
         if found.days == 0:
             what = f"within the {policy.grace_minutes:g}-minute grace period: no penalty"
@@ -128,7 +142,11 @@ def apply_late(results: dict, policy: LatePolicy, submitted: datetime.datetime |
             )
         lines.append(
             f"{LINE_PREFIX}submitted {found.submitted.isoformat()}, {_duration(found.late_s)} "
-            f"after the due date {found.due.isoformat()}; {what}"
+            f"after {due_text}; {what}"
+        )
+    elif extended:
+        lines.append(
+            f"{LINE_PREFIX}submitted {found.submitted.isoformat()}, before {due_text}: no penalty"
         )
     results["output"] = "\n".join(lines)
     return results

@@ -13,6 +13,10 @@ submission (:func:`plan_step`), cheapest first:
   grading failed, the random seed or an episode's helpers changed, its results hold no stored
   figures, or ``--only`` names it: graded again, simulated.
 
+A kept result whose final grade changes (a row of ``adjustments.csv`` or ``extensions.csv``
+added, changed or removed: :mod:`doorlab.pset.classroom.final_grade`) is **adjusted**:
+rewritten from its judged tests, nothing simulated.
+
 Every run over an existing sheet writes ``DIR/changes.csv`` (:data:`CHANGE_COLUMNS`: each
 submission the run regraded, its old and new total, the tests whose score changed, and why)
 and keeps the sheet it replaces as ``DIR/history/grades-NNN.csv`` (with that run's
@@ -21,6 +25,7 @@ and keeps the sheet it replaces as ``DIR/history/grades-NNN.csv`` (with that run
 
 from __future__ import annotations
 
+import copy
 import csv
 import functools
 import hashlib
@@ -40,7 +45,13 @@ HISTORY = "history"
 """The folder of the sheets replaced (``grades-NNN.csv``) and their runs' changes."""
 CHANGE_COLUMNS = ("submission", "names", "action", "old_total", "new_total", "tests", "why")
 """``changes.csv``'s columns: ``action`` is how the run regraded it (``grade``: simulated,
-``rescore``, ``rejudge``); ``tests`` the tests whose score changed (``key old -> new``)."""
+``rescore``, ``rejudge``, ``adjust``: the instructor's adjustments or extensions re-applied);
+``tests`` the tests whose score changed (``key old -> new``)."""
+INTERRUPTED = (
+    "graded by an earlier run that was interrupted before it wrote the sheet (its results "
+    "were newer than the sheet)"
+)
+"""Why a kept submission whose results differ from the previous sheet's row is a change."""
 
 
 @functools.cache
@@ -242,6 +253,8 @@ class Ledger:
         self.waiting: dict[str, list] = {}  # digest -> submissions waiting for that grading
         self.requested: set[str] = set()
         self.rescored: list[str] = []
+        self.own_dues: dict = {}  # submission id -> OwnDue (extensions.csv)
+        self.adjustments: dict[str, list] = {}  # submission id -> Adjustment (adjustments.csv)
 
     # Planning ---------------------------------------------------------------------------
 
@@ -296,18 +309,26 @@ class Ledger:
                     rescored[submission.id] = self.rescore(submission, old)
                 except Exception as e:  # noqa: BLE001 - NeedsGrading, or results it cannot read
                     step = Step("grade", f"{step.why}; its stored figures do not suffice ({e})")
+            if step.action == "keep":
+                final = self.finish(submission, copy.deepcopy(old))
+                why = adjusted_why(old, final)
+                if why:
+                    step = Step("adjust", why)
+                    rescored[submission.id] = final
             self.steps[submission.id] = step
             if step.action == "keep":
                 kept[submission.id] = old
+            if step.action in ("keep", "adjust"):
                 self._share(submission.id, old)
         return kept, rescored
 
     def rescore(self, submission, old: dict) -> dict:
         """``old`` re-scored or re-judged under the run's assignment and reference, the late
         policy applied (raises :class:`~doorlab.pset.grading.rescore.NeedsGrading`)."""
+        from doorlab.pset.classroom.final_grade import restore
         from doorlab.pset.grading.rescore import rejudge
 
-        new = rejudge(old, self.assignment, self.reference)
+        new = rejudge(restore(old), self.assignment, self.reference)
         self.rescored.append(submission.id)
         self._share(submission.id, new)
         return self.finish(submission, new)
@@ -363,28 +384,137 @@ class Ledger:
     # Every result written ------------------------------------------------------------------
 
     def finish(self, submission, results: dict) -> dict:
-        """``results`` as written: the graded files' SHA-256 recorded, the late policy
-        applied from the submission's time."""
-        from doorlab.pset.classroom.late import apply_late, submission_time
+        """``results`` as written: the graded files' SHA-256 recorded, the final grade
+        (:func:`doorlab.pset.classroom.final_grade.finalize`: the adjustments, the late
+        policy from the submission's time and its own due date, the total's line)."""
+        from doorlab.pset.classroom.final_grade import finalize
+        from doorlab.pset.classroom.late import submission_time
 
         batch = results["extra_data"].setdefault("batch", {})
         digest = self.digests.get(submission.id) or stored_digest(results)
         if digest:
             batch["files_sha256"] = digest
-        when = submission_time(getattr(submission, "created_at", None))
-        return apply_late(results, self.assignment.late, when)
+        return finalize(
+            results,
+            self.assignment,
+            submission_time(getattr(submission, "created_at", None)),
+            own_due=self.own_dues.get(submission.id),
+            adjustments=self.adjustments.get(submission.id, ()),
+        )
 
-    def changes(self, submissions, new_results: dict[str, dict], errors: dict[str, str]) -> list:
-        """``changes.csv``'s rows: every submission this run regraded (not kept)."""
+    def changes(
+        self,
+        submissions,
+        new_results: dict[str, dict],
+        errors: dict[str, str],
+        previous_rows: dict[str, dict] | None = None,
+    ) -> list:
+        """``changes.csv``'s rows: every submission this run regraded (not kept), and every
+        kept one whose results differ from ``previous_rows`` (the sheet this run replaces,
+        as read: an interrupted run's gradings, written after that sheet)."""
         rows = []
         for submission in submissions:
             step = self.steps.get(submission.id)
-            if step is None or step.action == "keep":
-                continue
             names = "; ".join(p.get("name", "") for p in submission.submitters)
             new = new_results.get(submission.id)
+            if step is None or step.action == "keep":
+                before = (previous_rows or {}).get(submission.id)
+                if before is not None and new is not None and _differs(before, new, submission):
+                    old = _from_row(before)
+                    rows.append(
+                        change_row(submission.id, names, Step("grade", INTERRUPTED), old, new)
+                    )
+                continue
             old = self.old.get(submission.id)
+            notes = adjustment_notes(old, new) if step.action != "adjust" else []
+            if notes:  # graded or re-scored, and adjusted: both said
+                step = Step(step.action, "; ".join([step.why, *notes]))
             rows.append(
                 change_row(submission.id, names, step, old, new, errors.get(submission.id, ""))
             )
         return rows
+
+
+def adjusted_why(old: dict, new: dict) -> str:
+    """Why a kept result's final grade changed ("": it did not)."""
+    if json_text(old) == json_text(new):
+        return ""
+    before, after = old.get("extra_data") or {}, new.get("extra_data") or {}
+    parts = adjustment_notes(old, new)
+    old_late, new_late = before.get("late") or {}, after.get("late") or {}
+    if [old_late.get(k) for k in ("due", "extension")] != [
+        new_late.get(k) for k in ("due", "extension")
+    ]:
+        extension = new_late.get("extension") or old_late.get("extension")
+        parts.append(f"its due date changed ({extension or 'the course due date'})")
+    elif old_late.get("penalty_points") != new_late.get("penalty_points") and not parts:
+        parts.append("its late penalty changed")
+    return "; ".join(parts) or "its results' total line (rewritten by this doorlab)"
+
+
+def adjustment_notes(old: dict | None, new: dict | None) -> list[str]:
+    """What changed of the instructor's adjustments between two results (added, removed)."""
+
+    def reasons(results):
+        extra = (results or {}).get("extra_data") or {}
+        return list((extra.get("adjusted") or {}).get("reasons") or [])
+
+    before, after = reasons(old), reasons(new)
+    added = [a for a in after if a not in before]
+    removed = [a for a in before if a not in after]
+    parts = ["adjustments.csv: " + "; ".join(added)] if added else []
+    if removed:
+        parts.append("adjustments.csv no longer has: " + "; ".join(removed))
+    return parts
+
+
+def json_text(results: dict) -> str:
+    """``results`` as canonical text (to compare two results: keys sorted, every number a
+    float, so 20 and 20.0 are the same)."""
+    import json
+
+    def canonical(value):
+        if isinstance(value, dict):
+            return {str(k): canonical(v) for k, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [canonical(v) for v in value]
+        if isinstance(value, int) and not isinstance(value, bool):
+            return float(value)
+        return value
+
+    return json.dumps(canonical(results), sort_keys=True, default=str)
+
+
+def _differs(row: dict, results: dict, submission) -> bool:
+    """Whether the sheet's ``row`` (as read) holds another total or test score than
+    ``results``."""
+    from doorlab.pset.classroom.roster import _cell, sheet_row
+
+    new = sheet_row(submission, results)
+    keys = [
+        "total",
+        "status",
+        "seed",
+        "late_penalty",
+        "adjustment",
+        *(t.key for t in verdicts.TESTS),
+    ]
+    return any(str(row.get(k, "")) != _cell(new.get(k)) for k in keys)
+
+
+def _from_row(row: dict) -> dict:
+    """A sheet row (as read) as the results ``change_row`` compares: the total and the
+    tests' scores."""
+
+    def number(text):
+        try:
+            return float(text)
+        except (TypeError, ValueError):
+            return None
+
+    tests = [
+        {"name": t.name, "score": number(row.get(t.key))}
+        for t in verdicts.TESTS
+        if number(row.get(t.key)) is not None
+    ]
+    return {"score": number(row.get("total")) or 0.0, "tests": tests}

@@ -220,6 +220,9 @@ def columns(test_keys: list[str]) -> list[str]:
         "submitted_at",
         "late_days",
         "late_penalty",
+        "extension",
+        "adjustment",
+        "adjustments",
         "same_files_as",
         "error",
     ]
@@ -252,6 +255,7 @@ def sheet_row(submission: Submission, results: dict | None, *, error: str = "") 
     seed = extra.get("seed") or {}
     late = extra.get("late") if isinstance(extra.get("late"), dict) else {}
     batch = extra.get("batch") if isinstance(extra.get("batch"), dict) else {}
+    adjusted = extra.get("adjusted") if isinstance(extra.get("adjusted"), dict) else {}
     return {
         **row,
         "total": results.get("score"),
@@ -263,6 +267,9 @@ def sheet_row(submission: Submission, results: dict | None, *, error: str = "") 
         "wall_time_s": batch.get("wall_time_s"),
         "late_days": late.get("days_late"),
         "late_penalty": late.get("penalty_points"),
+        "extension": late.get("extension") and f"due {late.get('due')}: {late['extension']}",
+        "adjustment": adjusted.get("points"),
+        "adjustments": "; ".join(adjusted.get("reasons") or []),
         "same_files_as": batch.get("same_files_as") or "",
         "error": "",
     }

@@ -97,6 +97,7 @@ def _law_case(rng: np.random.Generator, kin: ArmKinematics) -> dict:
         "R_ref_end": R_ref_end.matrix(),
         "F": np.concatenate([50.0 * theta_n_W, 100.0 * e_xyz]),
         "F_L7": np.concatenate([50.0 * theta_n_L7, 100.0 * e_xyz]),
+        "F_swapped": np.concatenate([100.0 * theta_n_W, 50.0 * e_xyz]),  # the gains swapped
         "J": kin.Jv_V_WL7q(q, p_L7Q),
     }
     for name in ("q_cmd", "v", "tau_ext", "dt"):
@@ -134,6 +135,13 @@ def _request(c: dict, **changes) -> dict:
     }
 
 
+SWAPPED = (
+    "100 on L7's orientation error (theta n) and 50 on Q's position error; the problem set's "
+    "gains are 50 on theta n and 100 on the position error"
+)
+"""The swapped gains' diagnosis."""
+
+
 def _expected(kind: str, c: dict) -> tuple[list[np.ndarray], list[tuple[str, np.ndarray]]]:
     """The accepted answers, and the answers of common mistakes (what each misuses)."""
     J_pinv = np.linalg.pinv(c["J"])
@@ -158,6 +166,10 @@ def _expected(kind: str, c: dict) -> tuple[list[np.ndarray], list[tuple[str, np.
                 "(self.R_WL7 @ axis)",
                 c["q"] + J_pinv @ c["F_L7"] * c["dt"],
             ),
+            (
+                f"q + J^+ V_des dt with the gains swapped: {SWAPPED}",
+                c["q"] + J_pinv @ c["F_swapped"] * c["dt"],
+            ),
         ]
         return accepted, mistakes
     tau_ff = c["J"].T @ c["F"]
@@ -169,6 +181,7 @@ def _expected(kind: str, c: dict) -> tuple[list[np.ndarray], list[tuple[str, np.
             c["J"].T @ c["F_L7"],
         ),
         ("J^+ F: the impedance plan maps F through J's transpose", J_pinv @ c["F"]),
+        (f"J^T F with the gains swapped: {SWAPPED}", c["J"].T @ c["F_swapped"]),
     ]
     return accepted, mistakes
 

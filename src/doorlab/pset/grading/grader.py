@@ -474,7 +474,8 @@ def pretty_format_json_results(path: str | Path) -> str:
         name = clean_text(t["name"], 200)
         note = f" ({clean_text(str(notes[t['name']]), 200)})" if t["name"] in notes else ""
         lines.append(f"[{mark}] {name}: {t['score']:g} / {t['max_score']:g}{note}")
-        for line in clean_text(str(t.get("output", ""))).splitlines():
+        text = (t.get("extra_data") or {}).get("text_output", t.get("output", ""))
+        for line in clean_text(str(text)).splitlines():  # an HTML output's text
             lines.append(f"    {line}")
     not_run = [t for t in check.get("not_run") or [] if isinstance(t, dict)]
     for t in not_run:
@@ -485,11 +486,16 @@ def pretty_format_json_results(path: str | Path) -> str:
     total = sum(t["max_score"] for t in data["tests"])
     if isinstance(check.get("course_points"), (int, float)):
         total = float(check["course_points"])
-    line = f"Total score: {data['score']:g} / {total:g}"
+    hidden = check.get("hidden_points")
+    hidden = float(hidden) if isinstance(hidden, (int, float)) else 0.0
+    line = f"Total score: {data['score']:g} / {total + hidden:g}"
+    parts = []
     if not_run:
         later = sum(float(t.get("points") or 0) for t in not_run)
-        line += f" ({later:g} of them in tests this check does not run)"
-    lines.append(line)
+        parts.append(f"{later:g} of them in tests this check does not run")
+    if hidden:
+        parts.append(f"{hidden:g} in hidden tests: graded by your course, not shown or run here")
+    lines.append(line + (f" ({'; '.join(parts)})" if parts else ""))
     return "\n".join(lines)
 
 

@@ -19,6 +19,7 @@ student's code anyway; a change to a file changes them all.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -49,8 +50,22 @@ def shown_tests(assignment: Assignment) -> list[str]:
     ]
 
 
+HIDDEN_POINTS = "hidden_points"
+"""``course.yaml``'s key for the points of the course's hidden tests (their number only: the
+self-check's total is the course's)."""
+
+
+def hidden_points(assignment: Assignment) -> float:
+    """The points of the assignment's hidden tests."""
+    keys = shown_tests(assignment)
+    return sum(
+        float(getattr(assignment.tests, t.key).points) for t in verdicts.TESTS if t.key not in keys
+    )
+
+
 def course_yaml(assignment: Assignment) -> str:
-    """``course.yaml``'s text: the assignment without its hidden tests' settings."""
+    """``course.yaml``'s text: the assignment without its hidden tests' settings (but how
+    many points they carry: :data:`HIDDEN_POINTS`)."""
     keys = shown_tests(assignment)
     header = [
         "# Your course's grading settings, for this folder's self-check (test_pset_5a.py).",
@@ -58,6 +73,12 @@ def course_yaml(assignment: Assignment) -> str:
         "# copy changes only your own check, not how the course grades.",
     ]
     lines = header + _top_lines(assignment) + _test_lines(assignment, keys)
+    hidden = hidden_points(assignment)
+    if hidden:
+        lines.append(
+            f"{HIDDEN_POINTS}: {hidden!r}  # [points] in tests the course grades but does not "
+            "list here (hidden)"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -73,6 +94,8 @@ class SelfCheck:
         course_points: The points of every test in the file (the course's total, hidden
             tests aside).
         source: Where the settings came from (for the summary's first line).
+        hidden_points: The points of the course's hidden tests (in its total, never run
+            or shown here).
     """
 
     assignment: Assignment
@@ -81,12 +104,14 @@ class SelfCheck:
     notes: dict[str, str] = field(default_factory=dict)
     course_points: float = 0.0
     source: str = ""
+    hidden_points: float = 0.0
 
     def to_dict(self) -> dict:
         """The results' ``extra_data.self_check``."""
         return {
             "source": self.source,
             "course_points": self.course_points,
+            "hidden_points": self.hidden_points,
             "not_run": self.not_run,
             "notes": self.notes,
         }
@@ -118,13 +143,19 @@ def load_course(path: str | Path) -> SelfCheck:
     """
     text = read_text_file(path, what="course settings")
     try:
-        assignment = parse_assignment(text)
         data = load_yaml(text) or {}
+        hidden = data.pop(HIDDEN_POINTS, 0.0) if isinstance(data, dict) else 0.0
+        if not isinstance(hidden, (int, float)) or isinstance(hidden, bool) or hidden < 0:
+            raise ConfigError(f"{HIDDEN_POINTS} must be a number >= 0, got {hidden!r}")
+        # JSON is YAML: the settings without the key the assignment does not have.
+        assignment = parse_assignment(json.dumps(data, default=str) if data else text)
     except ConfigError as e:
         raise ConfigError(f"course settings {str(path)!r}: {e}") from None
     tests = data.get("tests") if isinstance(data, dict) else None
     keys = list(tests) if isinstance(tests, dict) else [t.key for t in verdicts.TESTS]
-    return self_check(assignment, keys, f"your course's settings ({Path(path).name})")
+    check = self_check(assignment, keys, f"your course's settings ({Path(path).name})")
+    check.hidden_points = float(hidden)
+    return check
 
 
 def default_check() -> SelfCheck:

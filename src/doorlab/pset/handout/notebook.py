@@ -54,7 +54,10 @@ _TASK1_MD = """\
 
 Complete `InverseKinPointwise` in `ik_utils.py`: IK at `num_knot_points` knots along a path
 given by two functions of tau in [0, 1] (Q's position and L7's orientation), each IK started
-from the previous knot, joined by a cubic trajectory. `open_left_door.py` provides the arc
+from the previous knot, joined by a cubic trajectory (the 2019 code's
+`PiecewisePolynomial.Cubic` is gone from Drake: use
+`PiecewisePolynomial.CubicWithContinuousSecondDerivatives`, same arguments).
+`open_left_door.py` provides the arc
 (`InterpolateArc`) and L7's orientation along it (`InterpolateYawAngle`).
 Switch `door_angles` to simulate with the doors closed."""
 
