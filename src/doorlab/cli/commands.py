@@ -98,6 +98,9 @@ def _pset_grade(args: argparse.Namespace, assignment) -> int:
             "set's, or one holding its files), its zip or one of its files"
         )
     _check_writable(out)  # before grading: the grading takes minutes
+    from doorlab.pset.isolation.memory import plan
+
+    memory = plan(views=args.jobs, gradings=1)  # one line where the views cannot fit
     reference = None if args.reference is None else grader.load_reference(args.reference)
     results = grader.grade_submission(
         source,
@@ -107,6 +110,7 @@ def _pset_grade(args: argparse.Namespace, assignment) -> int:
         seed=args.seed,
         require_files=True,
         isolation="insecure" if args.insecure else "require",
+        view_memory_bytes=memory.view_bytes,
     )
     grader.write_results(results, out)
     if source.is_dir():
@@ -170,7 +174,7 @@ def _pset_grade_all(args: argparse.Namespace, assignment) -> int:
         f"{outcome.executor}; sheet: {args.out / GRADES_CSV}; results: "
         f"{args.out}/<submission>/results.json"
     )
-    return 1 if outcome.errors else 0
+    return 1 if outcome.errors or outcome.problems else 0
 
 
 def _class_left(out: Path) -> str:

@@ -46,6 +46,7 @@ from pathlib import Path
 
 from doorlab.errors import ConfigError, DoorlabError, OutputError
 from doorlab.pset.classroom.class_statistics import summarize
+from doorlab.pset.classroom.disk import check_room, room_problem, write_failure
 from doorlab.pset.classroom.regrade import check_only, old_sheet, settings_of
 from doorlab.pset.classroom.roster import Submission, find_submissions, sheet_row, sheet_text
 from doorlab.runtime.interrupts import POLL_S, raise_if_interrupted
@@ -72,6 +73,9 @@ CLASS_FILES = (
 )
 """What a run rewrites in ``DIR`` besides the submissions' folders
 (:mod:`doorlab.pset.classroom.regrade`, :mod:`doorlab.pset.classroom.class_outputs`)."""
+REWRITTEN = ("feedback", "class.html", "summary.json", "canvas.csv", "gradescope.csv")
+"""What a run rewrites from the results at its end (removed where a full disk left it
+unrecorded: the next run writes it again)."""
 QUEUED_PER_WORKER = 2
 """Submissions taken and queued per worker at a time (their files held in memory)."""
 
@@ -103,6 +107,7 @@ def grade_task(payload: dict) -> dict:
     start = time.perf_counter()
     try:
         data = payload.get("assignment")
+        view_bytes = payload.get("view_memory_bytes") or _worker_view_memory()
         results = grade_taken(
             payload["files"],
             Intake(**payload["intake"]),
@@ -112,12 +117,22 @@ def grade_task(payload: dict) -> dict:
             isolation=payload["isolation"],
             supervisor=_worker_supervisor(),
             network_isolated=payload.get("network_isolated", False),
+            view_memory_bytes=view_bytes,
         )
     except Exception as e:  # noqa: BLE001 - a grader's failure is a row, never a lost class
         text = str(e) if isinstance(e, DoorlabError) else f"{type(e).__name__}: {e}"
         return {"error": clean_text(text, 500)}
     results["extra_data"]["batch"] = {"wall_time_s": round(time.perf_counter() - start, 2)}
     return {"results": results}
+
+
+def _worker_view_memory() -> int:
+    """On a cluster's worker: its view's memory limit, from its own room (its Dask memory
+    limit where it has one: Dask's share of its machine for it)."""
+    from doorlab.pset.isolation.memory import dask_worker_room, plan, room
+
+    found = min(filter(None, [room(), dask_worker_room()]), key=lambda r: r.bytes)
+    return plan(views=1, gradings=1, own_bytes=0, found=found, strict=False).view_bytes
 
 
 # The class's folder ------------------------------------------------------------------------
@@ -209,9 +224,23 @@ def _check_out(out: Path, submissions: list[Submission], *, resume: bool, force:
 
 
 def _commit(out: Path, submission_id: str, results: dict) -> None:
-    """``out/<id>/results.json``, atomically (a staging folder renamed into place)."""
+    """``out/<id>/results.json``, atomically (a staging folder renamed into place), recorded in
+    ``out``'s manifest. Where a full disk stops it, the submission keeps its earlier results or
+    none (never a folder the manifest disagrees with: the next run would refuse it).
+
+    Raises:
+        OutputError: One line (the submission is then an ``error`` row).
+    """
+    import shutil
+
     from doorlab.pset.grading.grader import write_results
-    from doorlab.runtime.folders import MANIFEST_NAME, commit_output, prepare_output, record_written
+    from doorlab.runtime.folders import (
+        MANIFEST_NAME,
+        commit_output,
+        discard_output,
+        prepare_output,
+        record_written,
+    )
 
     target = out / submission_id
     label = f"{str(target)!r}"
@@ -219,34 +248,47 @@ def _commit(out: Path, submission_id: str, results: dict) -> None:
     try:
         write_results(results, staging / RESULTS_JSON)
         commit_output(staging, target)
+    except OSError as e:  # the staging folder's manifest: nothing moved
+        raise write_failure(target / RESULTS_JSON, e) from None
     finally:
-        from doorlab.runtime.folders import discard_output
-
         discard_output(staging)
-    record_written(out, [target / RESULTS_JSON, target / MANIFEST_NAME])
+    try:
+        record_written(out, [target / RESULTS_JSON, target / MANIFEST_NAME])
+    except OSError as e:  # in place, but not recorded: removed (--resume grades it again)
+        shutil.rmtree(target, ignore_errors=True)
+        raise write_failure(target / RESULTS_JSON, e) from None
 
 
 def _write_text(out: Path, name: str, text: str | bytes, *, record: bool = True) -> None:
     """``out/name`` (``name`` may be in a subfolder) atomically, recorded as doorlab's (with
-    ``record``; else the caller records it with others, :func:`record_written`)."""
+    ``record``: its entry first, then the file, so a full disk leaves both as they were;
+    else the caller records it with others, :func:`record_written`).
+
+    Raises:
+        OutputError: One line (ENOSPC, a folder that cannot be written).
+    """
     import os
     import tempfile
 
-    from doorlab.runtime.folders import follow_umask, record_written
+    from doorlab.runtime.folders import follow_umask, replace_recorded
 
     path = out / name
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    tmp = None
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
         with os.fdopen(fd, "wb" if isinstance(text, bytes) else "w") as f:
             f.write(text)
         follow_umask(Path(tmp), folder=False)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    if record:
-        record_written(out, [path])
+        if record:
+            replace_recorded(out, Path(tmp), path)
+        else:
+            os.replace(tmp, path)
+    except OSError as e:
+        raise write_failure(path, e) from None
+    finally:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
 
 
 # The class -----------------------------------------------------------------------------------
@@ -265,6 +307,8 @@ class ClassOutcome:
         executor: Where the submissions were graded.
         rescored: The submissions re-scored or re-judged from their stored figures.
         changes: ``changes.csv``'s rows (:mod:`doorlab.pset.classroom.regrade`).
+        problems: Files of the class folder that could not be written (one line each: a
+            full disk), also in the summary.
     """
 
     rows: list[dict]
@@ -274,6 +318,7 @@ class ClassOutcome:
     executor: str = ""
     rescored: list[str] = field(default_factory=list)
     changes: list[dict] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
 
     @property
     def errors(self) -> int:
@@ -382,6 +427,9 @@ def grade_class(
             error = "not graded yet (--only graded others; --resume grades it)"
             run.rows[submission.id] = sheet_row(submission, None, error=error)
     todo = [s for s in submissions if s.id not in run.rows and s.id not in run.planned]
+    run.memory = _memory_plan(jobs, len(todo), scheduler)
+    check_room(out, tmpdir=scheduler is None)  # before anything is written
+    run.local = scheduler is None
     settings = settings_of(assignment)
     info = {"reference": reference, "assignment_sha256": digest, "assignment": settings}
     info["source"] = str(source)
@@ -411,7 +459,25 @@ def grade_class(
         run.executor,
         run.rescored,
         run.changes,
+        run.problems,
     )
+
+
+def _memory_plan(jobs: int, todo: int, scheduler: str | None):
+    """Each student's view's memory limit on local workers (``jobs`` gradings at once, one
+    view each), or None on a cluster (each worker plans its own); and the grader's own
+    processes last in line for the OOM killer (:mod:`doorlab.pset.isolation.memory`).
+
+    Raises:
+        MemoryRoomError: Too little memory for ``jobs`` views (the message says how many fit).
+    """
+    from doorlab.pset.isolation.memory import plan, protect_trusted
+
+    protect_trusted()
+    if scheduler is not None or not todo:
+        return None
+    at_once = min(jobs, todo)
+    return plan(views=at_once, gradings=at_once)
 
 
 class _ClassRun:
@@ -443,6 +509,9 @@ class _ClassRun:
         self.errors: dict[str, str] = {}
         self.rescored: list[str] = []
         self.changes: list[dict] = []
+        self.memory = None  # the views' memory plan (doorlab.pset.isolation.memory)
+        self.local = True  # local workers (their TMPDIR is this machine's)
+        self.problems: list[str] = []  # files that could not be written (one line each)
 
     def plan(self, submissions, previous, only: set[str], reference_changed: bool) -> None:
         """A class graded before: what to keep, re-score and grade
@@ -492,11 +561,25 @@ class _ClassRun:
         from doorlab.pset.isolation.intake import Intake
         from doorlab.pset.rules.verdicts import STUDENT_FILES
 
+        short = room_problem(self.out, tmpdir=self.local)
+        if short is not None:  # the grader's: --resume grades it once there is room
+            self.done(submission, {"error": f"not graded: {short}; --resume grades it"})
+            return None
         try:
             files, intake = take_files(submission.path)
         except OutputError as e:  # not a folder or a zip: nothing to grade, every test 0
+            if not submission.path.exists():  # gone since it was listed: the grader's
+                self.done(submission, {"error": str(e)})
+                return None
             intake = Intake(missing=list(STUDENT_FILES), refused=str(e))
             self.done(submission, {"results": grade_taken({}, intake, assignment=self.assignment)})
+            return None
+        except OSError as e:
+            self.done(submission, {"error": str(write_failure(submission.path, e))})
+            return None
+        if intake.unreadable:  # this machine could not read it all: no grade of a part
+            why = f"cannot read the submission here ({intake.unreadable[0]}); --resume grades it"
+            self.done(submission, {"error": why})
             return None
         self.ledger.took(submission, files, intake)
         if intake.refused is not None:  # over a bound: not graded, no worker needed
@@ -515,6 +598,7 @@ class _ClassRun:
             "assignment": None if self.assignment is None else self.assignment.to_dict(),
             "isolation": self.isolation,
             "network_isolated": self.network_isolated,
+            "view_memory_bytes": None if self.memory is None else self.memory.view_bytes,
         }
 
     def grade(self, executor, todo: list[Submission]) -> None:
@@ -555,7 +639,11 @@ class _ClassRun:
         released = self.ledger.released(submission, outcome)
         if results is not None:
             results = self.ledger.finish(submission, results)
-            _commit(self.out, submission.id, results)
+            try:
+                _commit(self.out, submission.id, results)
+            except OutputError as e:  # a full disk: the grader's error, graded again later
+                results, outcome = None, {"error": f"{e}; --resume grades it again"}
+        if results is not None:
             self.rows[submission.id] = sheet_row(submission, results)
             self.results[submission.id] = results
         else:
@@ -573,7 +661,21 @@ class _ClassRun:
 
     def write_sheet(self) -> None:
         rows = [self.rows[i] for i in self.order if i in self.rows]
-        _write_text(self.out, GRADES_CSV, sheet_text(rows, self.keys))
+        self.write(GRADES_CSV, sheet_text(rows, self.keys))
+
+    def write(self, name: str, text: str) -> bool:
+        """:func:`_write_text`; a failure (a full disk) is one line in the summary, and the file
+        stays as it was (the sheet: the rows finished before)."""
+        try:
+            _write_text(self.out, name, text)
+            return True
+        except OutputError as e:
+            self.problem(str(e))
+            return False
+
+    def problem(self, line: str) -> None:
+        if line not in self.problems:
+            self.problems.append(line)
 
     def finish(self, *, interrupted: bool = False) -> None:
         """The sheet of what finished, whatever ended the run; the summary; the changes and
@@ -587,20 +689,32 @@ class _ClassRun:
         self.write_sheet()
         rows = [self.rows[i] for i in self.order if i in self.rows]
         self.summary = summarize(rows, self.keys, len(self.order))
+        if self.memory is not None:
+            self.summary.append(self.memory.line())
         order = [self.submissions[i] for i in self.order]
         self.changes = self.ledger.changes(order, self.results, self.errors)
         if self.previous is not None and self.previous.sheet is not None:
-            class_outputs.write_changes(self.out, self.previous, self.changes, _write_text)
+            try:
+                class_outputs.write_changes(self.out, self.previous, self.changes, _write_text)
+            except OutputError as e:
+                self.problem(str(e))
             self.summary.append(class_outputs.changes_line(self.changes))
-        _write_text(self.out, SUMMARY_TXT, "\n".join(self.summary) + "\n")
+        self.write(SUMMARY_TXT, "\n".join([*self.summary, *self.problems]) + "\n")
         if not interrupted:
-            self.summary += class_outputs.write_class_outputs(
-                self.out,
-                order,
-                rows,
-                self.results,
-                self.ledger.assignment,
-                self.outputs,
-                _write_text,
-            )
-            _write_text(self.out, SUMMARY_TXT, "\n".join(self.summary) + "\n")
+            try:
+                self.summary += class_outputs.write_class_outputs(
+                    self.out,
+                    order,
+                    rows,
+                    self.results,
+                    self.ledger.assignment,
+                    self.outputs,
+                    _write_text,
+                )
+            except (OSError, OutputError) as e:  # a full disk: nothing half-recorded is left
+                from doorlab.runtime.folders import remove_unrecorded
+
+                self.problem(str(write_failure(self.out, e)))
+                remove_unrecorded(self.out, REWRITTEN)
+            self.write(SUMMARY_TXT, "\n".join([*self.summary, *self.problems]) + "\n")
+        self.summary += self.problems
