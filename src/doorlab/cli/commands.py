@@ -49,6 +49,17 @@ def pset(args: argparse.Namespace) -> int:
     assignment = _assignment(args.assignment)
     if args.pset_command == "grade-all":
         return _pset_grade_all(args, assignment)
+    if args.pset_command == "cluster-keys":
+        from doorlab.pset.classroom.cluster import write_cluster_keys
+
+        hosts = args.host or ["localhost", "127.0.0.1"]
+        out = write_cluster_keys(args.out, hosts, force=args.force)
+        print(
+            f"doorlab pset: wrote {out}: ca.pem (every role's --tls-ca-file), ca.key (keep it "
+            "offline), scheduler, worker and client certificates and keys (mode 0600), for "
+            f"{', '.join(hosts)}; grade with --scheduler tls://HOST:PORT --cluster-keys {out}"
+        )
+        return 0
     if args.pset_command == "autograder":
         from doorlab.pset.classroom.gradescope import write_autograder
 
@@ -142,8 +153,13 @@ def _pset_grade_all(args: argparse.Namespace, assignment) -> int:
 
         find_chromium()  # before grading: the message names the package
     reference = None if args.reference is None else grader.load_reference(args.reference)
+    security = None
+    if args.cluster_keys is not None:
+        from doorlab.pset.classroom.cluster import cluster_security
+
+        security = cluster_security(args.cluster_keys)
     if args.scheduler is not None:
-        _probe(args)
+        _probe(args, security)
     jobs = args.jobs or os.cpu_count() or 1
     try:
         outcome = grade_class(
@@ -160,6 +176,8 @@ def _pset_grade_all(args: argparse.Namespace, assignment) -> int:
             progress=True,
             only=args.only,
             outputs=outputs,
+            security=security,
+            insecure_cluster=args.insecure_cluster,
         )
     except KeyboardInterrupt as e:
         print(f"doorlab pset grade-all: interrupted; {_class_left(args.out)}", file=sys.stderr)
@@ -399,14 +417,15 @@ def require_sweep_extra(what: str, modules: tuple[str, ...]) -> None:
         )
 
 
-def _probe(args: argparse.Namespace) -> None:
+def _probe(args: argparse.Namespace, security=None) -> None:
     """A --scheduler is checked and asked who it is before anything else is imported or
-    built: an address that is no Dask scheduler is one line within --scheduler-timeout."""
+    built: an address that is no Dask scheduler is one line within --scheduler-timeout.
+    ``security``: a ``distributed.Security`` (default: Dask's configuration's)."""
     if args.scheduler is not None:
         require_sweep_extra("--scheduler", ("distributed",))
         from doorlab.runtime.executor import check_scheduler, probe_scheduler
 
-        probe_scheduler(check_scheduler(args.scheduler), args.scheduler_timeout)
+        probe_scheduler(check_scheduler(args.scheduler), args.scheduler_timeout, security)
 
 
 def report(args: argparse.Namespace) -> int:

@@ -248,8 +248,9 @@ def _commit(out: Path, submission_id: str, results: dict) -> None:
     try:
         write_results(results, staging / RESULTS_JSON)
         commit_output(staging, target)
-    except OSError as e:  # the staging folder's manifest: nothing moved
-        raise write_failure(target / RESULTS_JSON, e) from None
+    except (OSError, OutputError) as e:  # nothing moved (its staging folder goes)
+        why = e.strerror if isinstance(e, OSError) else str(e).rsplit(": ", 1)[-1]
+        raise write_failure(target / RESULTS_JSON, OSError(0, why)) from None
     finally:
         discard_output(staging)
     try:
@@ -342,6 +343,7 @@ def grade_class(
     only: Sequence[str] = (),
     outputs: object = None,
     security: object = None,
+    insecure_cluster: bool = False,
 ) -> ClassOutcome:
     """Grades every submission in ``source`` into ``out`` (see the module docstring).
 
@@ -371,7 +373,10 @@ def grade_class(
         security: With ``scheduler``: a ``distributed.Security`` (a ``tls://`` cluster's
             certificates; default: Dask's configuration's). With a scheduler, a cluster whose
             workers would run the student's code without a network namespace is refused
-            (:func:`doorlab.pset.classroom.cluster.check_workers`).
+            (:func:`doorlab.pset.classroom.cluster.check_workers`), and so is one that is not
+            TLS or lets a client in without a key
+            (:func:`doorlab.pset.classroom.cluster.check_cluster`).
+        insecure_cluster: Grade on such a scheduler anyway (a one-line warning on stderr).
 
 
     Raises:
@@ -400,8 +405,12 @@ def grade_class(
         reference = reference if reference is not None else previous.reference
     timeout_s = scheduler_timeout_s or CONNECT_TIMEOUT_S
     if scheduler is not None:  # before anything is written: the workers isolate the network
-        from doorlab.pset.classroom.cluster import check_workers
-        from doorlab.runtime.executor import open_executor
+        from doorlab.pset.classroom.cluster import check_cluster, check_workers
+        from doorlab.runtime.executor import _security, open_executor
+
+        warning = check_cluster(scheduler, _security(security), insecure=insecure_cluster)
+        if warning is not None:
+            print(f"doorlab pset grade-all: warning: {warning}", file=sys.stderr)
 
         with open_executor(scheduler=scheduler, timeout_s=timeout_s, security=security) as ex:
             check_workers(ex, isolation)
@@ -478,6 +487,21 @@ def _memory_plan(jobs: int, todo: int, scheduler: str | None):
         return None
     at_once = min(jobs, todo)
     return plan(views=at_once, gradings=at_once)
+
+
+def _memory_verdicts(results: dict[str, dict]) -> list[str]:
+    """The summary's line on the submissions whose view the kernel ended for memory."""
+    from doorlab.pset.isolation.memory import ended_for_memory
+
+    ended = [sid for sid, r in results.items() if ended_for_memory(r)]
+    if not ended:
+        return []
+    shown = ", ".join(ended[:5]) + (f" and {len(ended) - 5} more" if len(ended) > 5 else "")
+    return [
+        f"memory: the kernel ended the code of {len(ended)} submission"
+        f"{'s' if len(ended) != 1 else ''} at its view's limit ({shown}): its own tests' "
+        "verdict, no other grading touched"
+    ]
 
 
 class _ClassRun:
@@ -691,6 +715,7 @@ class _ClassRun:
         self.summary = summarize(rows, self.keys, len(self.order))
         if self.memory is not None:
             self.summary.append(self.memory.line())
+        self.summary += _memory_verdicts(self.results)
         order = [self.submissions[i] for i in self.order]
         self.changes = self.ledger.changes(order, self.results, self.errors)
         if self.previous is not None and self.previous.sheet is not None:
@@ -714,7 +739,11 @@ class _ClassRun:
             except (OSError, OutputError) as e:  # a full disk: nothing half-recorded is left
                 from doorlab.runtime.folders import remove_unrecorded
 
-                self.problem(str(write_failure(self.out, e)))
+                why = e.strerror if isinstance(e, OSError) else str(e).rsplit(": ", 1)[-1]
+                self.problem(
+                    f"cannot write the class's pages and exports in {self.out} ({why}): the "
+                    "next run writes them"
+                )
                 remove_unrecorded(self.out, REWRITTEN)
             self.write(SUMMARY_TXT, "\n".join([*self.summary, *self.problems]) + "\n")
         self.summary += self.problems

@@ -39,7 +39,7 @@ from doorlab.pset.isolation.channel import (
     parse_json,
 )
 from doorlab.pset.isolation.choice import Isolation
-from doorlab.pset.isolation.memory import STUDENT_OOM_SCORE_ADJ
+from doorlab.pset.isolation.memory import STUDENT_OOM_SCORE_ADJ, verdict
 from doorlab.pset.isolation.safe_text import clean_text
 from doorlab.pset.isolation.seccomp import FilterError, filter_descriptor
 from doorlab.pset.rules.clock import Clock
@@ -444,11 +444,7 @@ class StudentProcess:
             # The kernel ended a process of the view for want of memory: the test's own
             # process, one of its children holding the memory, or the view's first process
             # (then the whole view, whose processes held it).
-            return (
-                f"your code's processes used more than {self.group.memory_limit >> 20} MiB of "
-                "memory together (the limit of its view: its processes, its /tmp, /dev/shm and "
-                "folder, its memfds and pipes): the kernel ended one"
-            )
+            return verdict(self.group.memory_limit)
         if code is None:
             if isinstance(error, ChannelClosed):
                 return "your code closed the grader's channel"

@@ -60,6 +60,27 @@ UNLIMITED = 1 << 62
 """A cgroup limit at least this large is no limit (v1 writes 2^63 - 4096)."""
 
 
+def verdict(limit: int) -> str:
+    """A test's message when the kernel ended a process of its view for want of memory."""
+    return (
+        f"your code's processes used more than {limit >> 20} MiB {VERDICT_MARK}: its "
+        "processes, its /tmp, /dev/shm and folder, its memfds and pipes): the kernel ended one"
+    )
+
+
+VERDICT_MARK = "of memory together (the limit of its view"
+"""What :func:`verdict` says whatever the limit (the class's summary counts it)."""
+
+
+def ended_for_memory(results: dict) -> list[str]:
+    """The tests of a grading's results whose view the kernel ended for want of memory."""
+    return [
+        str(t.get("name"))
+        for t in results.get("tests") or []
+        if isinstance(t, dict) and VERDICT_MARK in str(t.get("output") or "")
+    ]
+
+
 class MemoryRoomError(ConfigError):
     """Too little memory for the views ``--jobs`` asks for (the message says how much)."""
 
