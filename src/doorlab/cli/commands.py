@@ -46,9 +46,6 @@ def pset(args: argparse.Namespace) -> int:
             f"doorlab pset grade SUBMISSION --assignment {out}"
         )
         return 0
-    assignment = _assignment(args.assignment)
-    if args.pset_command == "grade-all":
-        return _pset_grade_all(args, assignment)
     if args.pset_command == "cluster-keys":
         from doorlab.pset.classroom.cluster import write_cluster_keys
 
@@ -60,6 +57,9 @@ def pset(args: argparse.Namespace) -> int:
             f"{', '.join(hosts)}; grade with --scheduler tls://HOST:PORT --cluster-keys {out}"
         )
         return 0
+    assignment = _assignment(args.assignment)
+    if args.pset_command == "grade-all":
+        return _pset_grade_all(args, assignment)
     if args.pset_command == "autograder":
         from doorlab.pset.classroom.gradescope import write_autograder
 
@@ -159,6 +159,11 @@ def _pset_grade_all(args: argparse.Namespace, assignment) -> int:
 
         security = cluster_security(args.cluster_keys)
     if args.scheduler is not None:
+        from doorlab.pset.classroom.cluster import plain, refuse
+
+        why = plain(args.scheduler)
+        if why is not None and not args.insecure_cluster:  # before connecting to it
+            raise refuse(args.scheduler, why)
         _probe(args, security)
     jobs = args.jobs or os.cpu_count() or 1
     try:

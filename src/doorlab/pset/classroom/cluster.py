@@ -326,6 +326,25 @@ def accepts_anonymous(address: str, ca_file: str | None, timeout: float = ANONYM
         return None
 
 
+def plain(address: str) -> str | None:
+    """Why a scheduler at ``address`` cannot be trusted from its address alone (not TLS), or
+    None."""
+    scheme = urllib.parse.urlsplit(address).scheme
+    if scheme in ("tls", "wss"):
+        return None
+    return f"speaks plain {scheme}:// (no TLS, no client keys)"
+
+
+def refuse(address: str, why: str) -> ConfigError:
+    """The one line refusing a scheduler that cannot be trusted."""
+    return ConfigError(
+        f"--scheduler: the scheduler at {address} {why}: whoever reaches it could run code on "
+        "every worker and change every grade; start the cluster with TLS and the course's "
+        "keys (doorlab pset cluster-keys DIR; docs/guides/teaching.md) and pass --cluster-keys "
+        "DIR, or --insecure-cluster to grade there anyway"
+    )
+
+
 def check_cluster(address: str, security, *, insecure: bool) -> str | None:
     """Checks that grading on the scheduler at ``address`` is safe: TLS, and no client
     without a key of its authority gets in (:func:`accepts_anonymous`). Returns the warning
@@ -335,22 +354,13 @@ def check_cluster(address: str, security, *, insecure: bool) -> str | None:
         ConfigError: Without ``insecure``, a scheduler that is not TLS or lets a client in
             without a key (one line naming ``--insecure-cluster`` and the guide's keys).
     """
-    scheme = urllib.parse.urlsplit(address).scheme
-    why = None
-    if scheme not in ("tls", "wss"):
-        why = f"speaks plain {scheme}:// (no TLS, no client keys)"
-    else:
+    why = plain(address)
+    if why is None:
         ca = getattr(security, "tls_ca_file", None) if security is not None else None
         if accepts_anonymous(address, ca) is not False:
             why = "speaks TLS but let a client without a key signed by its authority connect"
     if why is None:
         return None
-    warning = INSECURE_CLUSTER_WARNING.format(address=address, why=why)
     if insecure:
-        return warning
-    raise ConfigError(
-        f"--scheduler: the scheduler at {address} {why}: whoever reaches it could run code on "
-        "every worker and change every grade; start the cluster with TLS and the course's "
-        "keys (doorlab pset cluster-keys DIR; docs/guides/teaching.md) and pass --cluster-keys "
-        "DIR, or --insecure-cluster to grade there anyway"
-    )
+        return INSECURE_CLUSTER_WARNING.format(address=address, why=why)
+    raise refuse(address, why)
