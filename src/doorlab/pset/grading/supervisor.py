@@ -77,7 +77,7 @@ def _practice(drawn: dict, options: dict[str, dict], reference: dict) -> tuple[d
         if kind == "unit":
             settings["expect"] = table["units"][name]
         elif kind == "student" and settings.get("helpers", "reference") == "reference":
-            settings["table"] = table["helpers"]
+            settings["table"] = table["helpers"]  # a practised episode's: in the table
     source = (
         "the handout's practice draws (this doorlab holds no answer key: the course's "
         "grading draws its own from your files)"
@@ -128,13 +128,16 @@ def supervise(request: dict, prepared: dict | None = None) -> dict:
         return {"grader_error": f"the assignment: {e}"}
     only = request.get("only")
     specs = [t for t in TESTS if only is None or t.name in only]
+    from doorlab.pset.handout import edition
+
+    if edition.students():  # only what the handout practises: nothing of a hidden test
+        names = set(edition.practised(t.name for t in specs))
+        specs = [t for t in specs if t.name in names]
     drawn = _seed(request, folder, assignment)
     options = _job_options(specs, assignment, drawn["grading"])
     needed = {j for t in specs for j in t.needed_jobs(test_settings(assignment, t))}
     results: dict[str, dict] = {}
     reference = request.get("reference") or {}
-    from doorlab.pset.handout import edition
-
     if edition.students():  # no answer key here: the handout's practice table
         drawn, reference = _practice(drawn, options, reference)
     results.update({k: v for k, v in reference.items() if k in needed})
