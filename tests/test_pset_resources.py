@@ -257,3 +257,73 @@ def test_the_cluster_keys_are_the_course_s_own_and_private(tmp_path):
     assert stat.S_IMODE((keys / "ca.key").stat().st_mode) == 0o600
     with pytest.raises(OutputError):
         write_cluster_keys(keys)
+
+
+HOLD = {
+    "memfd": """
+import os
+fd = os.memfd_create("hold")
+for _ in range(64):
+    os.write(fd, b"\\1" * (1 << 20))
+""",
+    "tmpfs": """
+import sys
+with open(sys.argv[1] + "/hold", "wb") as f:
+    for _ in range(64):
+        f.write(b"\\1" * (1 << 20))
+""",
+    "pipes": """
+import fcntl, os
+pipes = []
+for _ in range(64):
+    r, w = os.pipe()
+    fcntl.fcntl(w, 1031, 1 << 20)  # F_SETPIPE_SZ
+    os.set_blocking(w, False)
+    try:
+        while True:
+            os.write(w, b"\\1" * 65536)
+    except BlockingIOError:
+        pipes.append((r, w))
+""",
+}
+"""64 MiB held three ways, none of them a process's resident memory."""
+
+
+@pytest.mark.parametrize("how", sorted(HOLD))
+def test_what_a_process_holds_is_charged_to_its_group(tmp_path, how):
+    """Issue 43: memfds, tmpfs files and pipe buffers count against the memory group of the
+    process that fills them: 64 MiB of each in a 32-MiB group, the kernel ends the holder."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from doorlab.pset.isolation import cgroups
+
+    setup = cgroups.probe()
+    if setup.version is None or os.geteuid() != 0:
+        pytest.skip(f"needs root and writable cgroups ({setup.reason or 'not root'})")
+    mount = tmp_path / "tmpfs"
+    mount.mkdir()
+    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=128m", "tmpfs", str(mount)], check=True)
+    base = cgroups.Group(setup, {k: Path(v) for k, v in setup.bases.items()})
+    group = base.child(f"doorlab-test-hold-{os.getpid()}-{how}")
+    try:
+        group.set_memory(32 << 20)
+        fds = group.join_descriptors()
+        try:
+            proc = subprocess.run(
+                [sys.executable, "-I", "-S", "-c", HOLD[how], str(mount)],
+                capture_output=True,
+                timeout=60,
+                pass_fds=fds,
+                preexec_fn=lambda: cgroups.join_by_descriptors(fds),
+            )
+        finally:
+            for fd in fds:
+                os.close(fd)
+        assert proc.returncode == -9, (proc.returncode, proc.stderr[-500:])
+        assert group.oom_kills() >= 1
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], check=False)
+        group.remove()
