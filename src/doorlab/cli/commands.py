@@ -160,8 +160,9 @@ def _pset_grade_all(args: argparse.Namespace, assignment) -> int:
         security = cluster_security(args.cluster_keys)
     if args.scheduler is not None:
         from doorlab.pset.classroom.cluster import plain, refuse
+        from doorlab.runtime.executor import check_scheduler
 
-        why = plain(args.scheduler)
+        why = plain(check_scheduler(args.scheduler))
         if why is not None and not args.insecure_cluster:  # before connecting to it
             raise refuse(args.scheduler, why)
         _probe(args, security)

@@ -318,8 +318,9 @@ def grade_submission(
 
     Args:
         source: The submission: a folder, or a zip file.
-        jobs, reference, assignment, isolation, harden, supervisor, only,
-            view_memory_bytes: As for :func:`grade`.
+        jobs, reference, assignment, isolation, harden, supervisor, only: As for
+            :func:`grade`.
+        view_memory_bytes: As for :func:`grade`.
         seed: The grading's random seed, as for :func:`grade`.
         require_files: Refuse (OutputError) a submission that holds none of the student
             files (``doorlab pset grade``: a mistyped folder, a notebook alone); without it
