@@ -489,6 +489,22 @@ def _memory_plan(jobs: int, todo: int, scheduler: str | None):
     return plan(views=at_once, gradings=at_once)
 
 
+def _cluster_memory(results: dict[str, dict], graded: list[str]) -> list[str]:
+    """The summary's line on the views' memory limits the cluster's workers chose."""
+    from doorlab.pset.isolation.memory import mib
+
+    found = set()
+    for sid in graded:
+        cgroup = ((results.get(sid) or {}).get("extra_data") or {}).get("sandbox") or {}
+        value = (cgroup.get("cgroup") or {}).get("view_memory_bytes")
+        if isinstance(value, int):
+            found.add(value)
+    if not found:
+        return []
+    shown = mib(min(found)) if len(found) == 1 else f"{mib(min(found))} to {mib(max(found))}"
+    return [f"memory: each student's view at most {shown} (each worker's share of its room)"]
+
+
 def _memory_verdicts(results: dict[str, dict]) -> list[str]:
     """The summary's line on the submissions whose view the kernel ended for memory."""
     from doorlab.pset.isolation.memory import ended_for_memory
@@ -715,6 +731,8 @@ class _ClassRun:
         self.summary = summarize(rows, self.keys, len(self.order))
         if self.memory is not None:
             self.summary.append(self.memory.line())
+        elif not self.local:  # a cluster: each worker planned its own
+            self.summary += _cluster_memory(self.results, self.graded)
         self.summary += _memory_verdicts(self.results)
         order = [self.submissions[i] for i in self.order]
         self.changes = self.ledger.changes(order, self.results, self.errors)

@@ -274,6 +274,10 @@ class Group:
             self._write("memory", "memory.max", str(int(limit)))
             if (self._folder("memory") / "memory.swap.max").exists():
                 self._write("memory", "memory.swap.max", "0")
+            if (self._folder("memory") / "memory.oom.group").exists():
+                # Out of memory, the kernel ends the group's processes together: whichever
+                # holds the memory (a memfd's holder is in no resident set) goes too.
+                self._write("memory", "memory.oom.group", "1")
         else:
             self._write("memory", "memory.limit_in_bytes", str(int(limit)))
             if (self._folder("memory") / "memory.memsw.limit_in_bytes").exists():
