@@ -495,8 +495,8 @@ def _cluster_memory(results: dict[str, dict], graded: list[str]) -> list[str]:
 
     found = set()
     for sid in graded:
-        cgroup = ((results.get(sid) or {}).get("extra_data") or {}).get("sandbox") or {}
-        value = (cgroup.get("cgroup") or {}).get("view_memory_bytes")
+        sandbox = ((results.get(sid) or {}).get("extra_data") or {}).get("sandbox") or {}
+        value = (sandbox.get("cgroup") or {}).get("view_memory_bytes")
         if isinstance(value, int):
             found.add(value)
     if not found:
