@@ -46,8 +46,15 @@ from pathlib import Path
 
 from doorlab.errors import ConfigError, DoorlabError, OutputError
 from doorlab.pset.classroom.class_statistics import summarize
-from doorlab.pset.classroom.disk import check_room, room_problem, write_failure
 from doorlab.pset.classroom.regrade import check_only, old_sheet, settings_of
+from doorlab.pset.classroom.resources import (
+    check_room,
+    class_memory,
+    memory_lines,
+    room_problem,
+    worker_view_memory,
+    write_failure,
+)
 from doorlab.pset.classroom.roster import Submission, find_submissions, sheet_row, sheet_text
 from doorlab.runtime.interrupts import POLL_S, raise_if_interrupted
 
@@ -107,7 +114,7 @@ def grade_task(payload: dict) -> dict:
     start = time.perf_counter()
     try:
         data = payload.get("assignment")
-        view_bytes = payload.get("view_memory_bytes") or _worker_view_memory()
+        view_bytes = payload.get("view_memory_bytes") or worker_view_memory()
         results = grade_taken(
             payload["files"],
             Intake(**payload["intake"]),
@@ -124,15 +131,6 @@ def grade_task(payload: dict) -> dict:
         return {"error": clean_text(text, 500)}
     results["extra_data"]["batch"] = {"wall_time_s": round(time.perf_counter() - start, 2)}
     return {"results": results}
-
-
-def _worker_view_memory() -> int:
-    """On a cluster's worker: its view's memory limit, from its own room (its Dask memory
-    limit where it has one: Dask's share of its machine for it)."""
-    from doorlab.pset.isolation.memory import dask_worker_room, plan, room
-
-    found = min(filter(None, [room(), dask_worker_room()]), key=lambda r: r.bytes)
-    return plan(views=1, gradings=1, own_bytes=0, found=found, strict=False).view_bytes
 
 
 # The class's folder ------------------------------------------------------------------------
@@ -436,7 +434,7 @@ def grade_class(
             error = "not graded yet (--only graded others; --resume grades it)"
             run.rows[submission.id] = sheet_row(submission, None, error=error)
     todo = [s for s in submissions if s.id not in run.rows and s.id not in run.planned]
-    run.memory = _memory_plan(jobs, len(todo), scheduler)
+    run.memory = class_memory(jobs, len(todo), scheduler)
     check_room(out, tmpdir=scheduler is None)  # before anything is written
     run.local = scheduler is None
     settings = settings_of(assignment)
@@ -470,54 +468,6 @@ def grade_class(
         run.changes,
         run.problems,
     )
-
-
-def _memory_plan(jobs: int, todo: int, scheduler: str | None):
-    """Each student's view's memory limit on local workers (``jobs`` gradings at once, one
-    view each), or None on a cluster (each worker plans its own); and the grader's own
-    processes last in line for the OOM killer (:mod:`doorlab.pset.isolation.memory`).
-
-    Raises:
-        MemoryRoomError: Too little memory for ``jobs`` views (the message says how many fit).
-    """
-    from doorlab.pset.isolation.memory import plan, protect_trusted
-
-    protect_trusted()
-    if scheduler is not None or not todo:
-        return None
-    at_once = min(jobs, todo)
-    return plan(views=at_once, gradings=at_once)
-
-
-def _cluster_memory(results: dict[str, dict], graded: list[str]) -> list[str]:
-    """The summary's line on the views' memory limits the cluster's workers chose."""
-    from doorlab.pset.isolation.memory import mib
-
-    found = set()
-    for sid in graded:
-        sandbox = ((results.get(sid) or {}).get("extra_data") or {}).get("sandbox") or {}
-        value = (sandbox.get("cgroup") or {}).get("view_memory_bytes")
-        if isinstance(value, int):
-            found.add(value)
-    if not found:
-        return []
-    shown = mib(min(found)) if len(found) == 1 else f"{mib(min(found))} to {mib(max(found))}"
-    return [f"memory: each student's view at most {shown} (each worker's share of its room)"]
-
-
-def _memory_verdicts(results: dict[str, dict]) -> list[str]:
-    """The summary's line on the submissions whose view the kernel ended for memory."""
-    from doorlab.pset.isolation.memory import ended_for_memory
-
-    ended = [sid for sid, r in results.items() if ended_for_memory(r)]
-    if not ended:
-        return []
-    shown = ", ".join(ended[:5]) + (f" and {len(ended) - 5} more" if len(ended) > 5 else "")
-    return [
-        f"memory: the kernel ended the code of {len(ended)} submission"
-        f"{'s' if len(ended) != 1 else ''} at its view's limit ({shown}): its own tests' "
-        "verdict, no other grading touched"
-    ]
 
 
 class _ClassRun:
@@ -729,11 +679,7 @@ class _ClassRun:
         self.write_sheet()
         rows = [self.rows[i] for i in self.order if i in self.rows]
         self.summary = summarize(rows, self.keys, len(self.order))
-        if self.memory is not None:
-            self.summary.append(self.memory.line())
-        elif not self.local:  # a cluster: each worker planned its own
-            self.summary += _cluster_memory(self.results, self.graded)
-        self.summary += _memory_verdicts(self.results)
+        self.summary += memory_lines(self.memory, self.results, self.graded, local=self.local)
         order = [self.submissions[i] for i in self.order]
         self.changes = self.ledger.changes(order, self.results, self.errors)
         if self.previous is not None and self.previous.sheet is not None:
