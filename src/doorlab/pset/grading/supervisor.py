@@ -284,7 +284,9 @@ def _isolation(request: dict, workdir: Path, prepared: dict | None = None):
 FOLDER_KINDS = ("supervisor", "submission", "grade")
 """A supervisor's private folders in ``TMPDIR``: ``doorlab_<kind>_<its pid>_<random>`` (its
 long-lived one, the submission's copy, a grading's)."""
-_FOLDER = re.compile(r"doorlab_(" + "|".join(FOLDER_KINDS) + r")_(\d+)_")
+_FOLDER = re.compile(r"doorlab_(" + "|".join(FOLDER_KINDS) + r")_(\d+)_[a-z0-9_]{8}")
+"""A supervisor's folder: its prefix and tempfile's 8 random characters (an older doorlab's,
+without the pid, is too short to match)."""
 
 
 def _prefix(kind: str) -> str:
@@ -320,7 +322,7 @@ def remove_stale_folders(where: str | None = None) -> list[str]:
     except OSError:
         return removed
     for entry in entries:
-        match = _FOLDER.match(entry.name)
+        match = _FOLDER.fullmatch(entry.name)
         if match is None:
             continue
         try:
