@@ -260,6 +260,38 @@ def _stop(proc: subprocess.Popen) -> None:
         proc.wait()
 
 
+def _try_the_cluster(s, address: str, keys: Path, small: Path, course: Path, ref) -> dict:
+    """What the guide's TLS cluster lets in: a TLS client without a key, a Dask client with
+    another authority's key, one with the course's (which runs code on the workers), and
+    grade-all without --cluster-keys, or on the same scheduler named tcp://."""
+    import asyncio
+
+    import distributed
+
+    from doorlab.pset.classroom.cluster import accepts_anonymous, cluster_security
+
+    out = {"anonymous": accepts_anonymous(address, str(keys / "ca.pem"))}
+    other = distributed.Security.temporary()
+    try:
+        asyncio.run(
+            distributed.comm.connect(address, timeout=5, **other.get_connection_args("client"))
+        )
+        out["other_key"] = "connected"
+    except (OSError, TimeoutError) as e:
+        out["other_key"] = type(e).__name__
+    with distributed.Client(address, security=cluster_security(keys), timeout=30) as client:
+        out["course_key"] = sorted(client.run(os.getpid).values())
+    common = ["--out", str(s.root / "refused"), "--assignment", str(course), *ref]
+    plain = address.replace("tls://", "tcp://")
+    for label, more in (("no-keys", ["--scheduler", address]), ("tcp", ["--scheduler", plain])):
+        proc = s.run(
+            label, ["doorlab", "pset", "grade-all", str(small), *common, *more], check=False
+        )
+        s.ran.pop()
+        out[label] = (proc.returncode, proc.stderr.strip())
+    return out
+
+
 def _results_files(out: Path) -> dict[str, tuple]:
     return {
         p.parent.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in out.glob("*/results.json")
@@ -383,36 +415,43 @@ def semester(tmp_path_factory) -> Semester:
         sid: json.loads((grades / sid / "results.json").read_text())
         for sid in ("submission_1", "submission_3", "submission_10", "submission_14")
     }
-    # 6. A Dask scheduler and worker from the command line, as the sweeps guide starts them
-    # (a class of two: the stubs and a copy).
+    # 6. The course's TLS keys, a Dask scheduler and worker started with them from the
+    # command line as the guide says (a class of two: the stubs and a copy).
     distributed = pytest.importorskip("distributed")
     del distributed
     small = root / "small"
     for sid in ("submission_4", "submission_5"):
         shutil.copytree(s.export / sid, small / sid)
+    keys = root / "keys"
+    s.run("keys", ["doorlab", "pset", "cluster-keys", str(keys), "--host", "127.0.0.1"])
     dask = str(Path(sys.executable).with_name("dask"))
-    scheduler, address = _start(
-        [dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard"],
-        r"Scheduler at:\s+(tcp://\S+)",
-    )
+
+    def tls(role: str) -> list[str]:
+        return ["--tls-ca-file", str(keys / "ca.pem"), "--tls-cert", str(keys / f"{role}.pem"),
+                "--tls-key", str(keys / f"{role}.key")]  # fmt: skip
+
+    argv = [dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard"]
+    scheduler, address = _start([*argv, *tls("scheduler")], r"Scheduler at:\s+(tls://\S+)")
+    s.ran.append(" ".join(["dask", *argv[1:], *tls("scheduler"), "&"]))
     try:
-        worker, _ = _start(
-            [dask, "worker", address, "--nthreads", "1", "--nworkers", "1", "--no-dashboard"],
-            r"(Registered to)",
-        )
+        argv = [dask, "worker", address, "--nthreads", "1", "--nworkers", "1", "--no-dashboard"]
+        worker, _ = _start([*argv, *tls("worker")], r"(Registered to)")
+        s.ran.append(" ".join(["dask", *argv[1:], *tls("worker"), "&"]))
         try:
-            s.ran += ["dask scheduler", "dask worker tcp://HOST:8786 --nthreads 1 --nworkers N"]
             dask_out = root / "dask_grades"
             s.run(
                 "dask",
                 ["doorlab", "pset", "grade-all", str(small), "--out", str(dask_out),
-                 "--assignment", str(course), "--scheduler", address, *ref],
+                 "--assignment", str(course), "--scheduler", address, "--cluster-keys",
+                 str(keys), *ref],
             )  # fmt: skip
             s.dask_sheet = read_sheet(dask_out / "grades.csv")
+            s.cluster = _try_the_cluster(s, address, keys, small, course, ref)
         finally:
             _stop(worker)
     finally:
         _stop(scheduler)
+    s.ran.append("kill %1 %2")
     # The instructor grants a point's half by hand: a row of adjustments.csv, never the sheet.
     (grades / "adjustments.csv").write_text(
         "student,test,points,score,reason\nsubmission_7,,0.5,,office hours: the gain's units\n"
@@ -651,6 +690,23 @@ def test_one_student_again_keeps_the_others_and_the_adjustment(semester):
     assert "the instructor&#39;s adjustments: +0.5" in page and "office hours" in page
     canvas = {r[3]: r[-1] for r in csv.reader((grades / "canvas.csv").read_text().splitlines())}
     assert canvas["s7@example.edu"] == "6.500"
+
+
+def test_the_guide_s_tls_cluster_lets_in_no_client_without_the_course_s_key(semester):
+    """Issue 43: the guide's cluster (TLS, the keys of doorlab pset cluster-keys) refuses a
+    client without a key and one with another authority's, so neither can run code on the
+    workers; the course's key can. grade-all without the keys, or on the scheduler named
+    tcp://, is refused in one line (exit 2), nothing graded."""
+    tried = semester.cluster
+    assert tried["anonymous"] is False, tried
+    assert tried["other_key"] != "connected", tried  # the handshake fails (an OSError)
+    assert len(tried["course_key"]) == 1, tried  # the one worker ran the client's function
+    for label in ("no-keys", "tcp"):
+        code, said = tried[label]
+        assert code == 2 and len(said.splitlines()) == 1, (label, said)
+    assert "--cluster-keys" in tried["no-keys"][1], tried
+    assert "--insecure-cluster" in tried["tcp"][1] and "every grade" in tried["tcp"][1], tried
+    assert not (semester.root / "refused").exists()
 
 
 def test_the_dask_cluster_grades_as_the_local_workers(semester):

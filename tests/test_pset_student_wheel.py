@@ -35,9 +35,9 @@ from doorlab.pset.classroom.handout_zip import FOLDER, write_handout
 from doorlab.pset.grading.grader import TESTS
 from doorlab.pset.handout import edition
 from doorlab.pset.handout.folder import STUDENT_FILES, render_folder
+from doorlab.pset.rules.assignment import Assignment
 
 PACKAGE = Path(doorlab.__file__).resolve().parent
-FULL = sum(t.max_score for t in TESTS)
 
 
 def _defined(source: str) -> set[str]:
@@ -114,10 +114,57 @@ def holding_the_key(root: Path) -> list[str]:
     return found
 
 
+HIDDEN = ("velocity_unit", "impedance_episode")
+"""The tests the handout's course hides (issue 43: their practice draws, mistakes and
+reference figures were in the handout)."""
+
+
+def course(hidden: tuple[str, ...] = HIDDEN) -> Assignment:
+    """The course of the module's handout: the defaults, ``hidden`` hidden."""
+    assignment = Assignment()
+    for key in hidden:
+        getattr(assignment.tests, key).visibility = "hidden"
+    return assignment
+
+
 @pytest.fixture(scope="module")
 def handout(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("handout") / "pset5_handout.zip"
-    return write_handout(out, reference=pset_fixtures.reference())
+    return write_handout(out, assignment=course(), reference=pset_fixtures.reference())
+
+
+def _floats(data) -> set[str]:
+    """The JSON texts of the distinctive floats in ``data`` (12 characters or more)."""
+    if isinstance(data, float):
+        text = json.dumps(data)
+        return {text} if len(text) >= 12 else set()
+    if isinstance(data, dict):
+        data = list(data.values())
+    if isinstance(data, list):
+        return set().union(*(_floats(x) for x in data)) if data else set()
+    return set()
+
+
+def hidden_and_shown() -> tuple[set[str], set[str]]:
+    """Numbers of the practice table only the hidden tests have (their unit's draws,
+    expectations and mistakes; their episode's reference figures), and of a shown test."""
+    from doorlab.pset.grading.answer_key import practice_table
+
+    full = practice_table(course(()), pset_fixtures.reference())
+    hidden = _floats(full["units"]["velocity"])
+    hidden |= _floats(full["reference"]["reference:impedance"])
+    shown = _floats(full["units"]["impedance"]) | _floats(full["reference"]["reference:ik"])
+    return hidden - shown, shown - hidden
+
+
+def holding_hidden(tree: Path, numbers: set[str]) -> list[str]:
+    """Where in ``tree`` any of ``numbers`` is written."""
+    found = []
+    for path in sorted(tree.rglob("*")):
+        if path.is_file():
+            data = path.read_bytes()
+            found += [f"{path.relative_to(tree)}: {n}" for n in numbers if n.encode() in data]
+    return found
 
 
 @pytest.mark.slow
@@ -151,16 +198,13 @@ def test_the_handout_s_wheel_holds_no_answer_key(handout, tmp_path):
         for p in (students / edition.STUBS).rglob("*")
         if p.is_file()
     }
-    assert stubs == render_folder(
-        solutions=False, course=True
-    )  # the handout's, course.yaml included
+    assert stubs == render_folder(solutions=False, course=True, assignment=course())
     practice = json.loads((students / edition.PRACTICE).read_text())
-    assert set(practice["units"]) == {"ik", "calc_p_Q", "calc_R_WL7_ref", "velocity", "impedance"}
-    assert set(practice["reference"]) == {
-        "reference:ik",
-        "reference:velocity",
-        "reference:impedance",
-    }
+    # Nothing of the hidden tests (Task 2's velocity unit test, Task 3's episode).
+    assert set(practice["units"]) == {"ik", "calc_p_Q", "calc_R_WL7_ref", "impedance"}
+    assert set(practice["reference"]) == {"reference:ik", "reference:velocity"}
+    shown = [t.name for t in TESTS if t.key not in HIDDEN]
+    assert practice["tests"] == shown
 
 
 def wheel_name() -> str:
@@ -209,6 +253,10 @@ def test_installed_from_the_handout_no_key_and_the_self_check_is_the_course_s_te
     assert installed.is_relative_to(tmp_path / "venv"), installed
     subprocess.run([str(python), "-m", "compileall", "-q", str(installed)], check=True)
     assert holding_the_key(installed) == []
+    hidden, shown = hidden_and_shown()
+    assert len(hidden) > 20 and len(shown) > 20, (len(hidden), len(shown))
+    assert holding_hidden(installed, hidden) == []  # issue 43: nothing of a hidden test
+    assert len(holding_hidden(installed, shown)) == len(shown)  # the search finds what is there
     probe = (
         "import importlib, json\n"
         "out = {}\n"
@@ -243,4 +291,5 @@ def test_installed_from_the_handout_no_key_and_the_self_check_is_the_course_s_te
         results = json.loads((tmp_path / name / "out.json").read_text())
         scores[name] = results["score"]
         assert "practice draws" in results["extra_data"]["seed"]["source"]
-    assert scores == {"mine": FULL, "stubs": 0}, scores
+    practised = sum(t.max_score for t in TESTS if t.key not in HIDDEN)  # the self-check's
+    assert scores == {"mine": practised, "stubs": 0}, scores

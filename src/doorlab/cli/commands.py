@@ -52,6 +52,17 @@ def pset(args: argparse.Namespace) -> int:
         for line in hand_out(args.class_dir, args.out, pdf=args.pdf, force=args.force):
             print(f"doorlab pset feedback: {line}")
         return 0
+    if args.pset_command == "cluster-keys":
+        from doorlab.pset.classroom.cluster import write_cluster_keys
+
+        hosts = args.host or ["localhost", "127.0.0.1"]
+        out = write_cluster_keys(args.out, hosts, force=args.force)
+        print(
+            f"doorlab pset: wrote {out}: ca.pem (every role's --tls-ca-file), ca.key (keep it "
+            "offline), scheduler, worker and client certificates and keys (mode 0600), for "
+            f"{', '.join(hosts)}; grade with --scheduler tls://HOST:PORT --cluster-keys {out}"
+        )
+        return 0
     assignment = _assignment(args.assignment)
     if args.pset_command == "grade-all":
         return _pset_grade_all(args, assignment)
@@ -104,6 +115,9 @@ def _pset_grade(args: argparse.Namespace, assignment) -> int:
             "set's, or one holding its files), its zip or one of its files"
         )
     _check_writable(out)  # before grading: the grading takes minutes
+    from doorlab.pset.isolation.memory import plan
+
+    memory = plan(views=args.jobs, gradings=1)  # one line where the views cannot fit
     reference = None if args.reference is None else grader.load_reference(args.reference)
     results = grader.grade_submission(
         source,
@@ -113,6 +127,7 @@ def _pset_grade(args: argparse.Namespace, assignment) -> int:
         seed=args.seed,
         require_files=True,
         isolation="insecure" if args.insecure else "require",
+        view_memory_bytes=memory.view_bytes,
     )
     grader.write_results(results, out)
     if source.is_dir():
@@ -144,8 +159,19 @@ def _pset_grade_all(args: argparse.Namespace, assignment) -> int:
 
         find_chromium()  # before grading: the message names the package
     reference = None if args.reference is None else grader.load_reference(args.reference)
+    security = None
+    if args.cluster_keys is not None:
+        from doorlab.pset.classroom.cluster import cluster_security
+
+        security = cluster_security(args.cluster_keys)
     if args.scheduler is not None:
-        _probe(args)
+        from doorlab.pset.classroom.cluster import plain, refuse
+        from doorlab.runtime.executor import check_scheduler
+
+        why = plain(check_scheduler(args.scheduler))
+        if why is not None and not args.insecure_cluster:  # before connecting to it
+            raise refuse(args.scheduler, why)
+        _probe(args, security)
     has_canvas = "canvas" in args.export or (Path(args.out) / "canvas.csv").is_file()
     if args.roster is not None and not has_canvas:
         raise ConfigError("--roster fills the Canvas export: give it with --export canvas")
@@ -167,6 +193,8 @@ def _pset_grade_all(args: argparse.Namespace, assignment) -> int:
             outputs=outputs,
             roster=args.roster,
             notice=lambda line: print(f"doorlab pset grade-all: {line}", file=sys.stderr),
+            security=security,
+            insecure_cluster=args.insecure_cluster,
         )
     except KeyboardInterrupt as e:
         left = getattr(e, "doorlab_left", None) or _class_left(args.out)
@@ -183,7 +211,7 @@ def _pset_grade_all(args: argparse.Namespace, assignment) -> int:
         f"{outcome.executor}; sheet: {args.out / GRADES_CSV}; results: "
         f"{args.out}/<submission>/results.json"
     )
-    return 1 if outcome.errors else 0
+    return 1 if outcome.errors or outcome.problems else 0
 
 
 def _class_left(out: Path) -> str:
@@ -414,14 +442,15 @@ def require_sweep_extra(what: str, modules: tuple[str, ...]) -> None:
         )
 
 
-def _probe(args: argparse.Namespace) -> None:
+def _probe(args: argparse.Namespace, security=None) -> None:
     """A --scheduler is checked and asked who it is before anything else is imported or
-    built: an address that is no Dask scheduler is one line within --scheduler-timeout."""
+    built: an address that is no Dask scheduler is one line within --scheduler-timeout.
+    ``security``: a ``distributed.Security`` (default: Dask's configuration's)."""
     if args.scheduler is not None:
         require_sweep_extra("--scheduler", ("distributed",))
         from doorlab.runtime.executor import check_scheduler, probe_scheduler
 
-        probe_scheduler(check_scheduler(args.scheduler), args.scheduler_timeout)
+        probe_scheduler(check_scheduler(args.scheduler), args.scheduler_timeout, security)
 
 
 def report(args: argparse.Namespace) -> int:

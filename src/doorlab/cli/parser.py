@@ -224,14 +224,14 @@ def _scheduler(parser: argparse.ArgumentParser) -> None:
 
 
 def add_pset_parser(sub) -> None:
-    """``doorlab pset {init,grade,grade-all,feedback,autograder,handout,assignment}``: the
-    problem-set folder, its grader (one submission, or a whole class), each student's feedback
-    to hand out, the grader as a Gradescope autograder zip, the students' handout and the
-    assignment file."""
+    """``doorlab pset {init,grade,grade-all,feedback,autograder,handout,assignment,cluster-keys}``:
+    the problem-set folder, its grader (one submission, or a whole class), each student's
+    feedback to hand out, the grader as a Gradescope autograder zip, the students' handout, the
+    assignment file and the keys of a course's Dask cluster."""
     pset = sub.add_parser("pset", help="write the problem-set folder for students, or grade one")
     actions = pset.add_subparsers(
         dest="pset_command",
-        metavar="{init,grade,grade-all,feedback,autograder,handout,assignment}",
+        metavar="{init,grade,grade-all,feedback,autograder,handout,assignment,cluster-keys}",
         parser_class=OneLineParser,
         required=True,
     )
@@ -298,6 +298,7 @@ def add_pset_parser(sub) -> None:
     hand_out.add_argument(
         "--force", action="store_true", help="replace an existing OUT written by doorlab"
     )
+    add_cluster_keys_parser(actions)
     auto = actions.add_parser(
         "autograder", help="write a Gradescope autograder zip that grades with this doorlab"
     )
@@ -334,6 +335,25 @@ def add_pset_parser(sub) -> None:
     assignment.add_argument("out", type=Path, metavar="FILE", help="the YAML file to write")
 
 
+def add_cluster_keys_parser(actions) -> None:
+    """``doorlab pset cluster-keys DIR``: a course's Dask cluster's TLS keys."""
+    keys = actions.add_parser(
+        "cluster-keys",
+        help="write a Dask cluster's TLS keys into DIR: its certificate authority (ca.pem) and "
+        "a certificate and key for the scheduler, the workers and grade-all's client",
+    )
+    keys.add_argument("out", type=Path, metavar="DIR", help="the folder to write (mode 0700)")
+    keys.add_argument(
+        "--host",
+        action="append",
+        default=[],
+        metavar="HOST",
+        help="a name or address the scheduler and workers are reached at, put in their "
+        "certificates; repeat for more (default: localhost and 127.0.0.1)",
+    )
+    keys.add_argument("--force", action="store_true", help="replace a DIR that doorlab wrote")
+
+
 def add_grade_all_parser(actions) -> None:
     """``doorlab pset grade-all SUBMISSIONS --out DIR``: a whole class into a grade sheet."""
     grade_all = actions.add_parser(
@@ -365,6 +385,20 @@ def add_grade_all_parser(actions) -> None:
         "number of cores)",
     )
     _scheduler(grade_all)
+    grade_all.add_argument(
+        "--cluster-keys",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="with a tls:// --scheduler: the folder doorlab pset cluster-keys wrote (its ca.pem, "
+        "client.pem and client.key; default: Dask's configuration's certificates)",
+    )
+    grade_all.add_argument(
+        "--insecure-cluster",
+        action="store_true",
+        help="grade on a --scheduler without TLS or that lets clients in without a key (a "
+        "warning says that whoever reaches it can change every grade)",
+    )
     grade_all.add_argument(
         "--reference",
         type=Path,

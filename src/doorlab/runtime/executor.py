@@ -170,9 +170,9 @@ def probe_scheduler(address: str, timeout_s: float = CONNECT_TIMEOUT_S, security
     security = _security(security)
     if address.startswith(("tls://", "wss://")) and not security.tls_ca_file:
         raise ConfigError(
-            f"the scheduler at {address} speaks TLS: give its certificates in Dask's "
-            "configuration (distributed.comm.tls.ca-file, client.cert and client.key, e.g. "
-            "DASK_DISTRIBUTED__COMM__TLS__CA_FILE)"
+            f"the scheduler at {address} speaks TLS: give its certificates (grade-all: "
+            "--cluster-keys DIR; else Dask's configuration: distributed.comm.tls.ca-file, "
+            "client.cert and client.key, e.g. DASK_DISTRIBUTED__COMM__TLS__CA_FILE)"
         )
     arguments = security.get_connection_args("client")
 

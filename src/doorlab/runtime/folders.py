@@ -137,6 +137,56 @@ def record_written(folder: Path, paths: Iterable[Path]) -> None:
     _write_manifest(folder, files)
 
 
+def replace_recorded(folder: Path, tmp: Path, path: Path) -> None:
+    """Moves the complete file ``tmp`` over ``path`` (inside ``folder``, which doorlab wrote)
+    with its manifest entry: the entry first, then the rename, so that a full disk (ENOSPC)
+    at either step leaves the file and its entry agreeing (the old ones): no file the next
+    run would refuse as changed since doorlab wrote it. Nothing is recorded in a folder
+    without a manifest.
+
+    Raises:
+        OSError: The manifest or the rename failed (``tmp`` is left to the caller).
+    """
+    folder = Path(folder)
+    files = read_manifest(folder)
+    if files is None:
+        os.replace(tmp, path)
+        return
+    rel = Path(os.path.abspath(path)).relative_to(Path(os.path.abspath(folder))).as_posix()
+    before = files.get(rel)
+    files[rel] = _entry(Path(tmp))
+    _write_manifest(folder, files)
+    try:
+        os.replace(tmp, path)
+    except BaseException:
+        if before is None:
+            files.pop(rel)
+        else:
+            files[rel] = before
+        _write_manifest(folder, files)
+        raise
+
+
+def remove_unrecorded(folder: Path, names: Iterable[str]) -> list[str]:
+    """Removes the files under ``folder``'s top-level ``names`` that its manifest does not
+    record as they are (outputs doorlab rewrites on every run, whose manifest update a full
+    disk cut short); returns them (relative paths)."""
+    folder = Path(folder)
+    files = read_manifest(folder) or {}
+    removed = []
+    for name in names:
+        top = folder / name
+        paths = list(_walk_files(top)) if top.is_dir() and not top.is_symlink() else [top]
+        for path in paths:
+            if not path.is_file() or path.is_symlink():
+                continue
+            rel = path.relative_to(folder).as_posix()
+            if rel not in files or not _unchanged(path, files[rel]):
+                path.unlink(missing_ok=True)
+                removed.append(rel)
+    return removed
+
+
 def remove_written(folder: Path, subfolder: str) -> None:
     """Removes the files doorlab wrote under ``folder/subfolder`` and that are unchanged (a
     page's old figures); a user's files there stay."""

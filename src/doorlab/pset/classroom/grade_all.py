@@ -55,6 +55,14 @@ from doorlab.errors import ConfigError, DoorlabError, OutputError
 from doorlab.pset.classroom.class_inputs import assignment_changes, cost_line, read_inputs
 from doorlab.pset.classroom.class_statistics import summarize
 from doorlab.pset.classroom.regrade import check_only, old_sheet, settings_of
+from doorlab.pset.classroom.resources import (
+    check_room,
+    class_memory,
+    memory_lines,
+    room_problem,
+    worker_view_memory,
+    write_failure,
+)
 from doorlab.pset.classroom.roster import Submission, find_submissions, sheet_row, sheet_text
 from doorlab.pset.classroom.tables import INSTRUCTOR_FILES
 from doorlab.runtime.interrupts import POLL_S, raise_if_interrupted
@@ -82,6 +90,9 @@ CLASS_FILES = (
 )
 """What a run rewrites in ``DIR`` besides the submissions' folders
 (:mod:`doorlab.pset.classroom.regrade`, :mod:`doorlab.pset.classroom.class_outputs`)."""
+REWRITTEN = ("feedback", "class.html", "summary.json", "canvas.csv", "gradescope.csv")
+"""What a run rewrites from the results at its end (removed where a full disk left it
+unrecorded: the next run writes it again)."""
 QUEUED_PER_WORKER = 2
 """Submissions taken and queued per worker at a time (their files held in memory)."""
 
@@ -113,6 +124,7 @@ def grade_task(payload: dict) -> dict:
     start = time.perf_counter()
     try:
         data = payload.get("assignment")
+        view_bytes = payload.get("view_memory_bytes") or worker_view_memory()
         results = grade_taken(
             payload["files"],
             Intake(**payload["intake"]),
@@ -122,6 +134,7 @@ def grade_task(payload: dict) -> dict:
             isolation=payload["isolation"],
             supervisor=_worker_supervisor(),
             network_isolated=payload.get("network_isolated", False),
+            view_memory_bytes=view_bytes,
         )
     except Exception as e:  # noqa: BLE001 - a grader's failure is a row, never a lost class
         text = str(e) if isinstance(e, DoorlabError) else f"{type(e).__name__}: {e}"
@@ -226,9 +239,23 @@ def _check_out(out: Path, submissions: list[Submission], *, resume: bool, force:
 
 
 def _commit(out: Path, submission_id: str, results: dict) -> None:
-    """``out/<id>/results.json``, atomically (a staging folder renamed into place)."""
+    """``out/<id>/results.json``, atomically (a staging folder renamed into place), recorded in
+    ``out``'s manifest. Where a full disk stops it, the submission keeps its earlier results or
+    none (never a folder the manifest disagrees with: the next run would refuse it).
+
+    Raises:
+        OutputError: One line (the submission is then an ``error`` row).
+    """
+    import shutil
+
     from doorlab.pset.grading.grader import write_results
-    from doorlab.runtime.folders import MANIFEST_NAME, commit_output, prepare_output, record_written
+    from doorlab.runtime.folders import (
+        MANIFEST_NAME,
+        commit_output,
+        discard_output,
+        prepare_output,
+        record_written,
+    )
 
     target = out / submission_id
     label = f"{str(target)!r}"
@@ -236,34 +263,48 @@ def _commit(out: Path, submission_id: str, results: dict) -> None:
     try:
         write_results(results, staging / RESULTS_JSON)
         commit_output(staging, target)
+    except (OSError, OutputError) as e:  # nothing moved (its staging folder goes)
+        why = e.strerror if isinstance(e, OSError) else str(e).rsplit(": ", 1)[-1]
+        raise write_failure(target / RESULTS_JSON, OSError(0, why)) from None
     finally:
-        from doorlab.runtime.folders import discard_output
-
         discard_output(staging)
-    record_written(out, [target / RESULTS_JSON, target / MANIFEST_NAME])
+    try:
+        record_written(out, [target / RESULTS_JSON, target / MANIFEST_NAME])
+    except OSError as e:  # in place, but not recorded: removed (--resume grades it again)
+        shutil.rmtree(target, ignore_errors=True)
+        raise write_failure(target / RESULTS_JSON, e) from None
 
 
 def _write_text(out: Path, name: str, text: str | bytes, *, record: bool = True) -> None:
     """``out/name`` (``name`` may be in a subfolder) atomically, recorded as doorlab's (with
-    ``record``; else the caller records it with others, :func:`record_written`)."""
+    ``record``: its entry first, then the file, so a full disk leaves both as they were;
+    else the caller records it with others, :func:`record_written`).
+
+    Raises:
+        OutputError: One line (ENOSPC, a folder that cannot be written).
+    """
     import os
     import tempfile
 
-    from doorlab.runtime.folders import follow_umask, record_written
+    from doorlab.runtime.folders import follow_umask, replace_recorded
 
     path = out / name
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    tmp = None
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
         with os.fdopen(fd, "wb" if isinstance(text, bytes) else "w") as f:
             f.write(text)
         follow_umask(Path(tmp), folder=False)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    if record:
-        record_written(out, [path])
+        if record:
+            replace_recorded(out, Path(tmp), path)
+        else:
+            os.replace(tmp, path)
+    except OSError as e:
+        raise write_failure(path, e) from None
+    finally:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
 
 
 # The class -----------------------------------------------------------------------------------
@@ -282,6 +323,8 @@ class ClassOutcome:
         executor: Where the submissions were graded.
         rescored: The submissions re-scored or re-judged from their stored figures.
         changes: ``changes.csv``'s rows (:mod:`doorlab.pset.classroom.regrade`).
+        problems: Files of the class folder that could not be written (one line each: a
+            full disk), also in the summary.
     """
 
     rows: list[dict]
@@ -291,6 +334,7 @@ class ClassOutcome:
     executor: str = ""
     rescored: list[str] = field(default_factory=list)
     changes: list[dict] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
 
     @property
     def errors(self) -> int:
@@ -316,6 +360,7 @@ def grade_class(
     security: object = None,
     roster: str | Path | None = None,
     notice=None,
+    insecure_cluster: bool = False,
 ) -> ClassOutcome:
     """Grades every submission in ``source`` into ``out`` (see the module docstring).
 
@@ -345,11 +390,14 @@ def grade_class(
         security: With ``scheduler``: a ``distributed.Security`` (a ``tls://`` cluster's
             certificates; default: Dask's configuration's). With a scheduler, a cluster whose
             workers would run the student's code without a network namespace is refused
-            (:func:`doorlab.pset.classroom.cluster.check_workers`).
+            (:func:`doorlab.pset.classroom.cluster.check_workers`), and so is one that is not
+            TLS or lets a client in without a key
+            (:func:`doorlab.pset.classroom.cluster.check_cluster`).
         roster: The course's Canvas gradebook export, to fill ``canvas.csv`` from
             (:mod:`doorlab.pset.classroom.canvas`).
         notice: Called with each line to say before grading (what a different assignment
             costs); None: the lines go to the summary only.
+        insecure_cluster: Grade on such a scheduler anyway (a one-line warning on stderr).
 
     Raises:
         ConfigError: No submissions; bad metadata; bad ``jobs``, ``scheduler`` or ``only``;
@@ -387,8 +435,12 @@ def grade_class(
         reference = reference if reference is not None else previous.reference
     timeout_s = scheduler_timeout_s or CONNECT_TIMEOUT_S
     if scheduler is not None:  # before anything is written: the workers isolate the network
-        from doorlab.pset.classroom.cluster import check_workers
-        from doorlab.runtime.executor import open_executor
+        from doorlab.pset.classroom.cluster import check_cluster, check_workers
+        from doorlab.runtime.executor import _security, open_executor
+
+        warning = check_cluster(scheduler, _security(security), insecure=insecure_cluster)
+        if warning is not None:
+            print(f"doorlab pset grade-all: warning: {warning}", file=sys.stderr)
 
         with open_executor(scheduler=scheduler, timeout_s=timeout_s, security=security) as ex:
             check_workers(ex, isolation)
@@ -422,6 +474,9 @@ def grade_class(
             error = "not graded yet (--only graded others; --resume grades it)"
             run.rows[submission.id] = sheet_row(submission, None, error=error)
     todo = [s for s in submissions if s.id not in run.rows and s.id not in run.planned]
+    run.memory = class_memory(jobs, len(todo), scheduler)
+    check_room(out, tmpdir=scheduler is None)  # before anything is written
+    run.local = scheduler is None
     settings = settings_of(assignment)
     info = {"reference": reference, "assignment_sha256": digest, "assignment": settings}
     info["source"] = str(source)
@@ -454,6 +509,7 @@ def grade_class(
         run.executor,
         run.rescored,
         run.changes,
+        run.problems,
     )
 
 
@@ -489,6 +545,9 @@ class _ClassRun:
         self.inputs = None  # class_inputs.ClassInputs
         self.summary_notes: list[str] = []
         self.deferred = False  # over an existing sheet: the sheet is written when the run ends
+        self.memory = None  # the views' memory plan (doorlab.pset.isolation.memory)
+        self.local = True  # local workers (their TMPDIR is this machine's)
+        self.problems: list[str] = []  # files that could not be written (one line each)
 
     def left_text(self) -> str | None:
         """What an interrupted run over an existing sheet left (None: a new class's sheet
@@ -551,11 +610,25 @@ class _ClassRun:
         from doorlab.pset.isolation.intake import Intake
         from doorlab.pset.rules.verdicts import STUDENT_FILES
 
+        short = room_problem(self.out, tmpdir=self.local)
+        if short is not None:  # the grader's: --resume grades it once there is room
+            self.done(submission, {"error": f"not graded: {short}; --resume grades it"})
+            return None
         try:
             files, intake = take_files(submission.path)
         except OutputError as e:  # not a folder or a zip: nothing to grade, every test 0
+            if not submission.path.exists():  # gone since it was listed: the grader's
+                self.done(submission, {"error": str(e)})
+                return None
             intake = Intake(missing=list(STUDENT_FILES), refused=str(e))
             self.done(submission, {"results": grade_taken({}, intake, assignment=self.assignment)})
+            return None
+        except OSError as e:
+            self.done(submission, {"error": str(write_failure(submission.path, e))})
+            return None
+        if intake.unreadable:  # this machine could not read it all: no grade of a part
+            why = f"cannot read the submission here ({intake.unreadable[0]}); --resume grades it"
+            self.done(submission, {"error": why})
             return None
         self.ledger.took(submission, files, intake)
         if intake.refused is not None:  # over a bound: not graded, no worker needed
@@ -574,6 +647,7 @@ class _ClassRun:
             "assignment": None if self.assignment is None else self.assignment.to_dict(),
             "isolation": self.isolation,
             "network_isolated": self.network_isolated,
+            "view_memory_bytes": None if self.memory is None else self.memory.view_bytes,
         }
 
     def grade(self, executor, todo: list[Submission]) -> None:
@@ -614,7 +688,11 @@ class _ClassRun:
         released = self.ledger.released(submission, outcome)
         if results is not None:
             results = self.ledger.finish(submission, results)
-            _commit(self.out, submission.id, results)
+            try:
+                _commit(self.out, submission.id, results)
+            except OutputError as e:  # a full disk: the grader's error, graded again later
+                results, outcome = None, {"error": f"{e}; --resume grades it again"}
+        if results is not None:
             self.rows[submission.id] = sheet_row(submission, results)
             self.results[submission.id] = results
         else:
@@ -633,7 +711,21 @@ class _ClassRun:
 
     def write_sheet(self) -> None:
         rows = [self.rows[i] for i in self.order if i in self.rows]
-        _write_text(self.out, GRADES_CSV, sheet_text(rows, self.keys))
+        self.write(GRADES_CSV, sheet_text(rows, self.keys))
+
+    def write(self, name: str, text: str) -> bool:
+        """:func:`_write_text`; a failure (a full disk) is one line in the summary, and the file
+        stays as it was (the sheet: the rows finished before)."""
+        try:
+            _write_text(self.out, name, text)
+            return True
+        except OutputError as e:
+            self.problem(str(e))
+            return False
+
+    def problem(self, line: str) -> None:
+        if line not in self.problems:
+            self.problems.append(line)
 
     def finish(self, *, interrupted: bool = False) -> None:
         """The sheet of what finished, whatever ended the run; the summary; the changes and
@@ -647,22 +739,37 @@ class _ClassRun:
         self.write_sheet()
         rows = [self.rows[i] for i in self.order if i in self.rows]
         self.summary = self.summary_notes + summarize(rows, self.keys, len(self.order))
+        self.summary += memory_lines(self.memory, self.results, self.graded, local=self.local)
         order = [self.submissions[i] for i in self.order]
         before = self.previous.rows if self.deferred else None
         self.changes = self.ledger.changes(order, self.results, self.errors, before)
         if self.previous is not None and self.previous.sheet is not None:
-            class_outputs.write_changes(self.out, self.previous, self.changes, _write_text)
+            try:
+                class_outputs.write_changes(self.out, self.previous, self.changes, _write_text)
+            except OutputError as e:
+                self.problem(str(e))
             self.summary.append(class_outputs.changes_line(self.changes))
-        _write_text(self.out, SUMMARY_TXT, "\n".join(self.summary) + "\n")
+        self.write(SUMMARY_TXT, "\n".join([*self.summary, *self.problems]) + "\n")
         if not interrupted:
-            self.summary += class_outputs.write_class_outputs(
-                self.out,
-                order,
-                rows,
-                self.results,
-                self.ledger.assignment,
-                self.outputs,
-                _write_text,
-                None if self.inputs is None else self.inputs.exports,
-            )
-            _write_text(self.out, SUMMARY_TXT, "\n".join(self.summary) + "\n")
+            try:
+                self.summary += class_outputs.write_class_outputs(
+                    self.out,
+                    order,
+                    rows,
+                    self.results,
+                    self.ledger.assignment,
+                    self.outputs,
+                    _write_text,
+                    None if self.inputs is None else self.inputs.exports,
+                )
+            except (OSError, OutputError) as e:  # a full disk: nothing half-recorded is left
+                from doorlab.runtime.folders import remove_unrecorded
+
+                why = e.strerror if isinstance(e, OSError) else str(e).rsplit(": ", 1)[-1]
+                self.problem(
+                    f"cannot write the class's pages and exports in {self.out} ({why}): the "
+                    "next run writes them"
+                )
+                remove_unrecorded(self.out, REWRITTEN)
+            self.write(SUMMARY_TXT, "\n".join([*self.summary, *self.problems]) + "\n")
+        self.summary += self.problems

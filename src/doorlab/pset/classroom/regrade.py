@@ -115,6 +115,8 @@ def plan_step(
     if old is None:
         return Step("grade", "its grading failed before" if failed else "not graded before")
     before = stored_digest(old)
+    if digest is not None and digest.startswith("unread:"):
+        return Step("grade", f"its files could not be read to compare ({digest[7:]})")
     if digest is not None and before != digest:
         return Step("grade", f"its files changed (SHA-256 {str(before)[:12]} -> {digest[:12]})")
     extra = old.get("extra_data") or {}
@@ -266,13 +268,22 @@ class Ledger:
         return digest
 
     def _digest_of(self, submission) -> str | None:
+        """Its files' digest now (None: not a folder or a zip, its earlier refusal stands).
+
+        Raises:
+            OSError: Its files could not all be read here (then it is graded again, never
+                counted unchanged)."""
         from doorlab.errors import OutputError
         from doorlab.pset.grading.grader import take_files
 
         try:
             files, intake = take_files(submission.path)
         except OutputError:
+            if not submission.path.exists():
+                raise FileNotFoundError(0, "it is gone", str(submission.path)) from None
             return None
+        if intake.unreadable:
+            raise OSError(0, intake.unreadable[0])
         return self.took(submission, files, intake)
 
     def plan(
@@ -293,7 +304,10 @@ class Ledger:
                     continue
                 step = Step("keep")
             else:
-                digest = self._digest_of(submission) if old is not None else None
+                try:
+                    digest = self._digest_of(submission) if old is not None else None
+                except OSError as e:  # never counted unchanged: graded again (or says why not)
+                    digest = f"unread:{e.strerror or e}"
                 step = plan_step(
                     old,
                     digest,

@@ -30,6 +30,7 @@ import csv
 import io
 import os
 import stat
+import unicodedata
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -53,7 +54,13 @@ FIELD_CHARS = 200
 SKIPPED = frozenset({"__MACOSX", "__pycache__", ".git", ".ipynb_checkpoints"})
 """Names in the folder that are never submissions."""
 FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
-"""What a spreadsheet reads as a formula at the start of a cell."""
+"""What a spreadsheet reads as a formula at the start of a cell: also after spaces, and in
+the forms that Unicode's compatibility normalisation (NFKC) makes them (the full-width
+U+FF1D, U+FF0B, U+FF0D, U+FF20; the small and superscript signs), and
+:data:`FORMULA_LOOKALIKES`."""
+FORMULA_LOOKALIKES = frozenset("\u2212\u2796\u2795")
+"""Signs a spreadsheet may read as ``-`` or ``+`` that NFKC leaves as they are (the minus
+sign U+2212, the heavy minus and plus signs)."""
 
 
 @dataclass(frozen=True)
@@ -283,7 +290,18 @@ def _cell(value: object) -> str:
     if not isinstance(value, str):
         return str(value)
     text = shown_name(value)
-    return "'" + text if text.startswith(FORMULA_STARTS) else text
+    return "'" + text if formula_like(text) else text
+
+
+def formula_like(text: str) -> bool:
+    """Whether a spreadsheet could read ``text`` as a formula (see :data:`FORMULA_STARTS`)."""
+    if text.startswith(FORMULA_STARTS):
+        return True
+    head = text.lstrip()
+    if not head:
+        return False
+    first = unicodedata.normalize("NFKC", head[0])
+    return first.lstrip().startswith(FORMULA_STARTS) or head[0] in FORMULA_LOOKALIKES
 
 
 def sheet_text(rows: list[dict], test_keys: list[str]) -> str:

@@ -366,22 +366,48 @@ def practice_seed(assignment_seed: int) -> int:
     return int(job_seed(int(assignment_seed), PRACTICE_JOB))
 
 
-def practice_table(assignment, reference: dict) -> dict:
-    """What the students' doorlab grades with, since it holds none of this module: each unit
-    test's expectations on the practice draws, the reference episodes' figures
-    (``reference``: :func:`doorlab.pset.grading.grader.grade_reference`'s; their wall times left
-    out), the reference helpers' table."""
-    from doorlab.pset.rules.assignment import Assignment
+def practiced(settings) -> bool:
+    """Whether the handout practises a test (its settings, or None: the defaults): the
+    self-check runs it (``self_check``), and it is not hidden."""
+    if settings is None:
+        return True
+    return settings.visibility != "hidden" and bool(settings.self_check)
 
-    seed = practice_seed((assignment or Assignment()).seed)
+
+def practice_table(assignment, reference: dict) -> dict:
+    """What the students' doorlab grades with, since it holds none of this module, for the
+    tests the handout practises (:func:`practiced`: nothing of a hidden test, nor of one the
+    self-check does not run): each such unit test's expectations on the practice draws (its
+    mistakes' answers included), the reference episodes' figures (``reference``:
+    :func:`doorlab.pset.grading.grader.grade_reference`'s; their wall times left out), the
+    reference helpers' table (when a practised episode runs them), and the practised tests'
+    names (``tests``). An episode that runs the student's helpers is practised with their
+    unit tests (it reports them)."""
+    from doorlab.pset.rules.assignment import Assignment
+    from doorlab.pset.rules.verdicts import TESTS, test_settings
+
+    assignment = assignment or Assignment()
+    seed = practice_seed(assignment.seed)
+    specs = [t for t in TESTS if practiced(test_settings(assignment, t))]
+    jobs = {j for t in specs for j in t.needed_jobs(test_settings(assignment, t))}
     figures = {}
     for job, result in sorted(reference.items()):
+        if job not in jobs:
+            continue
         data = dict(result.get("figures") or {})
         data.pop("wall_time_s", None)  # the same doorlab writes the same handout
         figures[job] = {"figures": data}
+    helped = [
+        t for t in specs if t.helpers and not t.uses_student_helpers(test_settings(assignment, t))
+    ]
     return {
         "seed": seed,
-        "units": {name: expect(seed=seed) for name, expect in sorted(EXPECTATIONS.items())},
+        "tests": [t.name for t in specs],
+        "units": {
+            name: expect(seed=seed)
+            for name, expect in sorted(EXPECTATIONS.items())
+            if f"unit:{name}" in jobs
+        },
         "reference": figures,
-        "helpers": reference_helper_table(),
+        "helpers": reference_helper_table() if helped else None,
     }

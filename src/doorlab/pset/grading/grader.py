@@ -78,6 +78,7 @@ def grade(
     harden: Sequence[str | Path] = (),
     supervisor: Supervisor | None = None,
     network_isolated: bool = False,
+    view_memory_bytes: int | None = None,
 ) -> dict:
     """Grades a problem-set folder; returns the Gradescope results (write them with
     :func:`write_results`).
@@ -112,6 +113,9 @@ def grade(
         network_isolated: Refuse (GradingError) unless the student's code gets a network
             namespace of its own (a grading on a Dask cluster's worker: else its code could
             reach the cluster).
+        view_memory_bytes: Each student's view's memory limit [bytes] (a class's
+            :func:`doorlab.pset.isolation.memory.plan`); None: this machine's room for ``jobs``
+            views (:mod:`doorlab.pset.isolation.memory`).
 
     Returns:
         Gradescope's results: ``{"score", "visibility", "output", "output_format",
@@ -142,6 +146,7 @@ def grade(
         "isolation": isolation,
         "harden": [str(p) for p in harden],
         "network_isolated": bool(network_isolated),
+        "view_memory_bytes": _view_memory(view_memory_bytes, jobs),
     }
     if supervisor is not None:
         return supervisor.run(request)
@@ -158,6 +163,16 @@ def grade(
         _end(proc)
         raise
     return _answer(out, proc.returncode)
+
+
+def _view_memory(view_memory_bytes: int | None, jobs: int) -> int:
+    """Each view's memory limit: the one given, else this machine's room for ``jobs``
+    views of one grading (the least a view is given where there is less room)."""
+    if view_memory_bytes is not None:
+        return int(view_memory_bytes)
+    from doorlab.pset.isolation.memory import plan
+
+    return plan(views=jobs, gradings=1, strict=False).view_bytes
 
 
 def _end(proc: subprocess.Popen) -> None:
@@ -290,6 +305,7 @@ def grade_submission(
     harden: Sequence[str | Path] = (),
     supervisor: Supervisor | None = None,
     only: Sequence[str] | None = None,
+    view_memory_bytes: int | None = None,
 ) -> dict:
     """Grades a submission as every grading path does (``doorlab pset grade``, the folder's
     ``test_pset_5a.py``, Gradescope's ``run_autograder``, ``doorlab pset grade-all``): its
@@ -304,6 +320,7 @@ def grade_submission(
         source: The submission: a folder, or a zip file.
         jobs, reference, assignment, isolation, harden, supervisor, only: As for
             :func:`grade`.
+        view_memory_bytes: As for :func:`grade`.
         seed: The grading's random seed, as for :func:`grade`.
         require_files: Refuse (OutputError) a submission that holds none of the student
             files (``doorlab pset grade``: a mistyped folder, a notebook alone); without it
@@ -333,6 +350,7 @@ def grade_submission(
         harden=harden,
         supervisor=supervisor,
         only=only,
+        view_memory_bytes=view_memory_bytes,
     )
 
 
@@ -342,13 +360,13 @@ def take_files(source: str | Path):
     the :class:`~doorlab.pset.isolation.intake.Intake` (what was taken, missing, refused).
 
     Raises:
-        OutputError: ``source`` is neither a folder nor a zip file.
+        OutputError: ``source`` does not exist, or is neither a folder nor a zip file.
     """
-    from doorlab.pset.isolation.intake import graded_copy
+    from doorlab.pset.isolation.intake import take
 
-    with graded_copy(source) as (folder, intake):
-        files = {rel: (folder / rel).read_bytes() for rel in intake.taken}
-    return files, intake
+    if not Path(source).exists():
+        raise OutputError(f"{source} does not exist")
+    return take(source)
 
 
 def grade_taken(
@@ -364,6 +382,7 @@ def grade_taken(
     supervisor: Supervisor | None = None,
     only: Sequence[str] | None = None,
     network_isolated: bool = False,
+    view_memory_bytes: int | None = None,
 ) -> dict:
     """Grades what :func:`take_files` took: a fresh stub folder with ``files`` over its stubs
     (:func:`grade`), or, for a submission the intake refused, every test 0 with the reason.
@@ -394,6 +413,7 @@ def grade_taken(
             supervisor=supervisor,
             only=only,
             network_isolated=network_isolated,
+            view_memory_bytes=view_memory_bytes,
         )
     header = f"Graded by doorlab {__version__} (Drake {version('drake')})."
     grading = str(results.get("output") or "")

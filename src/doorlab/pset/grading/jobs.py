@@ -207,9 +207,15 @@ class _Jobs:
     def _view(self, key: str):
         from doorlab.pset.isolation.student_view import StudentView
 
+        old = self.views.get(key)
+        if old is not None and not old.alive():  # the kernel ended it (a test's memory)
+            old.close()
+            del self.views[key]
         if key not in self.views:
             limit = max(UNIT_TIME_LIMIT_S, EPISODE_TIME_LIMIT_S) * self.scale
-            group = None if self.groups is None else self.groups.student(key)
+            group = None if self.groups is None else self.groups.views.get(key)
+            if self.groups is not None and group is None:
+                group = self.groups.student(key)
             self.views[key] = StudentView(self.isolation, self.workdir, key, limit, group)
         return self.views[key]
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import sys
 import tempfile
@@ -76,7 +77,7 @@ def _practice(drawn: dict, options: dict[str, dict], reference: dict) -> tuple[d
         if kind == "unit":
             settings["expect"] = table["units"][name]
         elif kind == "student" and settings.get("helpers", "reference") == "reference":
-            settings["table"] = table["helpers"]
+            settings["table"] = table["helpers"]  # a practised episode's: in the table
     source = (
         "the handout's practice draws (this doorlab holds no answer key: the course's "
         "grading draws its own from your files)"
@@ -116,7 +117,7 @@ def supervise(request: dict, prepared: dict | None = None) -> dict:
         parallel = max(1, int(request.get("jobs", 2)))
         return {"reference": _run(None, todo, {}, request, parallel, prepared)[0]}
     if request.get("files") is not None:
-        with private_folder("doorlab_submission_") as tmp:
+        with private_folder(_prefix("submission")) as tmp:
             folder = _submission_folder(request["files"], tmp)
             return supervise({**request, "files": None, "folder": str(folder)}, prepared)
     folder = Path(request["folder"])
@@ -127,13 +128,16 @@ def supervise(request: dict, prepared: dict | None = None) -> dict:
         return {"grader_error": f"the assignment: {e}"}
     only = request.get("only")
     specs = [t for t in TESTS if only is None or t.name in only]
+    from doorlab.pset.handout import edition
+
+    if edition.students():  # only what the handout practises: nothing of a hidden test
+        names = set(edition.practised(t.name for t in specs))
+        specs = [t for t in specs if t.name in names]
     drawn = _seed(request, folder, assignment)
     options = _job_options(specs, assignment, drawn["grading"])
     needed = {j for t in specs for j in t.needed_jobs(test_settings(assignment, t))}
     results: dict[str, dict] = {}
     reference = request.get("reference") or {}
-    from doorlab.pset.handout import edition
-
     if edition.students():  # no answer key here: the handout's practice table
         drawn, reference = _practice(drawn, options, reference)
     results.update({k: v for k, v in reference.items() if k in needed})
@@ -171,7 +175,7 @@ def _run(folder, todo: list[str], options: dict, request: dict, parallel: int, p
     """Runs ``todo`` in a private folder: (results by job, the isolation or why there is
     none)."""
     _warm(todo, options)
-    with private_folder("doorlab_grade_") as workdir:
+    with private_folder(_prefix("grade")) as workdir:
         os.chmod(workdir, 0o711)
         os.chdir(workdir)
         runner = groups = None
@@ -184,7 +188,7 @@ def _run(folder, todo: list[str], options: dict, request: dict, parallel: int, p
                 if not isolation.network_isolated:  # no student code runs: refused
                     return {}, isolation
             scale = float(request.get("time_limit_scale", 1.0))
-            groups, cgroup = _grading_groups(isolation)
+            groups, cgroup = _grading_groups(isolation, request.get("view_memory_bytes"))
             if groups is not None:
                 _OWN_GROUPS.append(groups)
             runner = _Jobs(folder, workdir, scale, isolation, options, groups)
@@ -218,21 +222,23 @@ def _submission_folder(files: dict[str, str], tmp: Path) -> Path:
     return folder
 
 
-def _grading_groups(isolation):
-    """The grading's cgroups (:mod:`doorlab.pset.isolation.cgroups`) and what the results say of
-    them: (groups or None, description or None without a student process)."""
-    from doorlab.pset.isolation.cgroups import CgroupError, GradingGroups
+def _grading_groups(isolation, view_memory_bytes: int | None = None):
+    """The grading's cgroups (:mod:`doorlab.pset.isolation.cgroups`; each view's memory limit
+    ``view_memory_bytes``, :mod:`doorlab.pset.isolation.memory`'s plan) and what the results say
+    of them: (groups or None, description or None without a student process)."""
+    from doorlab.pset.isolation.cgroups import VIEW_MEMORY_BYTES, CgroupError, GradingGroups
 
     setup = None if isolation is None else isolation.cgroup_setup()
     if setup is None:
         return None, None
     if setup.version is None:
         return None, setup.describe()
+    view_bytes = int(view_memory_bytes or VIEW_MEMORY_BYTES)
     try:
-        groups = GradingGroups(setup)
+        groups = GradingGroups(setup, view_bytes)
     except CgroupError as e:
         return None, {"version": None, "why_none": str(e)}
-    return groups, setup.describe()
+    return groups, setup.describe(view_bytes)
 
 
 def _warm(todo: list[str], options: dict[str, dict]) -> None:
@@ -275,6 +281,72 @@ def _isolation(request: dict, workdir: Path, prepared: dict | None = None):
     return isolation
 
 
+FOLDER_KINDS = ("supervisor", "submission", "grade")
+"""A supervisor's private folders in ``TMPDIR``: ``doorlab_<kind>_<its pid>_<random>`` (its
+long-lived one, the submission's copy, a grading's)."""
+_FOLDER = re.compile(r"doorlab_(" + "|".join(FOLDER_KINDS) + r")_(\d+)_[a-z0-9_]{8}")
+"""A supervisor's folder: its prefix and tempfile's 8 random characters (an older doorlab's,
+without the pid, is too short to match)."""
+
+
+def _prefix(kind: str) -> str:
+    return f"doorlab_{kind}_{os.getpid()}_"
+
+
+def _started_after(pid: int, when: float) -> bool:
+    """Whether process ``pid`` started after ``when`` (a time.time()): not the one that
+    made a folder then."""
+    try:
+        ticks = int(Path(f"/proc/{pid}/stat").read_bytes().rsplit(b")", 1)[1].split()[19])
+        boot = next(
+            float(line.split()[1])
+            for line in Path("/proc/stat").read_text().splitlines()
+            if line.startswith("btime ")
+        )
+    except (OSError, ValueError, IndexError, StopIteration):
+        return False
+    return boot + ticks / os.sysconf("SC_CLK_TCK") > when + 1.0
+
+
+def remove_stale_folders(where: str | None = None) -> list[str]:
+    """Removes the private folders of supervisors that are gone (killed outright, by SIGKILL
+    or the kernel, before they could remove them): this user's folders in ``TMPDIR`` (or
+    ``where``) named by :func:`_prefix` whose pid is not running, or is a later process.
+    Returns the names removed."""
+    import shutil
+
+    folder = Path(where or tempfile.gettempdir())
+    removed = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for entry in entries:
+        match = _FOLDER.fullmatch(entry.name)
+        if match is None:
+            continue
+        try:
+            info = entry.stat(follow_symlinks=False)
+        except OSError:
+            continue
+        if info.st_uid != os.geteuid() or not entry.is_dir(follow_symlinks=False):
+            continue
+        pid = int(match.group(2))
+        if pid == os.getpid():
+            continue
+        try:
+            os.kill(pid, 0)
+            alive = not _started_after(pid, info.st_mtime)
+        except ProcessLookupError:
+            alive = False
+        except PermissionError:
+            alive = True
+        if not alive:
+            shutil.rmtree(entry.path, ignore_errors=True)
+            removed.append(entry.name)
+    return removed
+
+
 _OWN_GROUPS: list = []
 """The cgroups of the grading running now (:mod:`doorlab.pset.isolation.cgroups`)."""
 
@@ -294,7 +366,10 @@ def _supervisor_setup(*, interrupt: bool = True):
     """The supervisor's own settings; returns its answer stream (what it prints otherwise,
     and what Drake prints, goes to stderr). ``interrupt``: Ctrl-C ends it (else its parent,
     a batch's worker, ends it when the batch is interrupted)."""
+    from doorlab.pset.isolation.memory import protect_trusted
+
     parent = os.getppid()
+    protect_trusted()  # the OOM killer ends a student's process first, never this one
     for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(signum, _on_signal)
     if not interrupt:
@@ -304,14 +379,28 @@ def _supervisor_setup(*, interrupt: bool = True):
     sandbox.make_undumpable()
     answers = os.fdopen(os.dup(1), "w")
     os.dup2(2, 1)
+    remove_stale_folders()  # of supervisors killed outright (SIGKILL, the OOM killer)
     return answers
+
+
+def _answer(request: dict, prepared: dict | None = None) -> dict:
+    """:func:`supervise`'s results, or the grader's error in one line where this machine
+    failed it (a full ``TMPDIR``: ENOSPC; no temporary folder), never a traceback."""
+    from doorlab.errors import DoorlabError
+
+    try:
+        return supervise(request, prepared)
+    except (OSError, DoorlabError) as e:
+        text = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
+        where = f" ({e.filename})" if isinstance(e, OSError) and e.filename else ""
+        return {"grader_error": f"the grader could not write its temporary files{where}: {text}"}
 
 
 def supervise_main() -> int:
     """``supervise``: the request on stdin, the results on stdout."""
     answers = _supervisor_setup()
     request = json.loads(sys.stdin.read())
-    results = supervise(request)
+    results = _answer(request)
     answers.write(json.dumps(results, default=str))
     answers.flush()
     return 0
@@ -320,13 +409,21 @@ def supervise_main() -> int:
 def serve_main() -> int:
     """``serve``: one request per line on stdin, one results line each on stdout, until
     stdin closes (:class:`doorlab.pset.grading.grader.Supervisor`)."""
+    from doorlab.errors import DoorlabError
+
     answers = _supervisor_setup(interrupt=False)
-    with private_folder("doorlab_supervisor_") as folder:
-        os.chmod(folder, 0o711)
-        prepared = {"folder": str(folder)}
-        for line in sys.stdin:
-            results = supervise(json.loads(line), prepared)
-            answers.write(json.dumps(results, default=str) + "\n")
+    try:
+        with private_folder(_prefix("supervisor")) as folder:
+            os.chmod(folder, 0o711)
+            prepared = {"folder": str(folder)}
+            for line in sys.stdin:
+                results = _answer(json.loads(line), prepared)
+                answers.write(json.dumps(results, default=str) + "\n")
+                answers.flush()
+    except (OSError, DoorlabError) as e:  # no folder of its own: every request the error
+        why = {"grader_error": f"the grader could not make its temporary folder: {e}"}
+        for _line in sys.stdin:
+            answers.write(json.dumps(why) + "\n")
             answers.flush()
     return 0
 

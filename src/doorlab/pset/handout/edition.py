@@ -52,9 +52,17 @@ def _practice_text() -> str:
 
 def practice() -> dict:
     """The practice table (a fresh copy): ``seed`` (the practice draws' random seed),
-    ``units`` (each unit test's expectations), ``reference`` (the reference episodes'
-    figures), ``helpers`` (the reference helpers' table)."""
+    ``tests`` (the names of the tests it practises: never a hidden one), ``units`` (their
+    unit tests' expectations), ``reference`` (their reference episodes' figures),
+    ``helpers`` (the reference helpers' table)."""
     return json.loads(_practice_text())
+
+
+def practised(names) -> list:
+    """Of the test names ``names``, those the practice table has what to grade with (a
+    table of an older handout, without ``tests``: all)."""
+    tests = practice().get("tests")
+    return list(names) if tests is None else [n for n in names if n in set(tests)]
 
 
 def stub_files() -> dict[str, str]:

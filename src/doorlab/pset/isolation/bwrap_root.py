@@ -13,9 +13,11 @@ all read-only but three places:
   this grading (:func:`build_site`), at :data:`SITE_MOUNT`: none of the reference solutions,
   the templates or the grader's own modules exist in the view (:mod:`doorlab.pset.rules.verdicts`
   lists them);
-- writable: the submission's scratch copy at :data:`SCRATCH_MOUNT` (its working directory),
-  and a private ``/tmp`` and ``/dev/shm`` of :data:`TMPFS_BYTES` each (tmpfs, gone with the
-  process: bwrap older than 0.7 has no ``--size``: then two folders of the job's scratch);
+- writable: the submission's scratch copy at :data:`SCRATCH_MOUNT` (its working directory;
+  in a view, a tmpfs of :data:`SCRATCH_TMPFS_BYTES`), and a private ``/tmp`` and ``/dev/shm``
+  of :data:`TMPFS_BYTES` each (tmpfs, gone with the process: their pages are charged to the
+  memory of the view that writes them, so no student fills a disk that others share; bwrap
+  older than 0.7 has no ``--size``: then three folders of the job's scratch, on its disk);
 - a fresh ``/proc`` of its own PID namespace (it sees its own processes only) and ``/dev``.
 
 Not there: ``/home``, ``/root``, ``/srv``, ``/autograder``, the clone and its ``.git``, the
@@ -54,6 +56,13 @@ SITE_MOUNT = "/doorlab-site"
 """Where doorlab's student side appears in the view."""
 SCRATCH_MOUNT = "/pset"
 """Where the submission's scratch copy appears in the view (the working directory)."""
+SUBMISSION_MOUNT = "/doorlab-submission"
+"""Where a view (:mod:`doorlab.pset.isolation.student_view`) sees the grader's copies of the
+submission, read-only: its first process copies a test's into :data:`SCRATCH_MOUNT`, a sized
+tmpfs, before it forks the test's process."""
+SCRATCH_TMPFS_BYTES = 64 << 20
+"""Size of a view's :data:`SCRATCH_MOUNT` tmpfs [bytes] (a problem-set folder is ~70 kB; what
+the student's code writes there is bounded by it, in the view's memory, never on a disk)."""
 TMPFS_BYTES = 64 << 20
 """Size of the view's ``/tmp`` and of its ``/dev/shm`` [bytes] each (RAM the address-space
 limit does not count: bounded here)."""
@@ -387,6 +396,7 @@ def bwrap_argv(
     as_root: bool,
     as_pid_1: bool = False,
     seccomp_fd: int | None = None,
+    scratch_tmpfs: bool = False,
 ) -> list[str]:
     """bwrap and its options up to (not including) the command.
 
@@ -400,6 +410,10 @@ def bwrap_argv(
         seccomp_fd: A descriptor holding the system-call filter
             (:func:`doorlab.pset.isolation.seccomp.filter_descriptor`), passed to the command: bwrap
             applies it to the command and everything it starts.
+        scratch_tmpfs: :data:`SCRATCH_MOUNT` is a tmpfs of :data:`SCRATCH_TMPFS_BYTES` and
+            ``scratch`` is bound read-only at :data:`SUBMISSION_MOUNT` (a view: its first process
+            copies each test's folder over), where bwrap can size a tmpfs; else ``scratch`` is
+            bound writable at :data:`SCRATCH_MOUNT`.
     """
     argv = [view.bwrap, "--die-with-parent", "--new-session"]
     if seccomp_fd is not None:
@@ -436,7 +450,11 @@ def bwrap_argv(
             argv += ["--tmpfs", op[1]]
         elif kind == "symlink":
             argv += ["--symlink", op[1], op[2]]
-    argv += ["--bind", str(scratch), SCRATCH_MOUNT, "--chdir", "/"]
+    if scratch_tmpfs and tmp_dirs is None:
+        argv += ["--size", str(SCRATCH_TMPFS_BYTES), "--perms", "1777", "--tmpfs", SCRATCH_MOUNT]
+        argv += ["--ro-bind", str(scratch), SUBMISSION_MOUNT, "--chdir", "/"]
+    else:
+        argv += ["--bind", str(scratch), SCRATCH_MOUNT, "--chdir", "/"]
     # The root itself (a tmpfs holding the mount points, the user's own in a user
     # namespace) read-only too: not recursive, so the three writable places stay writable.
     argv += ["--remount-ro", "/"]

@@ -13,9 +13,11 @@ grading gets its own (:class:`GradingGroups`):
   the grader needs to answer it;
 - ``G/view<k>``: a student's view (bubblewrap and every process in it), or ``G/student-<job>``
   (a student process without the view): ``pids.max`` (:data:`VIEW_TASKS`: the view's own
-  process limit, which no other grading's processes count against), ``memory.max``
-  (:data:`VIEW_MEMORY_BYTES`: the view's processes and its tmpfs together), the default CPU
-  weight, and its CPU time counted (the test's clock, :mod:`doorlab.pset.rules.clock`).
+  process limit, which no other grading's processes count against), ``memory.max`` (the
+  view's processes, its tmpfs, its memfds and pipe buffers together:
+  :mod:`doorlab.pset.isolation.memory` derives it from the room there is and the views at once,
+  at most :data:`VIEW_MEMORY_BYTES`), the default CPU weight, and its CPU time counted (the
+  test's clock, :mod:`doorlab.pset.rules.clock`).
 
 Where: below the cgroup the grader runs in, so the limits of whatever started it (a
 container, a session, a service) still hold. With cgroup v1 (a hierarchy per controller:
@@ -49,9 +51,13 @@ VIEW_TASKS = 72
 :data:`doorlab.pset.isolation.sandbox.PROCESS_LIMIT` (64), the view's first process and its threads,
 bubblewrap."""
 VIEW_MEMORY_BYTES = 3 << 30
-"""Memory of one view's processes together, its ``/tmp`` and ``/dev/shm`` included
-(``memory.max``) [bytes]: one student process may map 2 GiB (its address-space limit); the
-view's first process holds pydrake (~0.3 GiB); the tmpfs, 128 MiB."""
+"""The most one view's processes may hold together, its tmpfs included (``memory.max``)
+[bytes]: one student process may map 2 GiB (its address-space limit); the view's first
+process holds pydrake. Each grading's is :mod:`doorlab.pset.isolation.memory`'s plan, at most
+this."""
+TRUSTED_MEMORY_FLOOR = 256 << 20
+"""cgroup v2: memory of a grading's trusted processes never reclaimed for others
+(``memory.min``) [bytes]."""
 TRUSTED_WEIGHT = 400
 """CPU weight of a grading's trusted processes (cgroup v2's scale, 100 the default; v1's
 ``cpu.shares`` is 10.24 times it)."""
@@ -91,14 +97,14 @@ class Cgroups:
     def from_json(cls, text: str) -> Cgroups:
         return cls(**json.loads(text))
 
-    def describe(self) -> dict:
+    def describe(self, view_memory_bytes: int = VIEW_MEMORY_BYTES) -> dict:
         """What the results say (``extra_data.sandbox.cgroup``)."""
         if self.version is None:
             return {"version": None, "why_none": self.reason}
         return {
             "version": self.version,
             "view_tasks": VIEW_TASKS,
-            "view_memory_bytes": VIEW_MEMORY_BYTES,
+            "view_memory_bytes": int(view_memory_bytes),
             "trusted_cpu_weight": TRUSTED_WEIGHT,
         }
 
@@ -214,6 +220,7 @@ class Group:
         self.cgroups = cgroups
         self.folders = folders
         self.version = cgroups.version
+        self.memory_limit: int | None = None  # what set_memory set [bytes]
 
     @property
     def name(self) -> str:
@@ -267,10 +274,24 @@ class Group:
             self._write("memory", "memory.max", str(int(limit)))
             if (self._folder("memory") / "memory.swap.max").exists():
                 self._write("memory", "memory.swap.max", "0")
+            if (self._folder("memory") / "memory.oom.group").exists():
+                # Out of memory, the kernel ends the group's processes together: whichever
+                # holds the memory (a memfd's holder is in no resident set) goes too.
+                self._write("memory", "memory.oom.group", "1")
         else:
             self._write("memory", "memory.limit_in_bytes", str(int(limit)))
             if (self._folder("memory") / "memory.memsw.limit_in_bytes").exists():
                 self._write("memory", "memory.memsw.limit_in_bytes", str(int(limit)))
+        self.memory_limit = int(limit)
+
+    def protect_memory(self, floor: int) -> None:
+        """cgroup v2: the group's first ``floor`` bytes are not reclaimed for others
+        (``memory.min``; best effort: v1 has no such protection)."""
+        if self.version == 2 and (self._folder("memory") / "memory.min").exists():
+            try:
+                self._write("memory", "memory.min", str(int(floor)))
+            except CgroupError:
+                pass
 
     # What it used --------------------------------------------------------------------------
 
@@ -384,8 +405,9 @@ class GradingGroups:
         CgroupError: A group could not be made or set.
     """
 
-    def __init__(self, cgroups: Cgroups):
+    def __init__(self, cgroups: Cgroups, view_memory_bytes: int = VIEW_MEMORY_BYTES):
         self.cgroups = cgroups
+        self.view_memory_bytes = int(view_memory_bytes)
         _remove_stale(cgroups)
         name = f"{PREFIX}{os.getpid()}-{next(_counter)}"
         base = Group(cgroups, {k: Path(v) for k, v in cgroups.bases.items()})
@@ -394,6 +416,7 @@ class GradingGroups:
             self.grading.set_cpu_weight(DEFAULT_WEIGHT)
             self.trusted = self.grading.child("trusted")
             self.trusted.set_cpu_weight(TRUSTED_WEIGHT)
+            self.trusted.protect_memory(TRUSTED_MEMORY_FLOOR)
         except CgroupError:
             self.grading.remove()
             raise
@@ -404,7 +427,7 @@ class GradingGroups:
         group = self.grading.child(key)
         group.set_cpu_weight(DEFAULT_WEIGHT)
         group.set_tasks(VIEW_TASKS)
-        group.set_memory(VIEW_MEMORY_BYTES)
+        group.set_memory(self.view_memory_bytes)
         self.views[key] = group
         return group
 

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from doorlab.pset.isolation import bwrap_root, sandbox
-from doorlab.pset.isolation.cgroups import VIEW_MEMORY_BYTES, CgroupError
+from doorlab.pset.isolation.cgroups import CgroupError
 from doorlab.pset.isolation.channel import (
     KIND_ARRAY,
     Channel,
@@ -39,6 +39,7 @@ from doorlab.pset.isolation.channel import (
     parse_json,
 )
 from doorlab.pset.isolation.choice import Isolation
+from doorlab.pset.isolation.memory import STUDENT_OOM_SCORE_ADJ, verdict
 from doorlab.pset.isolation.safe_text import clean_text
 from doorlab.pset.isolation.seccomp import FilterError, filter_descriptor
 from doorlab.pset.rules.clock import Clock
@@ -266,7 +267,7 @@ class StudentProcess:
         isolation: Isolation,
         group=None,
     ):
-        self.limits = sandbox.Limits(cpu_seconds=time_limit)
+        self.limits = sandbox.Limits(cpu_seconds=time_limit, oom_score_adj=STUDENT_OOM_SCORE_ADJ)
         self.deadline = Clock(time_limit)
         self.group = group
         self._oom_kills = group.oom_kills() if group is not None else 0
@@ -439,16 +440,16 @@ class StudentProcess:
                 "(an endless loop? a long sleep?)"
             )
         code = self._exit_code(timeout=2.0)
+        if (code is None or code == -signal.SIGKILL) and self._out_of_memory():
+            # The kernel ended a process of the view for want of memory: the test's own
+            # process, one of its children holding the memory, or the view's first process
+            # (then the whole view, whose processes held it).
+            return verdict(self.group.memory_limit)
         if code is None:
             if isinstance(error, ChannelClosed):
                 return "your code closed the grader's channel"
             return f"your code's process sent something that is not an answer ({error})"
         if code < 0:
-            if code == -signal.SIGKILL and self._out_of_memory():
-                return (
-                    f"your code's processes used more than {VIEW_MEMORY_BYTES >> 30} GiB of "
-                    "memory together (the limit of its view): the kernel ended one"
-                )
             return _signal_message(-code, self.limits)
         return (
             f"your code ended its process (exit code {code}) before answering "
@@ -457,7 +458,9 @@ class StudentProcess:
 
     def _out_of_memory(self) -> bool:
         """Whether the kernel killed a process of the test's group for want of memory."""
-        return self.group is not None and self.group.oom_kills() > self._oom_kills
+        if self.group is None or self.group.memory_limit is None:
+            return False
+        return self.group.oom_kills() > self._oom_kills
 
     def _detail(self, traceback: str = "") -> str:
         parts = []

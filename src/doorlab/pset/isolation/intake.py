@@ -103,6 +103,9 @@ class Intake:
         refused: Why the submission was not graded at all (a bound; none of the student
             files), or None.
         nothing: It held none of the student files (``refused`` says so).
+        unreadable: What this machine could not read of it (a folder, a file: the error),
+            which the student did not cause: a grading of what was taken would not be the
+            submission's (``grade-all`` makes it the grader's ``error`` row).
     """
 
     taken: dict[str, str] = field(default_factory=dict)
@@ -112,6 +115,7 @@ class Intake:
     ignored_count: int = 0
     refused: str | None = None
     nothing: bool = False
+    unreadable: list[str] = field(default_factory=list)
 
     def summary(self) -> str:
         """A few lines for the student (the results' top-level ``output``)."""
@@ -149,6 +153,7 @@ class Intake:
             "ignored_count": self.ignored_count,
             "refused": self.refused,
             "nothing": self.nothing,
+            "unreadable": list(self.unreadable),
         }
 
 
@@ -169,6 +174,7 @@ class _Walk:
     names: dict[str, str]  # file name -> student file (its place in the folder)
     candidates: dict[str, list[_Candidate]] = field(default_factory=dict)
     ignored: list[str] = field(default_factory=list)
+    unreadable: list[str] = field(default_factory=list)
     entries: int = 0
     total_bytes: int = 0
     zips: int = 0
@@ -228,16 +234,16 @@ def _walk_folder(top: Path, walk: _Walk) -> None:
         try:
             with os.scandir(folder) as it:
                 entries = sorted(it, key=lambda e: e.name)
-        except OSError:
-            walk.ignored.append(f"{rel} (cannot be read)")
+        except OSError as e:
+            walk.unreadable.append(f"{rel or '.'}: {e.strerror or e}")
             continue
         for entry in entries:
             shown = rel / shown_name(entry.name)
             try:
                 info = entry.stat(follow_symlinks=False)
-            except OSError:
+            except OSError as e:
                 walk.count()
-                walk.add(shown, "cannot be read")
+                walk.unreadable.append(f"{shown}: {e.strerror or e}")
                 continue
             if stat.S_ISDIR(info.st_mode):
                 if entry.name in SKIPPED_DIRS:
@@ -339,7 +345,23 @@ def take_submission(source: str | Path, folder: str | Path) -> Intake:
     Raises:
         OutputError: ``source`` is neither a folder nor a zip file.
     """
-    source, folder = Path(source), Path(folder)
+    files, intake = take(source)
+    for rel, data in files.items():
+        (Path(folder) / rel).write_bytes(data)
+    return intake
+
+
+def take(source: str | Path) -> tuple[dict[str, bytes], Intake]:
+    """The student files of ``source`` (a folder or a ``.zip``): their bytes by their place in
+    the folder (those taken), and what was taken (see the module's docstring for the rules).
+    Reads the submission, writes nothing: no temporary folder, so a full disk cannot change
+    what is taken.
+
+    Raises:
+        OutputError: ``source`` is neither a folder nor a zip file.
+    """
+    source = Path(source)
+    files: dict[str, bytes] = {}
     names = {PurePosixPath(rel).name: rel for rel in STUDENT_FILES}
     walk = _Walk(names)
     intake = Intake()
@@ -365,7 +387,7 @@ def take_submission(source: str | Path, folder: str | Path) -> Intake:
     except _OverBound as e:
         intake.refused = str(e)
         intake.missing = list(STUDENT_FILES)
-        return intake
+        return files, intake
     for rel in STUDENT_FILES:
         for candidate in sorted(walk.candidates.get(rel, []), key=lambda c: _preference(rel, c)):
             where = str(candidate.shown)
@@ -377,7 +399,11 @@ def take_submission(source: str | Path, folder: str | Path) -> Intake:
                 continue
             try:
                 data = candidate.read()
-            except Exception:  # noqa: BLE001 - a broken member or file: say so, grade the rest
+            except OSError as e:  # the grader's machine could not read it: not the student's
+                intake.unreadable.append(f"{where}: {e.strerror or e}")
+                intake.rejected.append(f"Not taken: {where} cannot be read.")
+                continue
+            except Exception:  # noqa: BLE001 - a broken member: say so, grade the rest
                 intake.rejected.append(f"Not taken: {where} cannot be read.")
                 continue
             if len(data) > SUBMISSION_FILE_LIMIT:
@@ -385,17 +411,18 @@ def take_submission(source: str | Path, folder: str | Path) -> Intake:
                     f"Not taken: {where} is over {SUBMISSION_FILE_LIMIT // 1000} kB."
                 )
                 continue
-            (folder / rel).write_bytes(data)
+            files[rel] = data
             intake.taken[rel] = where
         if rel not in intake.taken:
             intake.missing.append(rel)
+    intake.unreadable = walk.unreadable + intake.unreadable
     ignored = sorted(walk.ignored)
     intake.ignored = ignored[:SHOWN_IGNORED]
     intake.ignored_count = len(ignored)
     if not intake.taken:
         intake.refused = _nothing_to_grade(ignored, intake.rejected)
         intake.nothing = True
-    return intake
+    return files, intake
 
 
 NOTHING_SHOWN = 5

@@ -51,6 +51,8 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from doorlab.pset.isolation.memory import set_oom_score_adj
+
 MEMORY_LIMIT_BYTES = 2 << 30
 """Address space of the student's process [bytes] (2 GiB; Python with pydrake and the arm
 model maps about 0.5 GiB)."""
@@ -160,6 +162,7 @@ class Limits:
     processes: int = PROCESS_LIMIT
     open_files: int = OPEN_FILES_LIMIT
     output_bytes: int = OUTPUT_LIMIT_BYTES
+    oom_score_adj: int | None = None  # its rank for the OOM killer (doorlab.pset.isolation.memory)
 
 
 def count_tasks(uid: int) -> int:
@@ -212,6 +215,8 @@ def _preexec(
             unshare(new_namespaces)
         for which, value in settings:
             resource.setrlimit(which, value)
+        if limits.oom_score_adj is not None:  # before the switch: as root, also its floor
+            set_oom_score_adj(limits.oom_score_adj)
         if switch_user and identity is not None:
             os.setgroups([])
             os.setresgid(identity.gid, identity.gid, identity.gid)

@@ -17,7 +17,13 @@ own set-up is not filtered); :func:`filter_bytes` compiles it with libseccomp (t
   processes, so two gradings at once could pass a note there;
 - ``bpf``, ``perf_event_open``, ``userfaultfd``, ``io_uring_*``, ``ptrace``,
   ``process_vm_writev``, ``open_by_handle_at``, module and kexec loading, ``syslog``,
-  ``acct``, ``quotactl``, ``swapon``/``swapoff``, ``reboot``;
+  ``acct``, ``quotactl``, ``swapon``/``swapoff``, ``reboot``, ``modify_ldt`` (the x86
+  local descriptor table, a kernel path nothing here uses) and ``personality`` (execution
+  domains that turn off address-space randomisation);
+- a socket of any family but those the view needs (:data:`SOCKET_FAMILIES`: Unix sockets, and
+  IPv4 and IPv6 on the view's own loopback): EAFNOSUPPORT for ``socket`` and ``socketpair``,
+  so no netlink (the kernel's routing and audit interfaces), no packet socket, no ``AF_VSOCK``
+  (a virtual machine's host), no ``AF_ALG`` (the kernel's crypto);
 - every system call of another architecture (the 32-bit calls of an x86-64 process): the
   process is killed (libseccomp's default for a foreign architecture).
 """
@@ -75,8 +81,16 @@ REFUSED = (
     "swapon",
     "swapoff",
     "reboot",
+    "modify_ldt",
+    "personality",
 )
 """System calls refused with EPERM whatever their arguments."""
+SOCKET_FAMILIES = {"AF_UNIX": 1, "AF_INET": 2, "AF_INET6": 10}
+"""The socket families a student process may open (linux/socket.h): every other is refused.
+The view's network namespace holds only its loopback; Python's ``multiprocessing`` and
+``socketpair`` use Unix sockets."""
+SOCKET_CALLS = ("socket", "socketpair")
+"""The system calls whose first argument is a socket family."""
 CLONE_FLAGS_ARGUMENT = {"s390x": 1, "s390": 1}
 """Which argument of ``clone`` holds its flags, where it is not the first."""
 
@@ -85,10 +99,40 @@ class FilterError(Exception):
     """The filter cannot be compiled here (no libseccomp: the message says how to get it)."""
 
 
+Rule = tuple[str, str, tuple]
+"""(action, system call, condition): the action an ``errno`` name; the condition ``()`` or
+``(argument, comparison, value)``, the comparison ``"&=="`` (the argument's bits ``value``
+all set), ``"=="`` or ``">="``."""
+
+
+def rule_list() -> list[Rule]:
+    """The filter's rules (:data:`Rule`), in the order they are added; everything else is
+    allowed. (A test compares this list with a recorded one: a change is deliberate.)"""
+    out: list[Rule] = [("EPERM", name, ()) for name in REFUSED]
+    which = CLONE_FLAGS_ARGUMENT.get(os.uname().machine, 0)
+    out += [("EPERM", "clone", (which, "&==", flag)) for flag in NAMESPACE_FLAGS.values()]
+    out.append(("ENOSYS", "clone3", ()))
+    allowed = sorted(SOCKET_FAMILIES.values())
+    # libseccomp compares an argument once per rule: one rule per refused value, then the rest.
+    refused = [(0, "==", n) for n in range(allowed[-1]) if n not in allowed]
+    refused.append((0, ">=", allowed[-1] + 1))
+    for call in SOCKET_CALLS:
+        out += [("EAFNOSUPPORT", call, condition) for condition in refused]
+    return out
+
+
+def _comparison(seccomp, condition: tuple):
+    """libseccomp's form of a rule's condition."""
+    argument, op, value = condition
+    if op == "&==":
+        return seccomp.Arg(argument, seccomp.MASKED_EQ, value, value)
+    return seccomp.Arg(argument, {"==": seccomp.EQ, ">=": seccomp.GE}[op], value)
+
+
 @cache
 def filter_bytes() -> bytes:
-    """The compiled filter (classic BPF, as ``bwrap --seccomp`` reads it), for this machine's
-    architecture.
+    """The compiled filter (classic BPF, as ``bwrap --seccomp`` reads it) of
+    :func:`rule_list`, for this machine's architecture.
 
     Raises:
         FilterError: libseccomp or its binding is missing.
@@ -101,19 +145,14 @@ def filter_bytes() -> bytes:
             f"pyseccomp package ({e})"
         ) from None
     rules = seccomp.SyscallFilter(seccomp.ALLOW)
-    refuse = seccomp.ERRNO(errno.EPERM)
-    for name in REFUSED:
+    for action, name, condition in rule_list():
+        compare = [_comparison(seccomp, condition)] if condition else []
         try:
-            rules.add_rule(refuse, name)
+            rules.add_rule(seccomp.ERRNO(getattr(errno, action)), name, *compare)
         except (OSError, ValueError, RuntimeError):
-            pass  # not a system call of this architecture or kernel: nothing to refuse
-    which = CLONE_FLAGS_ARGUMENT.get(os.uname().machine, 0)
-    for flag in NAMESPACE_FLAGS.values():
-        rules.add_rule(refuse, "clone", seccomp.Arg(which, seccomp.MASKED_EQ, flag, flag))
-    try:
-        rules.add_rule(seccomp.ERRNO(errno.ENOSYS), "clone3")
-    except (OSError, ValueError, RuntimeError):
-        pass
+            if condition:  # a rule on arguments always applies: refuse to run without it
+                raise FilterError(f"libseccomp refused the rule {name} {condition}") from None
+            # else not a system call of this architecture or kernel: nothing to refuse
     fd = os.memfd_create("doorlab-seccomp", os.MFD_CLOEXEC)
     try:
         with os.fdopen(os.dup(fd), "w+b") as f:

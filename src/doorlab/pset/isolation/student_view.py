@@ -31,6 +31,7 @@ import json
 import math
 import os
 import select
+import shutil
 import signal
 import socket
 import subprocess
@@ -47,6 +48,7 @@ from doorlab.pset.isolation.handle import (
     copy_submission,
     student_environment,
 )
+from doorlab.pset.isolation.memory import VIEW_OOM_SCORE_ADJ
 from doorlab.pset.isolation.seccomp import FilterError, filter_descriptor
 from doorlab.pset.rules.clock import remaining
 
@@ -154,6 +156,7 @@ class StudentView:
                 as_root=identity is not None,
                 as_pid_1=True,
                 seccomp_fd=seccomp,
+                scratch_tmpfs=True,
             )
             argv += [plan.python, "-I", "-S", "-B", "-c", bwrap_root.zygote_code(plan, drop)]
             argv += [str(theirs.fileno()), json.dumps(isolation.guard)]
@@ -162,7 +165,7 @@ class StudentView:
                 argv,
                 cwd=self.scratch,
                 env=student_environment(bwrap_root.SCRATCH_MOUNT, "/tmp"),
-                limits=sandbox.Limits(cpu_seconds=cpu_seconds),
+                limits=sandbox.Limits(cpu_seconds=cpu_seconds, oom_score_adj=VIEW_OOM_SCORE_ADJ),
                 identity=identity,
                 switch_user=False,
                 pass_fds=(theirs.fileno(), seccomp),
@@ -237,6 +240,7 @@ class StudentView:
             self.proc.kill()
             self.proc.wait()
         self._log.close()
+        shutil.rmtree(self.root, ignore_errors=True)  # a view started again takes its name
 
 
 class ForkedStudent(StudentProcess):

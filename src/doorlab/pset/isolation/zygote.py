@@ -60,6 +60,10 @@ REQUEST_FDS = 4
 write end, the test's status socket."""
 SCRATCH_ROOT = "/pset"
 """Where the scratch copies of the tests are in the view (each in a folder of its own)."""
+SUBMISSION_ROOT = "/doorlab-submission"
+"""Where the grader's copies of the submission are, read-only, when :data:`SCRATCH_ROOT` is a
+tmpfs (:data:`doorlab.pset.isolation.bwrap_root.SUBMISSION_MOUNT`): each test's folder is
+copied from there, by this process, into the tmpfs (its pages the view's)."""
 PROCESS_NAME = b"doorlab-view"
 """This process's name (``/proc/1/comm`` in the view: the worker checks it)."""
 PRIVATE_FOLDERS = ("/tmp", "/dev/shm")
@@ -72,6 +76,9 @@ KEY_SPEC_USER_KEYRING = -4
 KEY_SPEC_USER_SESSION_KEYRING = -5
 KEYCTL_SYSCALL = {"x86_64": 250, "aarch64": 219, "ppc64le": 271, "s390x": 250}
 """keyctl's system call number by machine (Python has no binding)."""
+STUDENT_OOM_SCORE_ADJ = 1000
+"""Each test's process's ``oom_score_adj``: the first process the kernel's OOM killer ends
+(:mod:`doorlab.pset.isolation.memory`; raising it needs no privilege)."""
 CLEAN_TIMEOUT_S = 10.0
 """How long killing an earlier test's processes may take [s] (a fork bomb within the
 process limit dies in milliseconds)."""
@@ -131,6 +138,11 @@ def _child(request: dict, fds: list[int], config: dict) -> None:
         _close_all_but({0, 1, 2, request_r, answer_w})
         os.setsid()
         _prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+        try:
+            with open("/proc/self/oom_score_adj", "w") as f:
+                f.write(str(STUDENT_OOM_SCORE_ADJ))
+        except OSError:
+            pass  # the view's floor (the grader's VIEW_OOM_SCORE_ADJ) holds
         cpu = max(1, int(request["cpu_seconds"]))
         resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu + 2))
         os.chdir(os.path.join(SCRATCH_ROOT, request["scratch"]))
@@ -230,6 +242,14 @@ def clean_view(children: dict, keep: str = "") -> bool:
     return True
 
 
+def _refuse(status: socket.socket, fds: list[int], why: str) -> None:
+    """Tells the grader this test cannot start (``why``) and closes its descriptors."""
+    _send(status, {"refused": why})
+    status.close()
+    for fd in fds[:3]:
+        os.close(fd)
+
+
 def _fork(request: dict, fds: list[int], config: dict, children: dict) -> None:
     """Starts the student process of one test, in a view made fresh."""
     status = socket.socket(fileno=fds[3])
@@ -244,12 +264,17 @@ def _fork(request: dict, fds: list[int], config: dict, children: dict) -> None:
         for fd in fds[:3]:
             os.close(fd)
         return
-    if not clean_view(children, keep=request["scratch"]):
-        _send(status, {"refused": "a process of an earlier test could not be killed"})
-        status.close()
-        for fd in fds[:3]:
-            os.close(fd)
+    tmpfs = os.path.isdir(SUBMISSION_ROOT)  # else the grader's copy is in SCRATCH_ROOT
+    if not clean_view(children, keep="" if tmpfs else request["scratch"]):
+        _refuse(status, fds, "a process of an earlier test could not be killed")
         return
+    if tmpfs:
+        try:
+            source = os.path.join(SUBMISSION_ROOT, request["scratch"])
+            shutil.copytree(source, os.path.join(SCRATCH_ROOT, request["scratch"]), symlinks=True)
+        except (OSError, shutil.Error) as e:
+            _refuse(status, fds, f"it could not copy the submission into the view ({e})")
+            return
     sys.stdout.flush()
     sys.stderr.flush()
     try:
