@@ -165,6 +165,7 @@ def _pset_grade_all(args: argparse.Namespace, assignment) -> int:
 
         security = cluster_security(args.cluster_keys)
     if args.scheduler is not None:
+        require_sweep_extra("--scheduler", ("distributed",))  # what is missing first
         from doorlab.pset.classroom.cluster import plain, refuse
         from doorlab.runtime.executor import check_scheduler
 
