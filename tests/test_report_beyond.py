@@ -164,10 +164,13 @@ def test_the_answer_is_data_whose_facts_are_the_metrics(report):
         assert fact.value == pytest.approx(metrics[fact.run][fact.key] * scale, rel=1e-12)
         assert fact.text == format_number(fact.value)
     summary = json.loads((folder / "summary.json").read_text())["beyond"]
-    assert [r["run"] for r in summary] == [row.run for row in comparison.rows]
-    for row in summary:
+    assert [r["run"] for r in summary["rows"]] == [row.run for row in comparison.rows]
+    for row in summary["rows"]:
         for key, _ in COLUMNS:
             assert row[key] == metrics[row["run"]].get(key)
+    paragraphs = comparison.answer.paragraphs
+    assert summary["answer_markdown"] == [p.markdown for p in paragraphs]
+    assert all(f.shown in p.markdown for p in paragraphs for f in p.facts)
 
 
 @pytest.mark.slow

@@ -3,8 +3,12 @@
 Each target runs one doorlab command (or benchmark) into a temporary folder and copies the
 figures the pages show into ``docs/figures/TARGET/``; the pages show each figure with the
 command that made it (the ``<!-- doorlab:figure TARGET/NAME -->`` marker of
-``docs/tools/reference.py`` reads :data:`TARGETS`). Without arguments every target is made
-(the report and the two sweeps take about 100 s, 11 s and 20 s on 2 idle cores).
+``docs/tools/reference.py`` reads :data:`TARGETS`). A target's tables (Markdown written from
+its output, e.g. the report's ``summary.json``) go to ``docs/figures/TARGET/NAME.md`` and into
+every page between the markers ``<!-- figures:TARGET/NAME ... -->`` and
+``<!-- /figures:TARGET/NAME -->`` (tests/test_docs.py checks that the pages hold the files'
+text). Without arguments every target is made (the report with all its sections is the
+longest: docs/guides/experiments.md, "What each section costs").
 
 ``--keep DIR`` runs into DIR and keeps the outputs there; a target already run there is
 not run again, only its figures copied (to change which figures a page shows).
@@ -13,11 +17,15 @@ not run again, only its figures copied (to change which figures a page shows).
 from __future__ import annotations
 
 import argparse
+import json
+import math
+import re
 import shlex
 import shutil
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,6 +40,57 @@ class Target:
     command: str  # run from the repository's root; {out} is the output folder
     figures: dict[str, tuple[str, str]]  # name -> (file in {out}, caption)
     text: dict[str, str] | None = None  # name -> what to keep of the command's stdout
+    tables: dict[str, Callable[[Path], str]] | None = None  # name -> Markdown from {out}
+
+
+def _number(value: float | None, scale: float = 1.0) -> str:
+    """3 significant digits, as the report prints them."""
+    if value is None or not math.isfinite(value):
+        return "-"
+    from doorlab.outputs.pages import format_number
+
+    return format_number(value * scale)
+
+
+RUN_LABELS = {
+    "ik_2_open": "IK, 2 knots, open",
+    "ik_5_open": "IK, 5 knots, open",
+    "ik_10_open": "IK, 10 knots, open",
+    "ik_10_closed": "IK, 10 knots, closed",
+}
+
+
+def report_runs_table(out: Path) -> str:
+    """The report's runs (summary.json): errors, the door and the contact torque."""
+    summary = json.loads((out / "summary.json").read_text())
+    deg, mm = 180.0 / math.pi, 1000.0
+    rows = [
+        "| run | max / RMS radial error of Q [mm] | max orientation error [deg] | door at 21 s / "
+        "24 s / lag [deg] | peak contact torque in the arc [N m] |",
+        "|---|---|---|---|---|",
+    ]
+    for run in summary["runs"]:
+        name = run["name"]
+        label = RUN_LABELS.get(name, name.replace("_", ", ", 1).replace("_", " "))
+        door = "-"
+        if run.get("doors") == "closed":
+            door = " / ".join(
+                _number(run.get(k), deg)
+                for k in ("door_opening_arc_end_rad", "door_opening_rad", "door_lag_max_rad")
+            )
+        rows.append(
+            f"| {label} | {_number(run.get('max_radial_error_m'), mm)} / "
+            f"{_number(run.get('rms_radial_error_m'), mm)} | "
+            f"{_number(run.get('max_orientation_error_rad'), deg)} | {door} | "
+            f"{_number(run.get('peak_external_torque_arc_Nm'))} |"
+        )
+    return "\n".join(rows)
+
+
+def report_beyond_answer(out: Path) -> str:
+    """The report's comparison beyond the problem set: its generated answer, as Markdown."""
+    summary = json.loads((out / "summary.json").read_text())
+    return "\n\n".join(summary["beyond"]["answer_markdown"])
 
 
 TARGETS = {
@@ -46,7 +105,7 @@ TARGETS = {
         text={"summary": "the summary it prints"},
     ),
     "report": Target(
-        "doorlab report --out {out}",
+        "doorlab report --robustness --arm --out {out}",
         {
             "radial_error_ik": (
                 "figures/t1q1_radial_error.png",
@@ -54,15 +113,27 @@ TARGETS = {
             ),
             "radial_error_open": (
                 "figures/overlay_open_radial_error.png",
-                "Radial error of Q, the three plans, doors open",
+                "Radial error of Q, every run with the doors open",
             ),
             "door_angle_closed": (
                 "figures/overlay_closed_door_angle.png",
-                "The left door's angle, the three plans, doors closed",
+                "The left door's angle, every run with the doors closed",
             ),
             "external_torque_closed": (
                 "figures/overlay_closed_external_torque_norm.png",
-                "Norm of the external joint torques, the three plans, doors closed",
+                "Norm of the external joint torques, every run with the doors closed",
+            ),
+            "beyond_radial_open": (
+                "figures/beyond_open_radial_error.png",
+                "Radial error of Q: IK, velocity, impedance, diffik and osc, doors open",
+            ),
+            "beyond_orientation_open": (
+                "figures/beyond_open_orientation_error.png",
+                "L7's orientation error: the five controllers, doors open",
+            ),
+            "beyond_door_closed": (
+                "figures/beyond_closed_door_angle.png",
+                "The left door's angle: the five controllers, doors closed",
             ),
             "robustness": (
                 "figures/robustness.png",
@@ -77,6 +148,7 @@ TARGETS = {
                 "The left door on the arm, each plan under each plausible model of the arm",
             ),
         },
+        tables={"runs": report_runs_table, "beyond": report_beyond_answer},
     ),
     "sweep_impedance": Target(
         "doorlab sweep examples/sweep_impedance.yaml --out {out}",
@@ -131,6 +203,42 @@ def make(name: str, work: Path, *, reuse: bool = False) -> None:
     for text_name in target.text or {}:
         text = stdout.read_text().replace(str(out), "doorlab_out/velocity_closed")
         (dest / f"{text_name}.txt").write_text(text)
+    for table, write in (target.tables or {}).items():
+        markdown = write(out)
+        (dest / f"{table}.md").write_text(markdown + "\n")
+        for page in sorted((ROOT / "docs").rglob("*.md")):
+            text = page.read_text()
+            replaced = replace_block(text, f"{name}/{table}", markdown)
+            if replaced != text:
+                page.write_text(replaced)
+                print(f"   {page.relative_to(ROOT)}: {name}/{table}")
+
+
+BLOCK_BEGIN = "<!-- figures:{key} (python docs/tools/make_figures.py {target}) -->"
+BLOCK_END = "<!-- /figures:{key} -->"
+
+
+def _block_pattern(key: str) -> re.Pattern:
+    begin = BLOCK_BEGIN.format(key=key, target=key.split("/")[0])
+    return re.compile(
+        "(" + re.escape(begin) + r"\n)(.*?)(\n" + re.escape(BLOCK_END.format(key=key)) + ")", re.S
+    )
+
+
+def replace_block(page_text: str, key: str, markdown: str) -> str:
+    """``page_text`` with the block ``key`` (``TARGET/NAME``) holding ``markdown``."""
+    return _block_pattern(key).sub(lambda m: m.group(1) + markdown + m.group(3), page_text)
+
+
+def quoted_blocks(page_text: str) -> dict[str, str]:
+    """The blocks a page holds: {``TARGET/NAME``: its text}."""
+    keys = re.findall(r"<!-- figures:([\w./-]+) \(python docs/tools/make_figures.py", page_text)
+    out = {}
+    for key in keys:
+        match = _block_pattern(key).search(page_text)
+        if match:
+            out[key] = match.group(2)
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:

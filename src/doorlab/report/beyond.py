@@ -494,9 +494,10 @@ def _contact_paragraph(page: AnswerPage) -> Paragraph | None:
     return para(parts)
 
 
-def comparison_summary(page: AnswerPage, comparison: Comparison) -> list[dict]:
-    """The table for summary.json: per run, the columns' metrics as metrics.json has them (SI)."""
-    return [
+def comparison_summary(page: AnswerPage, comparison: Comparison) -> dict:
+    """The section for summary.json: per run, the columns' metrics as metrics.json has them (SI),
+    and the answer's paragraphs as Markdown."""
+    rows = [
         {
             "run": row.run,
             "controller": page.runs[row.run].metrics.get("controller"),
@@ -506,3 +507,4 @@ def comparison_summary(page: AnswerPage, comparison: Comparison) -> list[dict]:
         }
         for row in comparison.rows
     ]
+    return {"rows": rows, "answer_markdown": [p.markdown for p in comparison.answer.paragraphs]}

@@ -142,7 +142,7 @@ def build_page(
     robustness: Sequence[tuple[RobustnessCase, RunRecord]] | None = None,
     arm: Sequence[tuple[ArmCase, RunRecord]] | None = None,
     base=None,
-    title: str = "doorlab: opening the cupboard's left door three ways",
+    title: str = "doorlab: opening the cupboard's left door five ways",
 ) -> Path:
     """Writes ``index.html``, ``summary.json`` and ``figures/*.png`` from run folders.
 

@@ -79,6 +79,21 @@ class Paragraph:
         """The paragraph as plain text."""
         return "".join(p if isinstance(p, str) else getattr(p, "shown", p.text) for p in self.parts)
 
+    @property
+    def markdown(self) -> str:
+        """The paragraph as Markdown (for pages that quote a report: docs/tools/make_figures.py)."""
+        marks = {"code": "`{}`", "strong": "**{}**", "em": "*{}*"}
+        marks |= {"sub": "<sub>{}</sub>", "sup": "<sup>{}</sup>"}
+        out = []
+        for p in self.parts:
+            if isinstance(p, str):
+                out.append(p.replace("*", "\\*").replace("_", "\\_"))
+            elif isinstance(p, Num):
+                out.append(p.shown)
+            else:
+                out.append(marks[p.style].format(p.text))
+        return "".join(out)
+
 
 @dataclass(frozen=True)
 class Answer:
