@@ -44,9 +44,10 @@ def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``doorlab``."""
     parser = OneLineParser(
         prog="doorlab",
-        description="Open a cupboard door with a simulated KUKA iiwa 7 four ways "
-        "(pointwise IK, Jacobian velocity mapping, Jacobian-transpose impedance, and an "
-        "adaptive plan that does not know the hinge).",
+        description="Open a cupboard door with a simulated KUKA iiwa 7 six ways "
+        "(pointwise IK, Jacobian velocity mapping, Jacobian-transpose impedance, an "
+        "adaptive plan that does not know the hinge, differential IK with joint limits and "
+        "operational-space impedance).",
     )
     parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(
