@@ -351,7 +351,8 @@ class OscPlanConfig:
     wn_rotation: float = 10.0  # [rad/s] natural frequency of L7's orientation error dynamics
     zeta: float = 1.0  # [-] damping ratio of both (Kd = 2 zeta wn)
     # [-] fraction of the inner loop's joint damping (its task-space part J_bar^T D q_dot)
-    # the plan adds back; 0: none (the arm then lags as the impedance plan does)
+    # the plan adds back; 0: none (the joints' damping then drags Q behind its reference, as
+    # it drags the impedance plan's, against a stiffer spring)
     damping_compensation: float = 1.0
     torque_limit: float = 20.0  # [N m] clip on tau_ff (the impedance plan's)
 
