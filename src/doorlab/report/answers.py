@@ -89,6 +89,70 @@ class _Builder:
         return Answer(tuple(self.figures), tuple(self.paragraphs))
 
 
+def _commanded_paragraph(page: AnswerPage, runs: list[LoadedRun], max_e: list) -> Paragraph:
+    """The commanded q_ref's errors against the measured: whose error it is."""
+    gaps = [
+        abs(
+            (page.value(r.name, "max_radial_error_m") or 0)
+            - (page.value(r.name, "max_radial_error_cmd_m") or 0)
+        )
+        for r in runs
+    ]
+    share = (
+        max(g / m for g, m in zip(gaps, max_e, strict=True) if m and m > 0)
+        if any(m for m in max_e)
+        else float("nan")
+    )
+    return para(
+        "From the commanded q_ref alone (what the problem set plotted) the max radial errors are ",
+        joined(page.num(r.name, "max_radial_error_cmd_m") for r in runs),
+        ": the measured and commanded maxima differ by at most ",
+        number(100 * share, "%"),
+        ", so ",
+        "the error is the plan's own: between knots the cubic spline interpolates joint "
+        "angles, and the forward kinematics of interpolated joint angles is not a circle in "
+        "the task space. The inner loop adds little."
+        if share < 0.25
+        else "a large part of the error comes from the inner loop's lag, not from the plan.",
+    )
+
+
+def _knot_power_paragraph(runs: list[LoadedRun], knots: list[int], max_e: list) -> Paragraph | None:
+    """How the error scales with the segment length between knots."""
+    if len(runs) < 2 or not all(m and m > 0 for m in max_e):
+        return None
+    sweep = math.degrees(runs[0].geometry.sweep)
+    steps = [sweep / (k - 1) for k in knots]
+    orders = [
+        (i, math.log(max_e[i] / max_e[i + 1]) / math.log(steps[i] / steps[i + 1]))
+        for i in range(len(runs) - 1)
+        if steps[i] != steps[i + 1]
+    ]
+    return para(
+        "More knots shorten each interpolated segment of the arc (",
+        joined([number(s, "deg"), f" with {k} knots"] for s, k in zip(steps, knots, strict=True)),
+        "): ",
+        joined(
+            (
+                [
+                    f"from {knots[i]} to {knots[i + 1]} knots the error scales like the "
+                    "segment length to the power ",
+                    number(o, digits=2),
+                ]
+                for i, o in orders
+            ),
+            "; ",
+        ),
+        ". A power near 2 is the chord-like bulge of the spline between knots (a sagitta "
+        "scales with the square of the chord); a power near 0 means the error has reached "
+        "a floor that more knots do not remove",
+        "; a negative power means more knots made the error larger"
+        if any(o < 0 for _, o in orders)
+        else "",
+        ".",
+    )
+
+
 def _answer_t1q1(page: AnswerPage) -> Answer:
     names = [f"ik_{k}_open" for k in IK_KNOTS]
     runs = page.logged(*names)
@@ -114,69 +178,7 @@ def _answer_t1q1(page: AnswerPage) -> Answer:
             ").",
         )
     )
-    gaps = [
-        abs(
-            (page.value(r.name, "max_radial_error_m") or 0)
-            - (page.value(r.name, "max_radial_error_cmd_m") or 0)
-        )
-        for r in runs
-    ]
-    share = (
-        max(g / m for g, m in zip(gaps, max_e, strict=True) if m and m > 0)
-        if any(m for m in max_e)
-        else float("nan")
-    )
-    out.say(
-        para(
-            "From the commanded q_ref alone (what the problem set plotted) the max radial "
-            "errors are ",
-            joined(page.num(r.name, "max_radial_error_cmd_m") for r in runs),
-            ": the measured and commanded maxima differ by at most ",
-            number(100 * share, "%"),
-            ", so ",
-            "the error is the plan's own: between knots the cubic spline interpolates joint "
-            "angles, and the forward kinematics of interpolated joint angles is not a circle in "
-            "the task space. The inner loop adds little."
-            if share < 0.25
-            else "a large part of the error comes from the inner loop's lag, not from the plan.",
-        )
-    )
-    if len(runs) >= 2 and all(m and m > 0 for m in max_e):
-        sweep = math.degrees(runs[0].geometry.sweep)
-        steps = [sweep / (k - 1) for k in knots]
-        orders = [
-            (i, math.log(max_e[i] / max_e[i + 1]) / math.log(steps[i] / steps[i + 1]))
-            for i in range(len(runs) - 1)
-            if steps[i] != steps[i + 1]
-        ]
-        out.say(
-            para(
-                "More knots shorten each interpolated segment of the arc (",
-                joined(
-                    [number(s, "deg"), f" with {k} knots"]
-                    for s, k in zip(steps, knots, strict=True)
-                ),
-                "): ",
-                joined(
-                    (
-                        [
-                            f"from {knots[i]} to {knots[i + 1]} knots the error scales like the "
-                            "segment length to the power ",
-                            number(o, digits=2),
-                        ]
-                        for i, o in orders
-                    ),
-                    "; ",
-                ),
-                ". A power near 2 is the chord-like bulge of the spline between knots (a sagitta "
-                "scales with the square of the chord); a power near 0 means the error has reached "
-                "a floor that more knots do not remove",
-                "; a negative power means more knots made the error larger"
-                if any(o < 0 for _, o in orders)
-                else "",
-                ".",
-            )
-        )
+    out.say(_commanded_paragraph(page, runs, max_e), _knot_power_paragraph(runs, knots, max_e))
     tol = runs[-1].scenario.ik.position_tolerance
     last = max_e[-1]
     if last is not None and tol and last < 3 * tol:
@@ -194,6 +196,54 @@ def _answer_t1q1(page: AnswerPage) -> Answer:
     return out.answer()
 
 
+def _knot_profile_paragraph(run: LoadedRun) -> tuple[Paragraph, bool] | None:
+    """An IK run's error at its knots and between them; and whether it is consistent along the
+    arc (the peaks between knots within 3 times the error at the knots)."""
+    profile = knot_profile(run)
+    if profile is None:
+        return None
+    at_knots, peaks = profile
+    worst = max(peaks)
+    k = run.scenario.ik.knots
+    segments = "segment" if k == 2 else f"{k - 1} segments"
+    ratio = worst / max(at_knots, 1e-9)
+    consistent = ratio <= 3.0
+    return (
+        para(
+            f"{run.label}: |error| is at most ",
+            number(at_knots, "mm"),
+            f" at the {k} knots and peaks at ",
+            number(worst, "mm"),
+            f" between them (largest excursion {side(run.tracking)} the arc). ",
+            [
+                f"The peaks of the {segments} range from ",
+                number(min(peaks)),
+                " to ",
+                number(max(peaks), "mm"),
+                ". ",
+            ]
+            if k > 2
+            else "",
+            [
+                "The error is ",
+                strong("not consistent"),
+                " along the arc: small at the knots, a bulge between them (",
+                number(ratio),
+                " times larger).",
+            ]
+            if not consistent
+            else [
+                "The error is ",
+                strong("roughly consistent"),
+                " along the arc: the peaks between knots are within ",
+                number(ratio),
+                " times the error at the knots.",
+            ],
+        ),
+        consistent,
+    )
+
+
 def _answer_t1q2(page: AnswerPage) -> Answer:
     names = [f"ik_{k}_open" for k in IK_KNOTS]
     runs = page.logged(*names)
@@ -208,49 +258,12 @@ def _answer_t1q2(page: AnswerPage) -> Answer:
     out.say(page.missing(*names, "ik_10_closed"))
     bulging, floor = [], []
     for run in runs:
-        profile = knot_profile(run)
-        if profile is None:
+        profiled = _knot_profile_paragraph(run)
+        if profiled is None:
             continue
-        at_knots, peaks = profile
-        worst = max(peaks)
-        k = run.scenario.ik.knots
-        segments = "segment" if k == 2 else f"{k - 1} segments"
-        ratio = worst / max(at_knots, 1e-9)
-        consistent = ratio <= 3.0
+        paragraph, consistent = profiled
         (floor if consistent else bulging).append(run)
-        out.say(
-            para(
-                f"{run.label}: |error| is at most ",
-                number(at_knots, "mm"),
-                f" at the {k} knots and peaks at ",
-                number(worst, "mm"),
-                f" between them (largest excursion {side(run.tracking)} the arc). ",
-                [
-                    f"The peaks of the {segments} range from ",
-                    number(min(peaks)),
-                    " to ",
-                    number(max(peaks), "mm"),
-                    ". ",
-                ]
-                if k > 2
-                else "",
-                [
-                    "The error is ",
-                    strong("not consistent"),
-                    " along the arc: small at the knots, a bulge between them (",
-                    number(ratio),
-                    " times larger).",
-                ]
-                if not consistent
-                else [
-                    "The error is ",
-                    strong("roughly consistent"),
-                    " along the arc: the peaks between knots are within ",
-                    number(ratio),
-                    " times the error at the knots.",
-                ],
-            )
-        )
+        out.say(paragraph)
     if runs:
         tol = runs[0].scenario.ik.position_tolerance if runs[0].scenario else float("nan")
         out.say(

@@ -143,132 +143,146 @@ def _qp_scale(run: LoadedRun) -> tuple[int, int, float] | None:
 
 
 def _diffik_paragraphs(page: AnswerPage) -> list[Paragraph | None]:
+    """diffik against the velocity plan: errors, the QP's limits, q_ref, the closed door."""
     if not page.logged("diffik_open", "velocity_open"):
         return []
-    out: list[Paragraph | None] = []
-    have_pair = len(page.logged("diffik_open", "velocity_open")) == 2
-    if have_pair:
-        a = page.value("diffik_open", "max_radial_error_m")
-        b = page.value("velocity_open", "max_radial_error_m")
-        out.append(
-            para(
-                strong("diffik against the velocity plan."),
-                " Both ask for the same task velocity ",
-                V_DES,
-                " = (",
-                K_W,
-                " θ n, ",
-                K_V,
-                " e) at every tick. Doors open, diffik's max radial error is ",
-                page.num("diffik_open", "max_radial_error_m"),
-                ", ",
-                ratio_phrase(a, b),
-                " the velocity plan's ",
-                page.num("velocity_open", "max_radial_error_m"),
-                " (RMS ",
-                page.num("diffik_open", "rms_radial_error_m"),
-                " vs ",
-                page.num("velocity_open", "rms_radial_error_m"),
-                "); L7's max orientation error ",
-                page.num("diffik_open", "max_orientation_error_rad"),
-                " vs ",
-                page.num("velocity_open", "max_orientation_error_rad"),
-                ".",
-            )
+    pair = len(page.logged("diffik_open", "velocity_open")) == 2
+    return [
+        _diffik_errors(page) if pair else None,
+        _diffik_qp(page) if page.logged("diffik_open") else None,
+        _diffik_q_ref(page) if pair else None,
+        _diffik_closed(page) if len(page.logged("diffik_closed", "velocity_closed")) == 2 else None,
+    ]
+
+
+def _diffik_errors(page: AnswerPage) -> Paragraph:
+    a = page.value("diffik_open", "max_radial_error_m")
+    b = page.value("velocity_open", "max_radial_error_m")
+    return para(
+        strong("diffik against the velocity plan."),
+        " Both ask for the same task velocity ",
+        V_DES,
+        " = (",
+        K_W,
+        " θ n, ",
+        K_V,
+        " e) at every tick. Doors open, diffik's max radial error is ",
+        page.num("diffik_open", "max_radial_error_m"),
+        ", ",
+        ratio_phrase(a, b),
+        " the velocity plan's ",
+        page.num("velocity_open", "max_radial_error_m"),
+        " (RMS ",
+        page.num("diffik_open", "rms_radial_error_m"),
+        " vs ",
+        page.num("velocity_open", "rms_radial_error_m"),
+        "); L7's max orientation error ",
+        page.num("diffik_open", "max_orientation_error_rad"),
+        " vs ",
+        page.num("velocity_open", "max_orientation_error_rad"),
+        ".",
+    )
+
+
+def _diffik_qp(page: AnswerPage) -> Paragraph | None:
+    """Whether the QP's limits bound along the arc (diffik's plan log)."""
+    scale = _qp_scale(page.runs["diffik_open"])
+    if scale is None:
+        return None
+    scaled, ticks, least = scale
+    if scaled:
+        return para(
+            "The QP scaled ",
+            V_DES,
+            " down at ",
+            count(scaled),
+            " of its ",
+            count(ticks),
+            " ticks along the arc (least |J v| / |",
+            V_DES,
+            "| ",
+            number(least, digits=3),
+            "), keeping the task velocity's direction where the velocity plan's clip turns it.",
         )
-    scale = _qp_scale(page.runs["diffik_open"]) if page.logged("diffik_open") else None
-    if scale is not None:
-        scaled, ticks, least = scale
-        limit = page.runs["diffik_open"].scenario.diffik.joint_speed_limit
-        if scaled == 0:
-            what = [
-                "The QP's joint limits never bound along this arc: at none of its ",
-                count(ticks),
-                " ticks did it scale ",
-                V_DES,
-                " down (the least |J v| / |",
-                V_DES,
-                "| was ",
-                number(least, digits=4),
-                "), so its velocities are J",
-                sup("+"),
-                " ",
-                V_DES,
-                "'s, and the velocity plan's clip at ",
-                number(limit, "rad/s"),
-                " never acted either. What diffik changes here is where q_ref comes from.",
-            ]
-        else:
-            what = [
-                "The QP scaled ",
-                V_DES,
-                " down at ",
-                count(scaled),
-                " of its ",
-                count(ticks),
-                " ticks along the arc (least |J v| / |",
-                V_DES,
-                "| ",
-                number(least, digits=3),
-                "), keeping the task velocity's direction where the velocity plan's clip turns it.",
-            ]
-        out.append(para(what))
-    if have_pair:
-        cmd = page.value("diffik_open", "max_radial_error_cmd_m")
-        measured = page.value("diffik_open", "max_radial_error_m")
-        parts: list = [
-            "diffik integrates its solution into q_ref, q_ref ← q_ref + v dt, and linearizes at "
-            "that integrated state (Drake's ",
-            code("DifferentialInverseKinematicsIntegrator"),
-            "); the velocity plan sets q_ref = q + q̇ dt from the measured q. So diffik's "
-            "q_ref stays on the arc whatever the arm does: its forward kinematics is ",
-            page.num("diffik_open", "max_radial_error_cmd_m"),
-            " off the arc at most (the velocity plan's q_ref: ",
-            page.num("velocity_open", "max_radial_error_cmd_m"),
-            "), ",
+    limit = page.runs["diffik_open"].scenario.diffik.joint_speed_limit
+    return para(
+        "The QP's joint limits never bound along this arc: at none of its ",
+        count(ticks),
+        " ticks did it scale ",
+        V_DES,
+        " down (the least |J v| / |",
+        V_DES,
+        "| was ",
+        number(least, digits=4),
+        "), so its velocities are J",
+        sup("+"),
+        " ",
+        V_DES,
+        "'s, and the velocity plan's clip at ",
+        number(limit, "rad/s"),
+        " never acted either. What diffik changes here is where q_ref comes from.",
+    )
+
+
+def _diffik_q_ref(page: AnswerPage) -> Paragraph:
+    """Where q_ref comes from: diffik's own integrated state, against q + q_dot dt."""
+    cmd = page.value("diffik_open", "max_radial_error_cmd_m")
+    measured = page.value("diffik_open", "max_radial_error_m")
+    parts: list = [
+        "diffik integrates its solution into q_ref, q_ref ← q_ref + v dt, and linearizes at "
+        "that integrated state (Drake's ",
+        code("DifferentialInverseKinematicsIntegrator"),
+        "); the velocity plan sets q_ref = q + q̇ dt from the measured q. So diffik's "
+        "q_ref stays on the arc whatever the arm does: its forward kinematics is ",
+        page.num("diffik_open", "max_radial_error_cmd_m"),
+        " off the arc at most (the velocity plan's q_ref: ",
+        page.num("velocity_open", "max_radial_error_cmd_m"),
+        "), ",
+    ]
+    if cmd is not None and measured is not None and cmd < 0.25 * measured:
+        parts += [
+            "and what the arm shows is the inner loop's lag of q behind q_ref: diffik is a "
+            "position plan with a knot at every tick. The velocity plan instead needs a "
+            "standing task error to keep its q_ref ahead of q (q_ref - q = J",
+            sup("+"),
+            " ",
+            V_DES,
+            " dt), which is part of its error.",
         ]
-        if cmd is not None and measured is not None and cmd < 0.25 * measured:
-            parts.append(
-                "and what the arm shows is the inner loop's lag of q behind q_ref: diffik is a "
-                "position plan with a knot at every tick. The velocity plan instead needs a "
-                "standing task error to keep its q_ref ahead of q (q_ref - q = J"
-            )
-            parts += [sup("+"), " ", V_DES, " dt), which is part of its error."]
-        else:
-            parts.append("yet the arm's measured error is of the same order as q_ref's own.")
-        out.append(para(parts))
-    if len(page.logged("diffik_closed", "velocity_closed")) == 2:
-        lag_d = page.value("diffik_closed", "door_lag_max_rad")
-        lag_v = page.value("velocity_closed", "door_lag_max_rad")
-        torque_d = page.value("diffik_closed", "peak_external_torque_arc_Nm")
-        torque_v = page.value("velocity_closed", "peak_external_torque_arc_Nm")
-        parts = [
-            "Doors closed, the door trails diffik's plan by up to ",
-            page.num("diffik_closed", "door_lag_max_rad"),
-            ", ",
-            "less than" if (lag_d or 0) < (lag_v or 0) else "no less than",
-            " the velocity plan's ",
-            page.num("velocity_closed", "door_lag_max_rad"),
-            ", and is open ",
-            page.num("diffik_closed", "door_opening_arc_end_rad"),
-            " at the arc's end (velocity plan: ",
-            page.num("velocity_closed", "door_opening_arc_end_rad"),
-            "). The peak contact torque in the arc is ",
-            page.num("diffik_closed", "peak_external_torque_arc_Nm"),
-            " against ",
-            page.num("velocity_closed", "peak_external_torque_arc_Nm"),
-        ]
-        if torque_d is not None and torque_v is not None and torque_d > torque_v:
-            parts.append(
-                ": diffik presses harder. Like IK's spline, its q_ref does not yield to what the "
-                "door does (it is integrated from its own state, not from the measured q), so "
-                "whatever the door pushes back meets the joints' full stiffness; the velocity "
-                "plan starts its q_ref from the measured q at every tick."
-            )
-        else:
-            parts.append(".")
-        out.append(para(parts))
-    return out
+    else:
+        parts.append("yet the arm's measured error is of the same order as q_ref's own.")
+    return para(parts)
+
+
+def _diffik_closed(page: AnswerPage) -> Paragraph:
+    """The closed door: diffik's lag and contact torque against the velocity plan's."""
+    lag_d = page.value("diffik_closed", "door_lag_max_rad")
+    lag_v = page.value("velocity_closed", "door_lag_max_rad")
+    torque_d = page.value("diffik_closed", "peak_external_torque_arc_Nm")
+    torque_v = page.value("velocity_closed", "peak_external_torque_arc_Nm")
+    harder = torque_d is not None and torque_v is not None and torque_d > torque_v
+    return para(
+        "Doors closed, the door trails diffik's plan by up to ",
+        page.num("diffik_closed", "door_lag_max_rad"),
+        ", ",
+        "less than" if (lag_d or 0) < (lag_v or 0) else "no less than",
+        " the velocity plan's ",
+        page.num("velocity_closed", "door_lag_max_rad"),
+        ", and is open ",
+        page.num("diffik_closed", "door_opening_arc_end_rad"),
+        " at the arc's end (velocity plan: ",
+        page.num("velocity_closed", "door_opening_arc_end_rad"),
+        "). The peak contact torque in the arc is ",
+        page.num("diffik_closed", "peak_external_torque_arc_Nm"),
+        " against ",
+        page.num("velocity_closed", "peak_external_torque_arc_Nm"),
+        ": diffik presses harder. Like IK's spline, its q_ref does not yield to what the door "
+        "does (it is integrated from its own state, not from the measured q), so whatever the "
+        "door pushes back meets the joints' full stiffness; the velocity plan starts its q_ref "
+        "from the measured q at every tick."
+        if harder
+        else ".",
+    )
 
 
 # osc against the impedance plan -----------------------------------------------------------
@@ -334,113 +348,119 @@ def _arm_at_q(run: LoadedRun) -> _ArmAtQ | None:
 
 
 def _osc_paragraphs(page: AnswerPage) -> list[Paragraph | None]:
+    """osc against the impedance plan: the law and the errors, why (the model), the door."""
     if len(page.logged("osc_open", "impedance_open")) < 2:
         return []
+    closed = len(page.logged("osc_closed", "impedance_closed")) == 2
+    return [_osc_law(page), _osc_why(page), _osc_closed(page) if closed else None]
+
+
+def _osc_law(page: AnswerPage) -> Paragraph:
     osc, imp = page.runs["osc_open"], page.runs["impedance_open"]
     a = page.value("osc_open", "max_radial_error_m")
     b = page.value("impedance_open", "max_radial_error_m")
     config = osc.scenario.osc
-    out: list[Paragraph | None] = [
-        para(
-            strong("osc against the impedance plan."),
-            " Both send q_ref = q and a torque; the impedance plan's is J",
-            sup("T"),
-            " (K e) with fixed springs (",
-            K_V,
-            " = ",
-            number(imp.scenario.impedance.kv, "N/m"),
-            "), osc's is J",
-            sup("T"),
-            " Λ (a_ref + ",
-            K_P,
-            " e + ",
-            K_D,
-            " ė) with Λ = (J M",
-            sup("-1"),
-            " J",
-            sup("T"),
-            ")",
-            sup("-1"),
-            " from the controller plant's M(q), plus the Coriolis terms and the inner loop's "
-            "joint damping in the task's directions (",
-            number(100 * config.damping_compensation, "%"),
-            " of it), ",
-            K_P,
-            " = ω",
-            sup("2"),
-            ", ",
-            K_D,
-            " = 2ζω with ω = ",
-            number(config.wn_translation, "rad/s"),
-            " (rotation ",
-            number(config.wn_rotation, "rad/s"),
-            "), ζ = ",
-            number(config.zeta),
-            ": the error obeys ë + ",
-            K_D,
-            " ė + ",
-            K_P,
-            " e = 0 in every direction and configuration (by design, with the model exact). "
-            "Doors open, osc's max radial error is ",
-            page.num("osc_open", "max_radial_error_m"),
-            ", ",
-            ratio_phrase(a, b),
-            " the impedance plan's ",
-            page.num("impedance_open", "max_radial_error_m"),
-            "; L7's max orientation error ",
-            page.num("osc_open", "max_orientation_error_rad"),
-            " vs ",
-            page.num("impedance_open", "max_orientation_error_rad"),
-            ".",
-        )
-    ]
-    at_imp, at_osc = _arm_at_q(imp), _arm_at_q(osc)
-    if at_imp is not None and at_osc is not None:
-        kv = imp.scenario.impedance.kv
-        out.append(
-            para(
-                "Why, from the controllers' model at each run's measured configuration halfway "
-                "along the arc: the inner loop's joint damping, seen at Q, resists the arc's ",
-                number(1e3 * at_imp.speed, "mm/s"),
-                " with ",
-                number(at_imp.drag, "N"),
-                "; the impedance plan's ",
-                number(kv, "N/m"),
-                " spring gives that force only ",
-                number(1e3 * at_imp.impedance_lag, "mm"),
-                " behind its reference (the steady state), and the run trails it by ",
-                number(1e3 * at_imp.measured_lag, "mm"),
-                " there. Along the arc's tangent the arm shows an effective mass of ",
-                number(at_osc.tangent_mass, "kg"),
-                ", and osc's Λ ω",
-                sup("2"),
-                " is a spring of ",
-                number(at_osc.osc_stiffness, "N/m"),
-                " there, ",
-                number(at_osc.osc_stiffness / kv),
-                " times the impedance plan's: against the same damping it would trail by ",
-                number(1e3 * at_osc.osc_lag, "mm"),
-                "; with the damping put back in the task's directions, the run trails its "
-                "reference by ",
-                number(1e3 * at_osc.measured_lag, "mm"),
-                " there.",
-            )
-        )
-    if len(page.logged("osc_closed", "impedance_closed")) == 2:
-        out.append(
-            para(
-                "Doors closed, the door trails osc's plan by up to ",
-                page.num("osc_closed", "door_lag_max_rad"),
-                " (impedance: ",
-                page.num("impedance_closed", "door_lag_max_rad"),
-                ") and is open ",
-                page.num("osc_closed", "door_opening_arc_end_rad"),
-                " at the arc's end (impedance: ",
-                page.num("impedance_closed", "door_opening_arc_end_rad"),
-                ").",
-            )
-        )
-    return out
+    return para(
+        strong("osc against the impedance plan."),
+        " Both send q_ref = q and a torque; the impedance plan's is J",
+        sup("T"),
+        " (K e) with fixed springs (",
+        K_V,
+        " = ",
+        number(imp.scenario.impedance.kv, "N/m"),
+        "), osc's is J",
+        sup("T"),
+        " Λ (a_ref + ",
+        K_P,
+        " e + ",
+        K_D,
+        " ė) with Λ = (J M",
+        sup("-1"),
+        " J",
+        sup("T"),
+        ")",
+        sup("-1"),
+        " from the controller plant's M(q), plus the Coriolis terms and the inner loop's "
+        "joint damping in the task's directions (",
+        number(100 * config.damping_compensation, "%"),
+        " of it), ",
+        K_P,
+        " = ω",
+        sup("2"),
+        ", ",
+        K_D,
+        " = 2ζω with ω = ",
+        number(config.wn_translation, "rad/s"),
+        " (rotation ",
+        number(config.wn_rotation, "rad/s"),
+        "), ζ = ",
+        number(config.zeta),
+        ": the error obeys ë + ",
+        K_D,
+        " ė + ",
+        K_P,
+        " e = 0 in every direction and configuration (by design, with the model exact). "
+        "Doors open, osc's max radial error is ",
+        page.num("osc_open", "max_radial_error_m"),
+        ", ",
+        ratio_phrase(a, b),
+        " the impedance plan's ",
+        page.num("impedance_open", "max_radial_error_m"),
+        "; L7's max orientation error ",
+        page.num("osc_open", "max_orientation_error_rad"),
+        " vs ",
+        page.num("impedance_open", "max_orientation_error_rad"),
+        ".",
+    )
+
+
+def _osc_why(page: AnswerPage) -> Paragraph | None:
+    """The joints' damping seen at Q against each spring, from the model at each run's q."""
+    imp = page.runs["impedance_open"]
+    at_imp, at_osc = _arm_at_q(imp), _arm_at_q(page.runs["osc_open"])
+    if at_imp is None or at_osc is None:
+        return None
+    kv = imp.scenario.impedance.kv
+    return para(
+        "Why, from the controllers' model at each run's measured configuration halfway "
+        "along the arc: the inner loop's joint damping, seen at Q, resists the arc's ",
+        number(1e3 * at_imp.speed, "mm/s"),
+        " with ",
+        number(at_imp.drag, "N"),
+        "; the impedance plan's ",
+        number(kv, "N/m"),
+        " spring gives that force only ",
+        number(1e3 * at_imp.impedance_lag, "mm"),
+        " behind its reference (the steady state), and the run trails it by ",
+        number(1e3 * at_imp.measured_lag, "mm"),
+        " there. Along the arc's tangent the arm shows an effective mass of ",
+        number(at_osc.tangent_mass, "kg"),
+        ", and osc's Λ ω",
+        sup("2"),
+        " is a spring of ",
+        number(at_osc.osc_stiffness, "N/m"),
+        " there, ",
+        number(at_osc.osc_stiffness / kv),
+        " times the impedance plan's: against the same damping it would trail by ",
+        number(1e3 * at_osc.osc_lag, "mm"),
+        "; with the damping put back in the task's directions, the run trails its reference by ",
+        number(1e3 * at_osc.measured_lag, "mm"),
+        " there.",
+    )
+
+
+def _osc_closed(page: AnswerPage) -> Paragraph:
+    return para(
+        "Doors closed, the door trails osc's plan by up to ",
+        page.num("osc_closed", "door_lag_max_rad"),
+        " (impedance: ",
+        page.num("impedance_closed", "door_lag_max_rad"),
+        ") and is open ",
+        page.num("osc_closed", "door_opening_arc_end_rad"),
+        " at the arc's end (impedance: ",
+        page.num("impedance_closed", "door_opening_arc_end_rad"),
+        ").",
+    )
 
 
 def _contact_paragraph(page: AnswerPage) -> Paragraph | None:

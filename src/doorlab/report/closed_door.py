@@ -90,29 +90,8 @@ def closed_sentence(
             page.num(opened, "max_orientation_error_rad"),
             ".",
         ]
-        if not explain:
-            pass
-        elif slip is not None:
-            parts.append(
-                " Once the handle has slipped, Q no longer moves with the door, so the errors "
-                "after the slip say little about the controller."
-            )
-        elif a is not None and b is not None and a < b:
-            parts.append(
-                " Holding the handle, the gripper is carried by the door on the handle's circle: "
-                "Q can leave the arc only as far as the grasp gives, so the radial error cannot "
-                "grow as in free space"
-                + (
-                    "; the lag shows up along the arc instead (the door angle)."
-                    if lag is not None and lag > 1.0
-                    else "."
-                )
-            )
-        elif a is not None and b is not None and a > b:
-            parts.append(
-                " The door's inertia and hinge damping load the arm through the handle, and the "
-                "arm yields to that load."
-            )
+        if explain:
+            parts.append(_why_closed(a, b, slip, lag))
         parts += [
             " The peak external joint torque is ",
             page.num(closed, "peak_external_torque_Nm"),
@@ -121,6 +100,32 @@ def closed_sentence(
             " with the doors open: the door pushes back on the arm through the handle.",
         ]
     return para(parts)
+
+
+def _why_closed(a: float | None, b: float | None, slip: float | None, lag: float | None) -> str:
+    """Why the closed door's radial error is what it is: the grip, the circle, the load."""
+    if slip is not None:
+        return (
+            " Once the handle has slipped, Q no longer moves with the door, so the errors "
+            "after the slip say little about the controller."
+        )
+    if a is not None and b is not None and a < b:
+        return (
+            " Holding the handle, the gripper is carried by the door on the handle's circle: "
+            "Q can leave the arc only as far as the grasp gives, so the radial error cannot "
+            "grow as in free space"
+            + (
+                "; the lag shows up along the arc instead (the door angle)."
+                if lag is not None and lag > 1.0
+                else "."
+            )
+        )
+    if a is not None and b is not None and a > b:
+        return (
+            " The door's inertia and hinge damping load the arm through the handle, and the "
+            "arm yields to that load."
+        )
+    return ""
 
 
 def damping_paragraph(run: LoadedRun) -> Paragraph | None:
