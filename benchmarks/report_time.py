@@ -230,7 +230,8 @@ def block(name: str, results: dict) -> str:
         )
     return "\n".join(rows) + (
         f"\n\nOne `doorlab run` (velocity, doors closed, every output): {_s(run['median_s'])} s "
-        f"(median of {len(run['samples'])}); the default report is "
+        f"(median of {len(run['samples'])}; CPU "
+        f"{statistics.median(s['cpu_s'] for s in run['samples']):.1f} s); the default report is "
         f"{'within' if report['within_budget'] else 'OVER'} its budget of {budget:g} runs. "
         f"Reports on `--jobs {results['jobs']}`, {_measured(results)}."
     )
@@ -261,14 +262,14 @@ def _verdicts_table(verdicts: list[dict]) -> str:
     ]
     for v in verdicts:
         plan = v["controller"] + (f", `{v['tuning']}`" if v.get("tuned") else "")
+        verdict = VERDICTS.get(v["verdict"], v["verdict"])
+        if v["verdict"] == "uncertain" and "opens" not in v["outcomes"]:
+            verdict = "does not open under any plausible model; what it does instead, uncertain"
         doors = [d for d in v["door_arc_end_deg"] if d is not None]
         span = f"{min(doors):.1f}-{max(doors):.1f}" if doors else "n/a"
         depends = ", ".join(ARM_PARAMETERS[p] for p in v["depends_on"]) or "-"
         nominal = OUTCOMES.get(v["outcomes"][0], v["outcomes"][0])
-        rows.append(
-            f"| {plan} | {VERDICTS.get(v['verdict'], v['verdict'])} | {depends} | "
-            f"{nominal} | {span} |"
-        )
+        rows.append(f"| {plan} | {verdict} | {depends} | {nominal} | {span} |")
     return "\n".join(rows)
 
 
