@@ -27,7 +27,7 @@ def test_the_pages_hold_the_tables_make_figures_wrote():
     for page in sorted((REPO / "docs").rglob("*.md")):
         for key, text in figures.quoted_blocks(page.read_text()).items():
             found[key] = page
-            written = REPO / "docs" / "figures" / f"{key}.md"
+            written = REPO / "docs" / "figures" / f"{key}.txt"
             assert written.is_file(), f"{page}: {key} quoted, {written} missing"
             assert text == written.read_text().rstrip("\n"), f"{page}: {key} differs from {written}"
     assert {"report/runs", "report/beyond"} <= set(found)

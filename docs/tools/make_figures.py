@@ -4,7 +4,7 @@ Each target runs one doorlab command (or benchmark) into a temporary folder and 
 figures the pages show into ``docs/figures/TARGET/``; the pages show each figure with the
 command that made it (the ``<!-- doorlab:figure TARGET/NAME -->`` marker of
 ``docs/tools/reference.py`` reads :data:`TARGETS`). A target's tables (Markdown written from
-its output, e.g. the report's ``summary.json``) go to ``docs/figures/TARGET/NAME.md`` and into
+its output, e.g. the report's ``summary.json``) go to ``docs/figures/TARGET/NAME.txt`` and into
 every page between the markers ``<!-- figures:TARGET/NAME ... -->`` and
 ``<!-- /figures:TARGET/NAME -->`` (tests/test_docs.py checks that the pages hold the files'
 text). Without arguments every target is made (the report with all its sections is the
@@ -205,7 +205,7 @@ def make(name: str, work: Path, *, reuse: bool = False) -> None:
         (dest / f"{text_name}.txt").write_text(text)
     for table, write in (target.tables or {}).items():
         markdown = write(out)
-        (dest / f"{table}.md").write_text(markdown + "\n")
+        (dest / f"{table}.txt").write_text(markdown + "\n")
         for page in sorted((ROOT / "docs").rglob("*.md")):
             text = page.read_text()
             replaced = replace_block(text, f"{name}/{table}", markdown)
