@@ -26,9 +26,9 @@ from common import (
 
 def bench_runs(names: Sequence[str], settings: Settings, ctx: Context) -> list[Metric]:
     """``doorlab run --doors closed`` end to end, one subprocess per repeat and controller;
-    ``run/report``: ``doorlab report --jobs 2 --no-robustness`` (the problem set's 8 runs and the
-    page, the issue's target); ``run/report_full``: ``doorlab report --jobs 2`` (the 8 runs,
-    the 17 of the robustness section and the page)."""
+    ``run/report``: the default ``doorlab report --jobs 2`` (the problem set's 8 runs, diffik's
+    and osc's 4, and the page); ``run/report_full``: ``doorlab report --jobs 2 --robustness``
+    (and the robustness section's runs)."""
     env = subprocess_env()
     samples = {n: [] for n in names}
     info: dict[str, dict] = {n: {"exit_codes": [], "episode_sim_s": [], "cpu_s": []} for n in names}
@@ -43,8 +43,8 @@ def bench_runs(names: Sequence[str], settings: Settings, ctx: Context) -> list[M
                         sys.executable, "-m", "doorlab.cli", "report", "--jobs",
                         str(REPORT_JOBS), "--out", str(out), "--force",
                     ]  # fmt: skip
-                    if controller == "report":
-                        cmd.append("--no-robustness")
+                    if controller == "report_full":
+                        cmd.append("--robustness")
                 else:
                     cmd = [
                         sys.executable, "-m", "doorlab.cli", "run", "--controller", controller,

@@ -22,8 +22,9 @@ Benchmarks (``--only`` takes names, groups such as ``episode``, or globs such as
 ``run/<controller>``, ``run/report``, ``run/report_full``
     ``python -m doorlab.cli run --controller C --doors closed`` end to end in a subprocess
     (interpreter start, imports, episode, metrics, PNG plots, replay.html; target for
-    velocity < 4 s), ``doorlab report --jobs 2 --no-robustness`` (the problem set's 8 runs; target
-    < 15 s) and ``doorlab report --jobs 2`` (with the robustness section's 17 runs);
+    velocity < 4 s), the default ``doorlab report --jobs 2`` (the problem set's 8 runs and
+    diffik's and osc's 4; target < 15 s, set for the 8) and ``doorlab report --jobs 2
+    --robustness`` (with the robustness section's runs);
     ``info.cpu_s`` is the CPU time of the whole process tree.
 ``design/<controller>_closed``
     The episode against Drake's floor (the same cell, the recorded commands replayed from

@@ -270,7 +270,9 @@ def test_exit_codes_outputs_and_logs_are_in_the_reference(site: Path):
     logs = _section(outputs, "lognpz")
     for f in dataclasses.fields(EpisodeResult):
         assert f"<code>{f.name}</code>" in logs, f.name
-    for name in LOG_CHANNELS:
+    from doorlab.control.diffik import LOG_CHANNELS as DIFFIK_CHANNELS
+
+    for name in (*LOG_CHANNELS, *DIFFIK_CHANNELS):
         assert f"<code>plan_log.{name}</code>" in logs, name
 
 

@@ -72,7 +72,8 @@ def printed_tolerance(text: str) -> float:
 
 
 def test_experiments_are_the_problem_sets_set():
-    """EXPERIMENTS holds the problem set's eight runs with the right controller, doors and knots."""
+    """EXPERIMENTS holds the problem set's eight runs with the right controller, doors and knots,
+    then diffik's and osc's, doors open and closed."""
     expected = {
         "ik_2_open": ("ik", "open", 2),
         "ik_5_open": ("ik", "open", 5),
@@ -82,6 +83,10 @@ def test_experiments_are_the_problem_sets_set():
         "velocity_closed": ("velocity", "closed", None),
         "impedance_open": ("impedance", "open", None),
         "impedance_closed": ("impedance", "closed", None),
+        "diffik_open": ("diffik", "open", None),
+        "diffik_closed": ("diffik", "closed", None),
+        "osc_open": ("osc", "open", None),
+        "osc_closed": ("osc", "closed", None),
     }
     assert [name for name, _ in EXPERIMENTS] == list(expected)
     for name, scenario in EXPERIMENTS:

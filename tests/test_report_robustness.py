@@ -1,6 +1,6 @@
 """Tests of the report's robustness section: the grid of cases, the section built from small
 run folders (``report_fixtures.robustness_report``: one reused short run, one short adaptive
-run, one hand-written failure), the exit code and ``doorlab report --no-robustness``.
+run, one hand-written failure), the exit code and ``doorlab report --robustness``.
 
 The short runs are structure fixtures: their doors need not open (the arc lasts 2 s), so the
 tests check that the page prints what the folders hold, not the physics of the full runs.
@@ -119,7 +119,7 @@ def test_failing_robustness_runs_do_not_fail_the_report(tmp_path: Path, monkeypa
         lambda base, given: ((case,), (("robust_broken", broken),)),
     )
     out = tmp_path / "with"
-    assert run_report(out, jobs=1, experiments=[], progress=False, arm=False) == 0
+    assert run_report(out, jobs=1, experiments=[], progress=False, robustness=True) == 0
     section = _section((out / "index.html").read_text(encoding="utf-8"))
     assert re.search(r'<tr data-run="robust_broken" class="warn">.*?error', section, re.S)
     assert (
@@ -127,17 +127,18 @@ def test_failing_robustness_runs_do_not_fail_the_report(tmp_path: Path, monkeypa
         == "error"
     )
 
-    out = tmp_path / "without"
-    assert run_report(out, jobs=1, experiments=[], progress=False, robustness=False, arm=False) == 0
+    out = tmp_path / "without"  # the default: no robustness section
+    assert run_report(out, jobs=1, experiments=[], progress=False) == 0
     page = (out / "index.html").read_text(encoding="utf-8")
     assert 'id="robustness"' not in page
     assert "robustness" not in json.loads((out / "summary.json").read_text())
 
 
-def test_cli_no_robustness_reaches_run_report(tmp_path: Path, monkeypatch, capsys):
-    """``doorlab report --no-robustness`` asks run_report for no robustness runs, ``--no-arm``
-    for no runs on the arm, ``--no-arm-band`` for the arm without the band of arm models; the
-    default asks for all; --help names the flags."""
+def test_cli_sections_reach_run_report(tmp_path: Path, monkeypatch, capsys):
+    """``doorlab report`` runs neither the robustness nor the "On the arm" section unless asked:
+    ``--robustness`` asks run_report for the robustness runs, ``--arm`` for the runs on the arm
+    with the band of arm models, ``--arm --no-arm-band`` for the arm without the band (and
+    ``--no-arm-band`` alone is one line, exit 2); --help names the flags."""
     import doorlab.report
     from doorlab.cli.parser import main
 
@@ -150,13 +151,19 @@ def test_cli_no_robustness_reaches_run_report(tmp_path: Path, monkeypatch, capsy
         return 0
 
     monkeypatch.setattr(doorlab.report, "run_report", fake)
-    assert main(["report", "--out", str(tmp_path / "a"), "--no-robustness"]) == 0
+    assert main(["report", "--out", str(tmp_path / "a"), "--robustness"]) == 0
     assert main(["report", "--out", str(tmp_path / "b")]) == 0
-    assert main(["report", "--out", str(tmp_path / "c"), "--no-arm"]) == 0
-    assert main(["report", "--out", str(tmp_path / "d"), "--no-arm-band"]) == 0
-    assert calls == [False, True, True, True] and arms == [True, True, False, True]
-    assert bands == [True, True, True, False]
+    assert main(["report", "--out", str(tmp_path / "c"), "--arm"]) == 0
+    assert main(["report", "--out", str(tmp_path / "d"), "--arm", "--no-arm-band"]) == 0
+    assert main(["report", "--out", str(tmp_path / "e"), "--no-robustness", "--no-arm"]) == 0
+    assert calls == [True, False, False, False, False]
+    assert arms == [False, False, True, True, False]
+    assert bands == [True, True, True, False, True]
+    capsys.readouterr()
+    assert main(["report", "--out", str(tmp_path / "f"), "--no-arm-band"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--arm" in err[0]
     assert main(["report", "--help"]) == 0
     help_text = capsys.readouterr().out
-    assert "--no-robustness" in help_text and "--no-arm" in help_text
+    assert "--robustness" in help_text and "--arm" in help_text
     assert "--no-arm-band" in help_text

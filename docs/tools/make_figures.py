@@ -98,6 +98,72 @@ def yaw_error_table(out: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _number(value: float | None, scale: float = 1.0) -> str:
+    """3 significant digits, as the report prints them."""
+    if value is None or not math.isfinite(value):
+        return "-"
+    from doorlab.outputs.pages import format_number
+
+    return format_number(value * scale)
+
+
+RUN_LABELS = {
+    "ik_2_open": "IK, 2 knots, open",
+    "ik_5_open": "IK, 5 knots, open",
+    "ik_10_open": "IK, 10 knots, open",
+    "ik_10_closed": "IK, 10 knots, closed",
+}
+
+
+def report_runs_table(out: Path) -> str:
+    """The report's runs (summary.json): errors, the door and the contact torque."""
+    summary = json.loads((out / "summary.json").read_text())
+    deg, mm = 180.0 / math.pi, 1000.0
+    rows = [
+        "| run | max / RMS radial error of Q [mm] | max orientation error [deg] | door at 21 s / "
+        "24 s / lag [deg] | peak contact torque in the arc [N m] |",
+        "|---|---|---|---|---|",
+    ]
+    for run in summary["runs"]:
+        name = run["name"]
+        label = RUN_LABELS.get(name, name.replace("_", ", ", 1).replace("_", " "))
+        door = "-"
+        if run.get("doors") == "closed":
+            door = " / ".join(
+                _number(run.get(k), deg)
+                for k in ("door_opening_arc_end_rad", "door_opening_rad", "door_lag_max_rad")
+            )
+        rows.append(
+            f"| {label} | {_number(run.get('max_radial_error_m'), mm)} / "
+            f"{_number(run.get('rms_radial_error_m'), mm)} | "
+            f"{_number(run.get('max_orientation_error_rad'), deg)} | {door} | "
+            f"{_number(run.get('peak_external_torque_arc_Nm'))} |"
+        )
+    return "\n".join(rows)
+
+
+def report_beyond_answer(out: Path) -> str:
+    """The report's comparison beyond the problem set: its generated answer, as Markdown."""
+    summary = json.loads((out / "summary.json").read_text())
+    return "\n\n".join(summary["beyond"]["answer_markdown"])
+
+
+def _report_time(name: str) -> Callable[[Path], str]:
+    """A block of what benchmarks/report_time.py measured (its results file)."""
+
+    def block(out: Path) -> str:  # noqa: ARG001 (the benchmark writes its results file)
+        import importlib.util
+
+        path = ROOT / "benchmarks" / "report_time.py"
+        spec = importlib.util.spec_from_file_location("doorlab_bench_report_time", path)
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        results = json.loads(module.RESULTS.read_text())
+        return module.block(name, results) + "\n"
+
+    return block
+
+
 TARGETS = {
     "run": Target(
         "doorlab run --out {out}",
@@ -110,7 +176,7 @@ TARGETS = {
         text={"summary": lambda stdout: stdout},  # the summary it prints
     ),
     "report": Target(
-        "doorlab report --out {out}",
+        "doorlab report --robustness --arm --out {out}",
         {
             "radial_error_ik": (
                 "figures/t1q1_radial_error.png",
@@ -118,15 +184,27 @@ TARGETS = {
             ),
             "radial_error_open": (
                 "figures/overlay_open_radial_error.png",
-                "Radial error of Q, the three plans, doors open",
+                "Radial error of Q, every run with the doors open",
             ),
             "door_angle_closed": (
                 "figures/overlay_closed_door_angle.png",
-                "The left door's angle, the three plans, doors closed",
+                "The left door's angle, every run with the doors closed",
             ),
             "external_torque_closed": (
                 "figures/overlay_closed_external_torque_norm.png",
-                "Norm of the external joint torques, the three plans, doors closed",
+                "Norm of the external joint torques, every run with the doors closed",
+            ),
+            "beyond_radial_open": (
+                "figures/beyond_open_radial_error.png",
+                "Radial error of Q: IK, velocity, impedance, diffik and osc, doors open",
+            ),
+            "beyond_orientation_open": (
+                "figures/beyond_open_orientation_error.png",
+                "L7's orientation error: the five controllers, doors open",
+            ),
+            "beyond_door_closed": (
+                "figures/beyond_closed_door_angle.png",
+                "The left door's angle: the five controllers, doors closed",
             ),
             "robustness": (
                 "figures/robustness.png",
@@ -141,6 +219,7 @@ TARGETS = {
                 "The left door on the arm, each plan under each plausible model of the arm",
             ),
         },
+        tables={"runs": report_runs_table, "beyond": report_beyond_answer},
     ),
     "sweep_impedance": Target(
         "doorlab sweep examples/sweep_impedance.yaml --out {out}",
@@ -161,6 +240,11 @@ TARGETS = {
             ),
         },
         tables={"table": yaw_error_table},
+    ),
+    "report_time": Target(
+        "python benchmarks/report_time.py",
+        {},
+        tables={name: _report_time(name) for name in ("summary", "table", "arm")},
     ),
     "suite": Target(
         "python -m pytest -p no:cacheprovider",

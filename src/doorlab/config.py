@@ -47,8 +47,10 @@ from doorlab.kuka import (
 )
 from doorlab.runtime.inputs import load_yaml, quote, quote_text, read_text_file, yaml_float_spelling
 
-CONTROLLERS = ("ik", "velocity", "impedance", "adaptive")
-"""Names of the door-opening controllers: the problem set's tasks 1-3, then the adaptive plan."""
+CONTROLLERS = ("ik", "velocity", "impedance", "adaptive", "diffik", "osc")
+"""Names of the door-opening controllers: the problem set's tasks 1-3, the adaptive plan, then
+the two a manipulation course teaches next (differential IK with limits, operational-space
+control)."""
 DOOR_STATES = tuple(DOOR_ANGLES)
 INNER_LOOPS = ("stiffness", "implicit_pd", "inverse_dynamics", "kuka_joint_impedance")
 IK_OBJECTIVES = ("feasible", "centered")
@@ -319,6 +321,42 @@ class ImpedancePlanConfig:
     torque_limit: float = 20.0  # [N m] clip on tau_ff (the original's)
 
 
+@dataclass
+class DiffIkPlanConfig:
+    """Differential IK with joint limits (``diffik``): the velocity plan's V_des, solved by
+    Drake's QP under joint position and velocity limits, integrated into q_ref."""
+
+    kv: float = 100.0  # [1/s] gain from Q's position error to its desired velocity
+    kw: float = 50.0  # [1/s] gain from L7's orientation error to its angular velocity
+    # [rad/s] symmetric joint velocity limit of the QP (the velocity plan's clip, as a limit
+    # that scales the whole motion down instead of clipping joints one by one)
+    joint_speed_limit: float = 1.0
+    # [rad] the QP keeps q_ref this far inside the data sheet's position limits (the safety
+    # checks' margin, station.safety.joint_limit_margin's default)
+    joint_limit_margin: float = 0.0873
+    # [1/s] null-space pull of the joints towards the grasp configuration (Drake's
+    # joint_centering_gain); 0: the minimum-norm solution in the null space, as J^+
+    centering_gain: float = 0.0
+
+
+@dataclass
+class OscPlanConfig:
+    """Operational-space impedance (``osc``, Khatib): tau_ff = J^T Lambda (a_ref + Kp e + Kd
+    e_dot) + the task-space part of the inner loop's damping, Lambda = (J M^-1 J^T)^-1 from
+    the controller plant's M(q), q_ref = q."""
+
+    # [rad/s] natural frequency of Q's translational error dynamics (Kp = wn^2, per unit
+    # task-space mass: the same in every direction and configuration)
+    wn_translation: float = 10.0
+    wn_rotation: float = 10.0  # [rad/s] natural frequency of L7's orientation error dynamics
+    zeta: float = 1.0  # [-] damping ratio of both (Kd = 2 zeta wn)
+    # [-] fraction of the inner loop's joint damping (its task-space part J_bar^T D q_dot)
+    # the plan adds back; 0: none (the joints' damping then drags Q behind its reference, as
+    # it drags the impedance plan's, against a stiffer spring)
+    damping_compensation: float = 1.0
+    torque_limit: float = 20.0  # [N m] clip on tau_ff (the impedance plan's)
+
+
 PLAN_SWEEP_DEG = math.degrees(math.radians(50.0) - math.atan2(0.041, 0.264))
 """The problem set's door rotation over the arc, angle_end - theta0 = 41.17 deg (station facts
 §4)."""
@@ -364,6 +402,8 @@ class Scenario:
     velocity: VelocityPlanConfig = field(default_factory=VelocityPlanConfig)
     impedance: ImpedancePlanConfig = field(default_factory=ImpedancePlanConfig)
     adaptive: AdaptivePlanConfig = field(default_factory=AdaptivePlanConfig)
+    diffik: DiffIkPlanConfig = field(default_factory=DiffIkPlanConfig)
+    osc: OscPlanConfig = field(default_factory=OscPlanConfig)
 
     def initial_door_angles(self) -> tuple[float, float]:
         """Initial (left, right) hinge angles [rad]."""
@@ -588,10 +628,23 @@ def validate(scenario: Scenario) -> Scenario:
         f"got {quote(offset)}",
     )
     choice("velocity.lead", scenario.velocity.lead, VELOCITY_LEADS)
-    for section in ("velocity", "impedance"):
+    for section in ("velocity", "impedance", "diffik", "osc"):
         for f in dataclasses.fields(getattr(scenario, section)):
-            if f.name != "lead":
-                positive(f"{section}.{f.name}", getattr(getattr(scenario, section), f.name))
+            value = getattr(getattr(scenario, section), f.name)
+            if f.name in ("centering_gain", "damping_compensation"):
+                non_negative(f"{section}.{f.name}", value)
+            elif f.name != "lead":
+                positive(f"{section}.{f.name}", value)
+    check(
+        scenario.osc.damping_compensation <= 1.0,
+        "osc.damping_compensation must be in [0, 1] (a fraction of the inner loop's damping), "
+        f"got {quote(scenario.osc.damping_compensation)}",
+    )
+    check(
+        scenario.diffik.joint_limit_margin < 0.5,
+        "diffik.joint_limit_margin must be in (0, 0.5) rad, got "
+        f"{quote(scenario.diffik.joint_limit_margin)}",
+    )
     adaptive = scenario.adaptive
     for f in dataclasses.fields(adaptive):
         value = getattr(adaptive, f.name)

@@ -9,7 +9,7 @@ A page asks for a generated block with a marker on a line of its own (modules ar
     <!-- doorlab:run-files -->      what a run folder holds
     <!-- doorlab:metrics -->        the keys of metrics.json (episode.metrics.DoorMetrics)
     <!-- doorlab:log-channels -->   the channels of log.npz (episode.result.EpisodeResult)
-    <!-- doorlab:plan-log -->       the adaptive plan's own log (control.adaptive.LOG_CHANNELS)
+    <!-- doorlab:plan-log [MODULE] -->  a plan's own log (control.MODULE.LOG_CHANNELS; adaptive)
     <!-- doorlab:public-api -->     mkdocstrings blocks for every name of doorlab.__all__
     <!-- doorlab:packages -->       the package's parts, foundations first (API_GROUPS)
     <!-- doorlab:api GROUP -->      mkdocstrings blocks for the modules of API_GROUPS[GROUP]

@@ -82,14 +82,16 @@ def log_channels_markdown() -> str:
     return _dataclass_table(EpisodeResult, docstring_attributes(EpisodeResult), "channel")
 
 
-def plan_log_markdown() -> str:
-    """The adaptive plan's per-tick channels (doorlab.control.adaptive.LOG_CHANNELS)."""
-    from doorlab.control import adaptive
+def plan_log_markdown(module: str = "adaptive") -> str:
+    """A plan's per-tick channels (doorlab.control.<module>.LOG_CHANNELS: the adaptive plan's,
+    or ``diffik``'s)."""
+    import importlib
 
-    comments = attribute_comments(adaptive, names=["LOG_CHANNELS"])
+    plan = importlib.import_module(f"doorlab.control.{module}")
+    comments = attribute_comments(plan, names=["LOG_CHANNELS"])
     out = ["| channel | unit | what |", "|---|---|---|"]
     previous = ""
-    for name in adaptive.LOG_CHANNELS:
+    for name in plan.LOG_CHANNELS:
         unit, text = _unit_and_text(comments.get(name, ""))
         if not text and name[:-2] == previous[:-2] and name[-2:] == "_y":
             text = f"with `{previous}`"  # x, y pairs: the comment sits on the x

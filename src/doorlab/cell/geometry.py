@@ -63,6 +63,32 @@ class DoorGeometry(DoorConstants):
         yaw = self.sweep * min(max(float(tau), 0.0), 1.0)
         return RollPitchYaw(0.0, L7_PITCH, self.yaw_offset - yaw).ToRotationMatrix()
 
+    def V_WQ_ref(self, tau: float, duration: float) -> np.ndarray:
+        """Spatial velocity of the reference (L7's orientation, Q's position) when the arc is
+        run over ``duration`` [s]: (angular; translational) in W (6,) [rad/s, m/s]; zero
+        outside tau in [0, 1]."""
+        if not 0.0 <= tau <= 1.0:
+            return np.zeros(6)
+        theta = self.theta0 + self.sweep * float(tau)
+        rate = self.sweep / duration  # [rad/s] theta_dot
+        r = self.r_handle
+        return np.array(
+            [0.0, 0.0, -rate, -r * rate * math.cos(theta), r * rate * math.sin(theta), 0.0]
+        )
+
+    def A_WQ_ref(self, tau: float, duration: float) -> np.ndarray:
+        """Spatial acceleration of the reference (:meth:`V_WQ_ref`'s derivative), (6,)
+        [rad/s^2, m/s^2]: Q's centripetal acceleration towards the hinge; zero outside tau in
+        [0, 1]."""
+        if not 0.0 <= tau <= 1.0:
+            return np.zeros(6)
+        theta = self.theta0 + self.sweep * float(tau)
+        rate = self.sweep / duration
+        r = self.r_handle
+        return np.array(
+            [0.0, 0.0, 0.0, r * rate**2 * math.sin(theta), r * rate**2 * math.cos(theta), 0.0]
+        )
+
     def arc_points(self, n: int = 100) -> np.ndarray:
         """n points along the handle arc from closed to the arc's end, shape (n, 3) [m]."""
         return np.array([self.p_WQ_ref(tau) for tau in np.linspace(0.0, 1.0, n)])

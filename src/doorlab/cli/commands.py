@@ -456,6 +456,11 @@ def _probe(args: argparse.Namespace, security=None) -> None:
 
 def report(args: argparse.Namespace) -> int:
     """``doorlab report``; returns the exit code."""
+    if args.no_arm_band and not args.arm:
+        raise ConfigError(
+            "--no-arm-band applies to the 'On the arm' section: add --arm (the report runs "
+            "it only when asked)"
+        )
     base = scenario_from_args(args)
     _probe(args)
     from doorlab.report import run_report
@@ -473,8 +478,8 @@ def report(args: argparse.Namespace) -> int:
         base=base,
         scheduler=args.scheduler,
         scheduler_timeout_s=args.scheduler_timeout,
-        robustness=not args.no_robustness,
-        arm=not args.no_arm,
+        robustness=args.robustness,
+        arm=args.arm,
         arm_band=not args.no_arm_band,
     )
     if args.pdf:

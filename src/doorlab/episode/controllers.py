@@ -16,12 +16,14 @@ from pydrake.geometry import Meshcat
 from pydrake.multibody.plant import MultibodyPlant
 
 from doorlab.cell.geometry import DoorGeometry, scenario_door_geometry
-from doorlab.cell.station import make_controller_plant
+from doorlab.cell.station import STIFFNESS_LOOPS, joint_damping, make_controller_plant
 from doorlab.config import Scenario, validate
 from doorlab.constants import Q_HOME
 from doorlab.control.adaptive import AdaptivePlan, velocity_lead
+from doorlab.control.diffik import DiffIkPlan
 from doorlab.control.ik import solve_ik
 from doorlab.control.ik_pointwise import IkResult, pointwise_ik
+from doorlab.control.osc import OperationalSpacePlan
 from doorlab.control.plans import (
     JointSpacePlan,
     Plan,
@@ -130,6 +132,32 @@ def build_adaptive_plan(
     return ArcPlan(plan, _grasp_configuration(scenario, geometry, plant))
 
 
+def build_diffik_plan(scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPlant) -> ArcPlan:
+    """Differential IK: the velocity plan's V_des through Drake's QP with joint position and
+    velocity limits, integrated into q_ref."""
+    plan = DiffIkPlan(
+        geometry,
+        scenario.timeline.arc_duration,
+        plant,
+        scenario.diffik,
+        scenario.timeline.control_period,
+    )
+    return ArcPlan(plan, _grasp_configuration(scenario, geometry, plant))
+
+
+def build_osc_plan(scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPlant) -> ArcPlan:
+    """Operational-space impedance: tau_ff = J^T Lambda (a_ref + Kp e + Kd e_dot) + the inner
+    loop's damping in the task's directions, q_ref = q."""
+    station = scenario.station
+    damping = np.zeros(len(Q_HOME))
+    if station.inner_loop.kind in STIFFNESS_LOOPS:
+        damping = joint_damping(station)
+    plan = OperationalSpacePlan(
+        geometry, scenario.timeline.arc_duration, plant, scenario.osc, damping
+    )
+    return ArcPlan(plan, _grasp_configuration(scenario, geometry, plant))
+
+
 REGISTRY: dict[str, Controller] = {
     c.name: c
     for c in (
@@ -162,9 +190,26 @@ REGISTRY: dict[str, Controller] = {
             "online from Q's path; nothing from the model after the grasp",
             build_adaptive_plan,
         ),
+        Controller(
+            "diffik",
+            5,
+            "Differential IK with joint limits",
+            "the velocity plan's V_des through Drake's differential-IK QP with joint position "
+            "and velocity limits, integrated into q_ref",
+            build_diffik_plan,
+        ),
+        Controller(
+            "osc",
+            6,
+            "Operational-space impedance",
+            "tau_ff = J^T Lambda (a_ref + Kp e + Kd e_dot) with Lambda = (J M^-1 J^T)^-1 from "
+            "the controller plant, q_ref = q",
+            build_osc_plan,
+        ),
     )
 }
-"""Controllers by CLI name, in the problem set's task order, then the adaptive plan."""
+"""Controllers by CLI name, in the problem set's task order, the adaptive plan, then the two a
+manipulation course teaches next."""
 
 
 def get_controller(name: str) -> Controller:

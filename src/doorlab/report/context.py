@@ -1,33 +1,19 @@
-"""What the generated answers work with: the loaded runs, their metrics printed as tagged
-numbers, and the page's figures.
-
-Every number tied to a metric is a ``<span class="num">`` carrying the run and the metrics.json
-key, so tests can check the printed value against the folder.
+"""What the generated answers work with: the loaded runs, their metrics as facts
+(:class:`~doorlab.report.prose.Num`: the value, the run and the metrics.json key, so tests can
+check the printed value against the folder), and the page's figures.
 """
 
 from __future__ import annotations
 
-import html
 import math
 from collections.abc import Sequence
 
 import numpy as np
 
 from doorlab.episode.metrics import Tracking
-from doorlab.outputs.pages import Figures, format_number, metric_unit
+from doorlab.outputs.pages import EmbeddedFigure, Figures, format_number, metric_unit
 from doorlab.report.folders import LoadedRun, line_style
-
-
-def span(text: str, *, run: str = "", key: str = "", unit: str = "") -> str:
-    attrs = ' class="num"'
-    if run:
-        attrs += f' data-run="{html.escape(run)}"'
-    if key:
-        attrs += f' data-key="{html.escape(key)}"'
-    if unit:
-        attrs += f' data-unit="{html.escape(unit)}"'
-    shown = f"{text} {unit}" if unit else text
-    return f"<span{attrs}>{html.escape(shown)}</span>"
+from doorlab.report.prose import Num, Paragraph, Part, code, joined, number, para, strong
 
 
 class AnswerPage:
@@ -48,108 +34,123 @@ class AnswerPage:
         value = self.runs[name].metrics.get(key)
         return float(value) if isinstance(value, (int, float)) else None
 
-    def num(self, name: str, key: str) -> str:
-        """A metric of run ``name`` in display units, tagged for tests."""
+    def num(self, name: str, key: str) -> Num:
+        """A metric of run ``name`` in display units, as a fact tied to its run and key."""
         unit, scale = metric_unit(key)
         value = self.value(name, key)
-        text = format_number(None if value is None else value * scale)
-        return span(text, run=name, key=key, unit=unit)
+        shown = None if value is None else value * scale
+        return Num(shown, format_number(shown), unit, name, key)
 
-    def missing(self, *names: str) -> str:
-        """A sentence naming the runs among ``names`` that have no logs ("" if none)."""
-        parts = []
+    def missing(self, *names: str) -> Paragraph | None:
+        """A paragraph naming the runs among ``names`` that have no logs (None if none)."""
+        parts: list[list[Part]] = []
         for name in names:
             run = self.runs.get(name)
             if run is None:
-                parts.append(f"<code>{name}</code> was not run")
+                parts.append([code(name), " was not run"])
             elif not run.has_logs:
-                reason = f": {html.escape(run.error)}" if run.error else ""
+                reason = f": {run.error}" if run.error else ""
                 parts.append(
-                    f"<code>{name}</code> produced no logs (status "
-                    f"<b>{html.escape(run.status)}</b>{reason})"
+                    [code(name), " produced no logs (status ", strong(run.status), f"{reason})"]
                 )
         if not parts:
-            return ""
-        return "<p>Not answered from data: " + "; ".join(parts) + ".</p>"
+            return None
+        return para("Not answered from data: ", joined(parts, "; "), ".")
 
-    def status_note(self, *names: str) -> str:
-        """A sentence flagging runs that finished with a status other than ok."""
+    def status_note(self, *names: str) -> Paragraph | None:
+        """A paragraph flagging runs that finished with a status other than ok (None if none)."""
         parts = [
-            f"<code>{n}</code> finished with status <b>{html.escape(self.runs[n].status)}</b>"
-            + (f" ({html.escape(self.runs[n].error)})" if self.runs[n].error else "")
+            [
+                code(n),
+                " finished with status ",
+                strong(self.runs[n].status),
+                f" ({self.runs[n].error})" if self.runs[n].error else "",
+            ]
             for n in names
             if n in self.runs and self.runs[n].has_logs and self.runs[n].status != "ok"
         ]
-        return "<p>Note: " + "; ".join(parts) + ".</p>" if parts else ""
+        return para("Note: ", joined(parts, "; "), ".") if parts else None
 
     # -- figures ---------------------------------------------------------------------------
-    def tracking_figures(self, key: str, runs: list[LoadedRun], what: str) -> str:
+    def tracking_figures(self, key: str, runs: list[LoadedRun], what: str) -> list[EmbeddedFigure]:
         from doorlab.outputs.plots import plot_orientation_error, plot_radial_error
 
         if not runs:
-            return ""
+            return []
         curves = {run.label: run.tracking for run in runs}
-        return self.figures.embed(
-            f"{key}_radial_error",
-            plot_radial_error(
-                curves, title=f"Radial tracking error of Q: {what}", styles=self.styles
+        return [
+            self.figures.add(
+                f"{key}_radial_error",
+                plot_radial_error(
+                    curves, title=f"Radial tracking error of Q: {what}", styles=self.styles
+                ),
+                f"Radial error of Q (measured q, FK) over the arc window [mm]: {what}. "
+                "Bottom panel: |error| on a log scale.",
             ),
-            f"Radial error of Q (measured q, FK) over the arc window [mm]: {what}. "
-            "Bottom panel: |error| on a log scale.",
-        ) + self.figures.embed(
-            f"{key}_orientation_error",
-            plot_orientation_error(
-                curves, title=f"Orientation error of L7: {what}", styles=self.styles
+            self.figures.add(
+                f"{key}_orientation_error",
+                plot_orientation_error(
+                    curves, title=f"Orientation error of L7: {what}", styles=self.styles
+                ),
+                f"Orientation error angle of L7 (measured q) over the arc window [deg]: {what}.",
             ),
-            f"Orientation error angle of L7 (measured q) over the arc window [deg]: {what}.",
-        )
+        ]
 
-    def path_figure(self, key: str, runs: list[LoadedRun], what: str) -> str:
+    def path_figure(self, key: str, runs: list[LoadedRun], what: str) -> list[EmbeddedFigure]:
         from doorlab.outputs.plots import plot_q_path
 
         if not runs:
-            return ""
+            return []
         curves = {run.label: run.tracking for run in runs}
-        return self.figures.embed(
-            f"{key}_q_path",
-            plot_q_path(
-                curves, runs[0].geometry, title=f"Q in the xy plane: {what}", styles=self.styles
-            ),
-            f"Q's path (measured q) against the handle arc and the hinge: {what}. Right: the "
-            "zoom, Q's radial deviation from the arc [mm] along the arc.",
-        )
+        return [
+            self.figures.add(
+                f"{key}_q_path",
+                plot_q_path(
+                    curves,
+                    runs[0].geometry,
+                    title=f"Q in the xy plane: {what}",
+                    styles=self.styles,
+                ),
+                f"Q's path (measured q) against the handle arc and the hinge: {what}. Right: "
+                "the zoom, Q's radial deviation from the arc [mm] along the arc.",
+            )
+        ]
 
-    def door_figure(self, key: str, runs: list[LoadedRun], what: str) -> str:
+    def door_figure(self, key: str, runs: list[LoadedRun], what: str) -> list[EmbeddedFigure]:
         from doorlab.outputs.plots import plot_door_angle
 
         if not runs:
-            return ""
-        return self.figures.embed(
-            f"{key}_door_angle",
-            plot_door_angle(
-                {run.label: run.result for run in runs},
-                geometry=runs[0].geometry,
-                title=f"Left hinge angle: {what}",
-                styles=self.styles,
-            ),
-            f"Left door hinge angle [deg] (negative = open): {what}; dotted: the door angle "
-            "the arc plan implies.",
-        )
+            return []
+        return [
+            self.figures.add(
+                f"{key}_door_angle",
+                plot_door_angle(
+                    {run.label: run.result for run in runs},
+                    geometry=runs[0].geometry,
+                    title=f"Left hinge angle: {what}",
+                    styles=self.styles,
+                ),
+                f"Left door hinge angle [deg] (negative = open): {what}; dotted: the door angle "
+                "the arc plan implies.",
+            )
+        ]
 
-    def torque_figure(self, key: str, runs: list[LoadedRun], what: str) -> str:
+    def torque_figure(self, key: str, runs: list[LoadedRun], what: str) -> list[EmbeddedFigure]:
         from doorlab.outputs.plots import plot_external_torque_norm
 
         if not runs:
-            return ""
-        return self.figures.embed(
-            f"{key}_external_torque_norm",
-            plot_external_torque_norm(
-                {run.label: run.result for run in runs},
-                title=f"|tau_ext|: {what}",
-                styles=self.styles,
-            ),
-            f"Norm of the external (contact) joint torques [N m]: {what}.",
-        )
+            return []
+        return [
+            self.figures.add(
+                f"{key}_external_torque_norm",
+                plot_external_torque_norm(
+                    {run.label: run.result for run in runs},
+                    title=f"|tau_ext|: {what}",
+                    styles=self.styles,
+                ),
+                f"Norm of the external (contact) joint torques [N m]: {what}.",
+            )
+        ]
 
 
 # Helpers of the answers: describing measured sequences and logs in words.
@@ -165,25 +166,17 @@ def order_phrase(values: Sequence[float], *, falling: str = "falls", rising: str
     return "changes, not monotonically,"
 
 
-def ratio_phrase(a: float | None, b: float | None) -> str:
+def ratio_phrase(a: float | None, b: float | None) -> list[Part]:
     """'3.2 times smaller than' / 'larger than' / 'equal to' for a vs b (both > 0)."""
     if a is None or b is None or not (math.isfinite(a) and math.isfinite(b)):
-        return "not comparable with"
+        return ["not comparable with"]
     if a == b:
-        return "equal to"
+        return ["equal to"]
     if a < b:
         ratio = b / a if a > 0 else math.inf
-        return (
-            f"{span(format_number(ratio))} times smaller than"
-            if math.isfinite(ratio)
-            else ("smaller than")
-        )
+        return [number(ratio), " times smaller than"] if math.isfinite(ratio) else ["smaller than"]
     ratio = a / b if b > 0 else math.inf
-    return (
-        f"{span(format_number(ratio))} times larger than"
-        if math.isfinite(ratio)
-        else ("larger than")
-    )
+    return [number(ratio), " times larger than"] if math.isfinite(ratio) else ["larger than"]
 
 
 def signed_range_mm(tracking: Tracking, *, skip: float = 0.05) -> tuple[float, float]:

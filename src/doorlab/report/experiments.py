@@ -1,6 +1,6 @@
 """The report's experiment set as data: :data:`EXPERIMENTS` (the three controllers with the
-doors open and closed, IK with 2, 5 and 10 knots), the robustness grid
-(:func:`make_robustness_cases`) and :class:`RunRecord`, what a run left.
+doors open and closed, IK with 2, 5 and 10 knots; diffik and osc, open and closed), the
+robustness grid (:func:`make_robustness_cases`) and :class:`RunRecord`, what a run left.
 
 The page (:mod:`doorlab.report.page`) reads these; :mod:`doorlab.report.runner` runs them.
 This module builds no page and runs nothing, so the page's modules may import it.
@@ -18,6 +18,10 @@ from doorlab.config import Scenario
 
 IK_KNOTS = (2, 5, 10)
 """Knot counts of the problem set's task 1 question 1."""
+BEYOND = ("diffik", "osc")
+"""The controllers the report compares with the problem set's three, doors open and closed:
+what a manipulation course teaches next (differential IK with limits, operational-space
+control)."""
 
 
 def make_experiments(base: Scenario | None = None) -> tuple[tuple[str, Scenario], ...]:
@@ -31,7 +35,8 @@ def make_experiments(base: Scenario | None = None) -> tuple[tuple[str, Scenario]
 
     Returns:
         (name, scenario) pairs: ik_2_open, ik_5_open, ik_10_open, ik_10_closed, velocity_open,
-        velocity_closed, impedance_open, impedance_closed.
+        velocity_closed, impedance_open, impedance_closed (the problem set's), then
+        diffik_open, diffik_closed, osc_open, osc_closed (:data:`BEYOND`).
     """
     base = base if base is not None else Scenario()
 
@@ -51,11 +56,13 @@ def make_experiments(base: Scenario | None = None) -> tuple[tuple[str, Scenario]
         ("velocity_closed", variant("velocity", "closed")),
         ("impedance_open", variant("impedance", "open")),
         ("impedance_closed", variant("impedance", "closed")),
+        *((f"{c}_{doors}", variant(c, doors)) for c in BEYOND for doors in ("open", "closed")),
     )
 
 
 EXPERIMENTS: tuple[tuple[str, Scenario], ...] = make_experiments()
-"""The problem set's eight runs on the default scenario (see :func:`make_experiments`)."""
+"""The problem set's eight runs and the four of the controllers beyond it on the default
+scenario (see :func:`make_experiments`)."""
 
 
 @dataclass(frozen=True)

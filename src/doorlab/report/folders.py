@@ -60,10 +60,13 @@ CONTROLLER_COLORS = {
     ("ik", 10): "tab:green",
     ("velocity", None): "tab:blue",
     ("impedance", None): "tab:red",
+    ("adaptive", None): "tab:gray",
+    ("diffik", None): "tab:pink",
+    ("osc", None): "tab:orange",
 }
 """Line colour of each controller (IK by knot count) on every figure of the page."""
 
-_EXTRA_COLORS = ("tab:orange", "tab:pink", "tab:olive", "tab:cyan", "tab:gray")
+_EXTRA_COLORS = ("tab:olive", "tab:cyan", "black")
 
 
 def line_style(run: LoadedRun, index: int) -> dict:

@@ -129,9 +129,9 @@ def run_report(
     progress: bool = True,
     experiments: Sequence[tuple[str, Scenario]] | None = None,
     scheduler: str | None = None,
-    robustness: bool = True,
+    robustness: bool = False,
     scheduler_timeout_s: float | None = None,
-    arm: bool = True,
+    arm: bool = False,
     arm_band: bool = True,
 ) -> int:
     """Runs the experiments in parallel and writes the report folder atomically.
@@ -149,9 +149,11 @@ def run_report(
         scheduler_timeout_s: Each step of connecting to ``scheduler`` [s] (default
             :data:`doorlab.runtime.executor.CONNECT_TIMEOUT_S`).
         robustness: Also run the robustness grid (:func:`make_robustness_cases` on ``base``,
-            reusing the experiments' identical runs; no replay) and add its section.
+            reusing the experiments' identical runs; no replay) and add its section (default:
+            not; ``doorlab report --robustness``).
         arm: Also run the "On the arm" cases (:func:`make_arm_cases` on ``base``, reusing
-            identical runs; no replay) and add its section.
+            identical runs; no replay) and add its section (default: not; ``doorlab report
+            --arm``).
         arm_band: With ``arm``, also each plan under the band's other models of the arm
             (:func:`doorlab.report.experiments.arm_model_names`): the verdicts with their band.
 

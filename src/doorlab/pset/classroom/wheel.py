@@ -117,6 +117,8 @@ STUDENT_WHEEL_LEAVES_OUT = {
     "doorlab/control/laws.py": "doorlab's control laws (tasks 2 and 3's reference solutions)",
     "doorlab/control/plans.py": "doorlab's task-space plans (tasks 2 and 3's reference)",
     "doorlab/control/adaptive.py": "doorlab's adaptive plan (built on the reference laws)",
+    "doorlab/control/diffik.py": "doorlab's diffik plan (built on the reference laws)",
+    "doorlab/control/osc.py": "doorlab's osc plan (built on the reference laws and plans)",
     "doorlab/episode/controllers.py": "doorlab's controllers (they run the references)",
     "doorlab/studies/": "the studies (they run the reference controllers)",
     "doorlab/report/": "the report (doorlab's answers to the notebook's questions)",

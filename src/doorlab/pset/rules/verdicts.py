@@ -329,6 +329,8 @@ doorlab's reference solution of it, and what they hold."""
 BUILT_ON_REFERENCES = {
     "doorlab.episode.controllers": "doorlab's controllers (the reference solutions of tasks 1-3)",
     "doorlab.control.adaptive": "doorlab's adaptive plan (built on the reference control laws)",
+    "doorlab.control.diffik": "doorlab's diffik plan (built on the reference control laws)",
+    "doorlab.control.osc": "doorlab's osc plan (built on the reference control laws and plans)",
     "doorlab.studies.legacy": "doorlab's former episode design (runs the reference controllers)",
     "doorlab.episode.simulation": "doorlab's episodes (they run the reference plans)",
 }
