@@ -53,13 +53,21 @@ sleep catches every command that arrived before the cycle is due. Each status le
 cycle until the first command is applied, and per cycle in the external-torque check: 200 Hz,
 not per plant step); during the start guard (0.25 s) a monitor checks each step.
 
-Add it to a diagram with :func:`add_sim_driver`, e.g. next to a client on one
-``DrakeLcm("memq://")``, deterministic (no real-time pacing)::
+Who reads the bus (``read_bus``): an ``LcmInterfaceSystem`` at every step (``doorlab
+sim-driver``: its bus has only C++ subscribers), or, for a client in this process on
+``memq://`` whose handlers are Python, :meth:`SimDriverSystems.advance_to` from Python just
+after each status goes out. An ``LcmInterfaceSystem`` must never read a bus with Python
+handlers: it does so inside ``Simulator.AdvanceTo``, where pydrake builds the handler's bytes
+without the GIL, a segmentation fault on Python >= 3.12 (:mod:`doorlab.hardware.link`,
+issue 45).
+
+Add it to a diagram with :func:`add_sim_driver`, e.g. next to a client of Drake's C++ LCM
+systems on one ``DrakeLcm("memq://")``, deterministic (no real-time pacing)::
 
     lcm = DrakeLcm("memq://")
     builder = DiagramBuilder()
     builder.AddSystem(LcmInterfaceSystem(lcm))  # once per DrakeLcm, before any subscriber
-    driver = add_sim_driver(builder, lcm, scenario, add_lcm_interface=False, record=True)
+    driver = add_sim_driver(builder, lcm, scenario, read_bus="caller", record=True)
     ...  # the client's LcmSubscriberSystem(IIWA_STATUS), its publisher of IIWA_COMMAND
     simulator = Simulator(builder.Build())  # realtime rate 0: as fast as it computes
     ResetIntegratorFromFlags(simulator, "explicit_euler", scenario.station.time_step)
@@ -76,6 +84,7 @@ message is delivered at the bus's next read, the simulator step after it was pub
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -139,6 +148,8 @@ READ_LEAD = 1e-6
 """The bus is read this long before each cycle's events [s] (the read tick)."""
 STATUS_DELAY = 1e-6
 """Each IIWA_STATUS is published this long after its cycle's events [s]."""
+READ_BUS = ("every_step", "every_cycle", "caller")
+"""Who reads the bus (:func:`add_sim_driver`)."""
 
 
 def _utime_source(utime_warmup: bool, publish_offset: float) -> PiecewisePolynomial:
@@ -186,6 +197,7 @@ class SimDriverSystems:
         scenario: The scenario the arm and its initial state come from.
         utime_warmup: Whether the first 200 statuses carry utime -1.
         log_sizes: Sizes of the ground-truth logger's channels, in the order of its input.
+        lcm: The bus. read_bus: Who reads it (:data:`READ_BUS`; :func:`add_sim_driver`).
     """
 
     arm: ArmCell
@@ -199,6 +211,8 @@ class SimDriverSystems:
     scenario: Scenario
     utime_warmup: bool
     log_sizes: tuple[int, ...] = ()
+    lcm: DrakeLcm | None = None
+    read_bus: str = "every_step"
 
     @property
     def station(self) -> Station:
@@ -223,20 +237,38 @@ class SimDriverSystems:
     def advance_to(self, simulator: Simulator, t: float) -> SimulatorStatus | None:
         """``simulator.AdvanceTo(t)``; while the arm is locked, one cycle at a time, freeing it
         right after the cycle that applied the first command (before the next plant step).
+        With ``read_bus="every_cycle"`` it reads the bus from Python first (what was
+        published since the last call), then just after each status goes out on the way
+        (:attr:`status_offset` after each cycle): every handler, the client's too, runs with
+        the GIL held, and on memq:// a command published by a handler that answers the status
+        is delivered in the same read, before the next cycle.
 
         Returns:
             The last call's status (it stops early when a monitor ends the simulation), or
             None when the simulator already stood at ``t``.
         """
+        status = None
+        if self.read_bus == "every_cycle":
+            context = simulator.get_context()
+            offset = self.status_offset  # status k goes out at k x 5 ms + offset
+            k = math.floor((context.get_time() - offset) / IIWA_STATUS_PERIOD + 1e-9) + 1
+            self.lcm.HandleSubscriptions(0)
+            while (t_read := k * IIWA_STATUS_PERIOD + offset) <= t:
+                status = self._advance(simulator, t_read)
+                if status is not None and _stopped(status):
+                    return status
+                self.lcm.HandleSubscriptions(0)
+                k += 1
+        return self._advance(simulator, t) or status
+
+    def _advance(self, simulator: Simulator, t: float) -> SimulatorStatus | None:
+        """:meth:`advance_to` without the reads."""
         context = simulator.get_mutable_context()
         status = None
         while self.arm.locked(context) and context.get_time() < t:
             k = np.floor((context.get_time() - self.status_offset) / IIWA_STATUS_PERIOD + 1e-9)
             status = simulator.AdvanceTo(min(t, (k + 1) * IIWA_STATUS_PERIOD + self.status_offset))
-            if (
-                not status.succeeded()
-                or status.reason() != status.ReturnReason.kReachedBoundaryTime
-            ):
+            if _stopped(status):
                 return status
             if self.arm.command_applied(context):
                 self.arm.unlock(context)
@@ -326,6 +358,11 @@ class SimDriverSystems:
         data["wsg_force_limit"] = data["wsg_commanded"][:, 1:]
         data.update(raw)
         return GroundTruth.from_channels(self.station, t, data, utime_warmup=self.utime_warmup)
+
+
+def _stopped(status: SimulatorStatus) -> bool:
+    """Whether ``AdvanceTo`` stopped before its boundary (a monitor ended the simulation)."""
+    return not status.succeeded() or status.reason() != status.ReturnReason.kReachedBoundaryTime
 
 
 def start_guard_message(guard: float = START_COMMAND_GUARD, after: float | None = None) -> str:
@@ -540,7 +577,7 @@ def add_sim_driver(
     q_initial: np.ndarray = Q_HOME,
     utime_warmup: bool = False,
     record: bool = False,
-    add_lcm_interface: bool = True,
+    read_bus: str = "every_step",
 ) -> SimDriverSystems:
     """Adds doorlab's arm behind the drivers' LCM protocol to ``builder``.
 
@@ -554,15 +591,21 @@ def add_sim_driver(
         utime_warmup: Send utime -1 in the first 200 statuses, as the real driver does.
         record: Log the ground truth, each cycle's status and applied command
             (:meth:`SimDriverSystems.ground_truth`, ``cycle_log``, ``command_delays``).
-        add_lcm_interface: Add the ``LcmInterfaceSystem`` that reads ``lcm`` at every step
-            (added first, before the subscribers). Pass False when the diagram already has
-            one for this ``lcm`` (one per bus), added before this call.
+        read_bus: Who reads ``lcm`` (:data:`READ_BUS`): ``every_step``, an
+            ``LcmInterfaceSystem`` added here (first, before the subscribers), when every
+            handler of the bus is C++ (a driver in its own process); ``every_cycle``,
+            :meth:`SimDriverSystems.advance_to` from Python after each status, when the bus
+            has Python handlers (a client in this process on memq://; module docstring);
+            ``caller``, the diagram's own ``LcmInterfaceSystem`` for this ``lcm`` (one per
+            bus), added before this call.
 
     Returns:
         The systems (call :meth:`SimDriverSystems.initialize` on the simulator's context,
         and advance with :meth:`SimDriverSystems.advance_to`).
     """
-    if add_lcm_interface:
+    if read_bus not in READ_BUS:
+        raise ConfigError(f"read_bus {read_bus!r}: choose one of {', '.join(READ_BUS)}")
+    if read_bus == "every_step":
         builder.AddNamedSystem("lcm_interface", LcmInterfaceSystem(lcm))
     arm = build_arm_cell(scenario.station, q_initial=q_initial)
     arm_system = builder.AddNamedSystem("arm", arm.diagram)
@@ -594,4 +637,6 @@ def add_sim_driver(
         scenario=scenario,
         utime_warmup=utime_warmup,
         log_sizes=log_sizes,
+        lcm=lcm,
+        read_bus=read_bus,
     )
