@@ -1,0 +1,61 @@
+"""doorlab on every supported Drake (issue 45): what differs between releases is asked of
+``doorlab.runtime.drake_compat``, and a scenario that needs what the running Drake lacks
+(TAMSI on 1.57 and later) is refused at validation, in one line naming what it has."""
+
+from __future__ import annotations
+
+import pytest
+from pydrake.multibody.plant import DiscreteContactApproximation
+
+from doorlab.cli.parser import USAGE_ERROR, main
+from doorlab.config import CONTACT_APPROXIMATIONS, Scenario, validate
+from doorlab.errors import ConfigError
+from doorlab.runtime import drake_compat
+
+WITHOUT_TAMSI = ("sap", "lagged", "similar")
+"""What Drake 1.57 and later have."""
+
+
+def test_the_approximations_are_the_running_drakes():
+    """Every approximation pydrake's enum has, by the name MultibodyPlantConfig takes; tamsi
+    exactly when the enum has kTamsi (1.56 and earlier)."""
+    available = drake_compat.contact_approximations()
+    assert set(WITHOUT_TAMSI) <= set(available) <= set(CONTACT_APPROXIMATIONS)
+    assert ("tamsi" in available) == hasattr(DiscreteContactApproximation, "kTamsi")
+    assert drake_compat.drake_version()[0].isdigit()
+
+
+@pytest.fixture
+def no_tamsi(monkeypatch):
+    """A Drake without TAMSI (1.57 on), whatever runs here."""
+    monkeypatch.setattr(drake_compat, "contact_approximations", lambda: WITHOUT_TAMSI)
+
+
+def test_tamsi_on_a_drake_without_it_is_refused_naming_what_it_has(no_tamsi):
+    scenario = Scenario()
+    scenario.station.contact_approximation = "tamsi"
+    with pytest.raises(ConfigError) as info:
+        validate(scenario)
+    message = str(info.value)
+    assert "\n" not in message and "station.contact_approximation 'tamsi'" in message
+    assert message.endswith("this Drake has sap, lagged, similar")
+    assert "1.56" in message  # which releases have it
+    scenario.station.contact_approximation = "similar"
+    assert validate(scenario) is scenario
+
+
+def test_run_with_tamsi_on_a_drake_without_it_exits_2_in_one_line(no_tamsi, tmp_path, capsys):
+    """At validation, before anything is built or written: exit 2, one line, no folder."""
+    out = tmp_path / "run"
+    code = main(["run", "--set", "station.contact_approximation=tamsi", "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == USAGE_ERROR == 2
+    assert len(err.splitlines()) == 1 and "this Drake has sap, lagged, similar" in err
+    assert not out.exists()
+
+
+@pytest.mark.skipif("tamsi" in drake_compat.contact_approximations(), reason="this Drake has TAMSI")
+def test_the_running_drake_without_tamsi_refuses_it(tmp_path, capsys):
+    """Where Drake has no TAMSI (1.57 on), the real check, not a stand-in."""
+    code = main(["run", "--set", "station.contact_approximation=tamsi", "--out", str(tmp_path)])
+    assert code == 2 and "this Drake has" in capsys.readouterr().err
