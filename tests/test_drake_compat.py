@@ -4,13 +4,21 @@
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import pytest
+from packaging.requirements import Requirement
+from packaging.specifiers import SpecifierSet
 from pydrake.multibody.plant import DiscreteContactApproximation
 
 from doorlab.cli.parser import USAGE_ERROR, main
 from doorlab.config import CONTACT_APPROXIMATIONS, Scenario, validate
 from doorlab.errors import ConfigError
+from doorlab.pset.classroom.wheel import _distribution
 from doorlab.runtime import drake_compat
+
+PYPROJECT = Path(__file__).resolve().parents[1] / "pyproject.toml"
 
 WITHOUT_TAMSI = ("sap", "lagged", "similar")
 """What Drake 1.57 and later have."""
@@ -59,3 +67,22 @@ def test_the_running_drake_without_tamsi_refuses_it(tmp_path, capsys):
     """Where Drake has no TAMSI (1.57 on), the real check, not a stand-in."""
     code = main(["run", "--set", "station.contact_approximation=tamsi", "--out", str(tmp_path)])
     assert code == 2 and "this Drake has" in capsys.readouterr().err
+
+
+def _drake_specifier(requirements) -> SpecifierSet:
+    (spec,) = [r.specifier for r in map(Requirement, requirements) if r.name == "drake"]
+    return spec
+
+
+def test_the_installed_and_the_students_doorlab_admit_every_supported_drake():
+    """pyproject's range, the installed doorlab's metadata and so the wheels' (the students'
+    handout and the autograder carry the installed metadata) are one: 1.51.1 up to the newest
+    tested, the running Drake among them."""
+    metadata = _distribution().read_text("METADATA").splitlines()
+    installed = _drake_specifier(
+        line.split(":", 1)[1].strip() for line in metadata if line.startswith("Requires-Dist:")
+    )
+    declared = _drake_specifier(re.findall(r'^\s*"(drake[^"]*)"', PYPROJECT.read_text(), re.M))
+    assert installed == declared, "the installed metadata is older: pip install -e ."
+    for version in (drake_compat.OLDEST, drake_compat.NEWEST_TESTED, drake_compat.drake_version()):
+        assert declared.contains(version), version
