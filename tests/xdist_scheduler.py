@@ -13,7 +13,10 @@ to run. :class:`RealtimeBins` instead
 - gives the rest of the dead worker's unfinished files to the others, first in the queue
   (a file's module fixtures then run again on its new worker);
 - keeps every result already reported, and ignores a late report of a removed worker or a
-  replacement worker whose collection it never registered (it is shut down).
+  replacement worker whose collection it never registered (it is shut down);
+- gives a replacement worker enough to run: xdist's handed it one file and no word that
+  nothing more was coming, and it waited on that file's last test forever (a worker runs a
+  test only once it knows the next).
 """
 
 from __future__ import annotations
@@ -67,8 +70,19 @@ class RealtimeBins(LoadFileScheduling):
             super().mark_test_complete(node, item_index, duration)
 
     def _reschedule(self, node) -> None:
-        if node not in self.registered_collections:  # a replacement that collected otherwise
-            if not node.shutting_down:
-                node.shutdown()
+        """Tops ``node`` up to more than two pending tests while there is work, and tells it
+        that no more is coming once the queue is empty (a worker runs its last test only then:
+        pytest needs the next one for the teardowns). xdist's gives one unit per call, which
+        left a replacement worker waiting on its one test forever."""
+        if node.shutting_down:
             return
-        super()._reschedule(node)
+        if node not in self.registered_collections:  # a replacement that collected otherwise
+            node.shutdown()
+            return
+        try:
+            while self.workqueue and self._pending_of(self.assigned_work[node]) <= 2:
+                self._assign_work_unit(node)
+        except OSError:  # it died and its death is not handled yet: remove_node requeues
+            return
+        if not self.workqueue:
+            node.shutdown()
