@@ -86,3 +86,15 @@ def test_the_installed_and_the_students_doorlab_admit_every_supported_drake():
     assert installed == declared, "the installed metadata is older: pip install -e ."
     for version in (drake_compat.OLDEST, drake_compat.NEWEST_TESTED, drake_compat.drake_version()):
         assert declared.contains(version), version
+
+
+def test_the_fidelity_page_shows_the_measured_table():
+    """docs/explanation/fidelity.md's Drake releases tables are the results file's, as
+    benchmarks/drake_releases.py wrote it (every table row of it, verbatim)."""
+    root = PYPROJECT.parent
+    results = (root / "benchmarks" / "results" / "drake_releases.md").read_text()
+    page = (root / "docs" / "explanation" / "fidelity.md").read_text()
+    rows = [line for line in results.splitlines() if line.startswith("| ")]
+    assert len(rows) > 20
+    assert [row for row in rows if row not in page] == []
+    assert "Over tolerance or different: none." in results
