@@ -135,9 +135,10 @@ def test_an_in_process_client_of_the_simulated_driver_runs_with_the_gil(tmp_path
 
 
 def test_pydrake_still_calls_lcm_handlers_without_the_gil(tmp_path):
-    """The cause, in pydrake alone (Drake 1.26 to 1.58 at least): a Python handler called by
-    an ``LcmInterfaceSystem`` inside ``AdvanceTo`` runs without the GIL. When this fails, a
-    Drake release has fixed it: the notes in doorlab.hardware.link and sim_cell can say so."""
+    """The cause, in pydrake alone (seen on 1.51.1 and 1.58; in the source since 1.26): a
+    Python handler called by an ``LcmInterfaceSystem`` inside ``AdvanceTo`` runs without the
+    GIL. When this fails, a Drake release has fixed it: the notes in doorlab.hardware.link
+    and sim_cell can say so."""
     proc = run_dev(PYDRAKE, tmp_path)
     assert proc.returncode != 0 and GIL_ERROR in proc.stderr, (
         "pydrake now calls LCM handlers inside AdvanceTo with the GIL held "
