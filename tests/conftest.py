@@ -90,25 +90,20 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log):
     """``--dist loadfile`` with the real-time files in bins (tests/file_order.py): a bin is
     one unit of work, each other file one, in the collection's order. At real-time priority
     one bin (one worker runs them all, beside the others' ordinary tests), else a bin per
-    worker (every worker runs them at the start, beside nothing else)."""
+    worker (every worker runs them at the start, beside nothing else). It survives a worker
+    that dies (tests/xdist_scheduler.py)."""
     if config.getvalue("dist") != "loadfile":
         return None
-    from xdist.scheduler import LoadFileScheduling
+    from xdist_scheduler import RealtimeBins
 
-    class RealtimeBins(LoadFileScheduling):
-        bins: dict[str, str] | None = None
+    def bins(workers: int) -> dict[str, str]:
+        path = run_dir() / REALTIME_FILES
+        realtime = json.loads(path.read_text()) if path.is_file() else []
+        durations = file_order.read_durations()
+        count = 1 if realtime_priority.problem() is None else workers
+        return file_order.realtime_bins(realtime, durations, count)
 
-        def _split_scope(self, nodeid: str) -> str:
-            scope = super()._split_scope(nodeid)
-            if self.bins is None:  # called once every worker's collection is in
-                path = run_dir() / REALTIME_FILES
-                realtime = json.loads(path.read_text()) if path.is_file() else []
-                durations = file_order.read_durations()
-                bins = 1 if realtime_priority.problem() is None else self.numnodes
-                self.bins = file_order.realtime_bins(realtime, durations, bins)
-            return self.bins.get(scope.rsplit("/", 1)[-1], scope)
-
-    return RealtimeBins(config, log)
+    return RealtimeBins(config, log, bins)
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:

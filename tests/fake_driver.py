@@ -7,6 +7,11 @@ clock there and publishes IIWA_STATUS (and SCHUNK_WSG_STATUS every 50 ms): the a
 q is the last command received (an ideal arm, one status late), the fingers close on a 10 mm
 handle. It does no physics: the
 closed-loop tests use ``doorlab sim-driver``.
+
+With ``late_copy``, each status delivered is sent once more and left on the bus for the
+client's next read: a status that arrives while the client computes, as one does over UDP
+when the client is slow (the client skips it: its utime is not newer). A client that read the
+bus inside ``Simulator.AdvanceTo`` would run its Python handler there (issue 45).
 """
 
 from __future__ import annotations
@@ -24,7 +29,9 @@ STATUS_PERIOD = 0.005
 
 
 class FakeDriver:
-    def __init__(self, q0, *, utime0: int = 1_000_000, negative_first: int = 0):
+    def __init__(
+        self, q0, *, utime0: int = 1_000_000, negative_first: int = 0, late_copy: bool = False
+    ):
         self.lcm = DrakeLcm("memq://")
         self.t = 0.0  # virtual clock [s]
         self.next_status = 0.0
@@ -33,6 +40,7 @@ class FakeDriver:
         self.tau_commanded = np.zeros(7)
         self.utime0 = utime0
         self.negative_first = negative_first
+        self.late_copy = late_copy
         self.sent = 0
         self.alive = True
         self.commands: list[lcmt_iiwa_command] = []
@@ -61,13 +69,16 @@ class FakeDriver:
 
     def pump(self, timeout: float) -> None:
         self.lcm.HandleSubscriptions(0)  # the client's commands reach the driver
-        if self.alive and self.next_status <= self.t + timeout + 1e-12:
+        sent = self.alive and self.next_status <= self.t + timeout + 1e-12
+        if sent:
             self.t = self.next_status
             self.next_status += STATUS_PERIOD
             self._publish()
         else:
             self.t += timeout
         self.lcm.HandleSubscriptions(0)  # the status reaches the client
+        if sent and self.late_copy:  # left for the client's next read
+            self.lcm.Publish("IIWA_STATUS", self.statuses[-1].encode())
 
     def _publish(self) -> None:
         self.q = self.q_commanded.copy()  # an ideal arm, one status late

@@ -13,6 +13,7 @@ import json
 import os
 import shutil
 import subprocess
+import sys
 import zipfile
 from pathlib import Path
 
@@ -66,6 +67,12 @@ def test_setup_sh_installs_the_pinned_versions_only_and_creates_the_user(tmp_pat
         archive.extractall(root / "source")
     env = clean_environment(root / "doorlab-venv")
     env[gradescope.ROOT_ENV] = str(root)
+    # The image's python3: the Python the zip was written from (this one's base; the
+    # machine's python3 may be older, which setup.sh refuses, as on such an image).
+    image_bin = tmp_path / "image-bin"
+    image_bin.mkdir()
+    (image_bin / "python3").symlink_to(getattr(sys, "_base_executable", sys.executable))
+    env["PATH"] = f"{image_bin}{os.pathsep}{env['PATH']}"
     command = ["bash", str(root / "source" / "setup.sh")]
     etc = None
     if os.geteuid() == 0 and shutil.which("bwrap"):

@@ -49,7 +49,12 @@ class InProcessCell:
         self.lcm = DrakeLcm("memq://")
         builder = DiagramBuilder()
         self.driver = add_sim_driver(
-            builder, self.lcm, self.scenario, record=True, utime_warmup=utime_warmup
+            builder,
+            self.lcm,
+            self.scenario,
+            record=True,
+            utime_warmup=utime_warmup,
+            read_bus="every_cycle",  # the listener's handlers are Python
         )
         self.simulator = Simulator(builder.Build())
         ResetIntegratorFromFlags(self.simulator, "explicit_euler", self.scenario.station.time_step)
@@ -348,7 +353,7 @@ def _one_process_episode(q_target: np.ndarray, t_final: float):
     builder.AddSystem(LcmInterfaceSystem(lcm))
     scenario = Scenario()
     scenario.timeline.log_period = 0.005  # a ground-truth sample at every status
-    driver = add_sim_driver(builder, lcm, scenario, add_lcm_interface=False, record=True)
+    driver = add_sim_driver(builder, lcm, scenario, read_bus="caller", record=True)
     status_sub = builder.AddSystem(
         LcmSubscriberSystem.Make(
             IIWA_STATUS_CHANNEL, lcmt_iiwa_status, lcm, use_cpp_serializer=True

@@ -45,6 +45,7 @@ from doorlab.kuka import (
     KUKA_STIFFNESS,
     VELOCITY_FILTER_CUTOFF,
 )
+from doorlab.runtime.drake_compat import missing_contact_approximation
 from doorlab.runtime.inputs import load_yaml, quote, quote_text, read_text_file, yaml_float_spelling
 
 CONTROLLERS = ("ik", "velocity", "impedance", "adaptive", "diffik", "osc")
@@ -57,6 +58,8 @@ IK_OBJECTIVES = ("feasible", "centered")
 VELOCITY_LEADS = ("control_period", "inner_loop")
 """``velocity.lead``: what q_dot is multiplied by in q_ref = q + q_dot x lead."""
 CONTACT_APPROXIMATIONS = ("sap", "lagged", "similar", "tamsi")
+"""Every discrete contact approximation doorlab knows; tamsi only on Drake <= 1.56
+(:func:`doorlab.runtime.drake_compat.contact_approximations`: the running Drake's)."""
 LEFT_HINGE_RANGE = (-math.pi / 2, 0.0)
 """Hinge range of the left door [rad] (opening is negative)."""
 RIGHT_HINGE_RANGE = (0.0, math.pi / 2)
@@ -240,7 +243,7 @@ class StationConfig:
 
     time_step: float = 0.002  # [s] plant discrete step (the original's)
     contact_approximation: str = (
-        "sap"  # one of CONTACT_APPROXIMATIONS ("tamsi" cannot run kind=implicit_pd)
+        "sap"  # sap, lagged, similar, or tamsi (Drake <= 1.56 only; not with kind=implicit_pd)
     )
     arm_collision: bool = False  # give the arm collision capsules (the original arm had none)
     # Keep the collision geometry of the cupboard's carcass, right door and the table also
@@ -553,6 +556,8 @@ def validate(scenario: Scenario) -> Scenario:
     station = scenario.station
     positive("station.time_step", station.time_step)
     choice("station.contact_approximation", station.contact_approximation, CONTACT_APPROXIMATIONS)
+    missing = missing_contact_approximation(station.contact_approximation)
+    check(missing is None, str(missing))  # tamsi on Drake >= 1.57
     position = station.cupboard_position
     check(
         isinstance(position, (list, tuple))

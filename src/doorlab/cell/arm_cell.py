@@ -105,7 +105,7 @@ APPLIED_LAYOUT = (
 APPLIED_SIZE = sum(size for _, size in APPLIED_LAYOUT)
 WATCH_DELAY = 0.5e-6
 """The external-torque check runs this long after the cycle's events [s] (before a status goes
-out, :data:`doorlab.hardware.sim_cell.STATUS_DELAY` after them)."""
+out, :data:`doorlab.hardware.sim_bus.STATUS_DELAY` after them)."""
 
 
 def cycle_offset(time_step: float) -> float:

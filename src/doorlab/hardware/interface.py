@@ -18,7 +18,13 @@ simulated station. Inside, Drake's LCM systems and the drivers' message converte
   every 50 ms (20 Hz, the gripper driver's period); ``SCHUNK_WSG_STATUS`` ->
   ``SchunkWsgStatusReceiver``:
   ``wsg_state_measured`` (separation [m], its rate [m/s]) and ``wsg_force_measured`` [N];
-- an ``LcmInterfaceSystem``, so that the cell also runs in a plain Simulator.
+- no ``LcmInterfaceSystem``: the diagram never reads the bus. The client's
+  :class:`doorlab.hardware.link.DriverLink` does, from Python, and each message it handles
+  reaches the subscribers here too (they share its ``DrakeLcm``), so the diagram sees exactly
+  the statuses the episode answers. An ``LcmInterfaceSystem`` would read the bus inside
+  ``Simulator.AdvanceTo``, which pydrake runs without the GIL, and there call the link's
+  Python handler, whose bytes pydrake builds without taking the GIL: a segmentation fault on
+  Python >= 3.12 (issue 45; :mod:`doorlab.hardware.link`).
 """
 
 from __future__ import annotations
@@ -40,7 +46,7 @@ from pydrake.manipulation import (
     SchunkWsgStatusReceiver,
 )
 from pydrake.systems.framework import Diagram, DiagramBuilder, TriggerType
-from pydrake.systems.lcm import LcmInterfaceSystem, LcmPublisherSystem, LcmSubscriberSystem
+from pydrake.systems.lcm import LcmPublisherSystem, LcmSubscriberSystem
 from pydrake.systems.primitives import Multiplexer
 
 from doorlab.constants import NUM_JOINTS
@@ -70,14 +76,15 @@ class HardwareCell:
 
 
 def build_hardware_cell(lcm: DrakeLcmInterface) -> HardwareCell:
-    """The real cell on ``lcm`` (a ``DrakeLcm`` on the drivers' URL)."""
+    """The real cell on ``lcm`` (a ``DrakeLcm`` on the drivers' URL), which its caller reads
+    (``HandleSubscriptions``) between the simulator's calls, never the diagram (module
+    docstring)."""
     builder = DiagramBuilder()
 
     def add(system, name: str):
         system.set_name(name)
         return builder.AddSystem(system)
 
-    add(LcmInterfaceSystem(lcm), "lcm")
     status = add(
         LcmSubscriberSystem.Make(
             IIWA_STATUS_CHANNEL, lcmt_iiwa_status, lcm, use_cpp_serializer=True

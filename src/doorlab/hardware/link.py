@@ -4,6 +4,14 @@ A ``DrakeLcm`` subscription keeps one message, the oldest, until it is handled: 
 stops handling for a while then reads a stale status first. :meth:`DriverLink.drain` discards
 what waited; the episode handles subscriptions continuously, blocking in
 ``HandleSubscriptions`` until the next status or its watchdog's deadline.
+
+The link is the only reader of its bus: nothing else may call ``HandleSubscriptions`` on its
+``DrakeLcm`` from inside ``Simulator.AdvanceTo`` (an ``LcmInterfaceSystem`` in a diagram does
+so at every step). pydrake's ``AdvanceTo`` releases the GIL (Drake >= 1.26), and its
+``DrakeLcm.Subscribe`` builds each message's ``bytes`` for the Python handler before taking
+the GIL back (every Drake to 1.58, pybind11 and nanobind alike): Python >= 3.12 then crashes
+(its allocator's state is the running thread's, and there is none), 3.11 only races.
+Handled from Python, as here, the GIL is held throughout (issue 45).
 """
 
 from __future__ import annotations

@@ -53,13 +53,21 @@ sleep catches every command that arrived before the cycle is due. Each status le
 cycle until the first command is applied, and per cycle in the external-torque check: 200 Hz,
 not per plant step); during the start guard (0.25 s) a monitor checks each step.
 
-Add it to a diagram with :func:`add_sim_driver`, e.g. next to a client on one
-``DrakeLcm("memq://")``, deterministic (no real-time pacing)::
+Who reads the bus (``read_bus``): an ``LcmInterfaceSystem`` at every step (``doorlab
+sim-driver``: its bus has only C++ subscribers), or, for a client in this process on
+``memq://`` whose handlers are Python, :meth:`SimDriverSystems.advance_to` from Python just
+after each status goes out. An ``LcmInterfaceSystem`` must never read a bus with Python
+handlers: it does so inside ``Simulator.AdvanceTo``, where pydrake builds the handler's bytes
+without the GIL, a segmentation fault on Python >= 3.12 (:mod:`doorlab.hardware.link`,
+issue 45).
+
+Add it to a diagram with :func:`add_sim_driver`, e.g. next to a client of Drake's C++ LCM
+systems on one ``DrakeLcm("memq://")``, deterministic (no real-time pacing)::
 
     lcm = DrakeLcm("memq://")
     builder = DiagramBuilder()
     builder.AddSystem(LcmInterfaceSystem(lcm))  # once per DrakeLcm, before any subscriber
-    driver = add_sim_driver(builder, lcm, scenario, add_lcm_interface=False, record=True)
+    driver = add_sim_driver(builder, lcm, scenario, read_bus="caller", record=True)
     ...  # the client's LcmSubscriberSystem(IIWA_STATUS), its publisher of IIWA_COMMAND
     simulator = Simulator(builder.Build())  # realtime rate 0: as fast as it computes
     ResetIntegratorFromFlags(simulator, "explicit_euler", scenario.station.time_step)
@@ -76,37 +84,20 @@ message is delivered at the bus's next read, the simulator step after it was pub
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-import pydrake.symbolic as sym
-from drake import (
-    lcmt_iiwa_command,
-    lcmt_iiwa_status,
-    lcmt_schunk_wsg_command,
-    lcmt_schunk_wsg_status,
-)
 from pydrake.lcm import DrakeLcm
-from pydrake.manipulation import (
-    IiwaCommandReceiver,
-    IiwaControlMode,
-    IiwaStatusSender,
-    SchunkWsgCommandReceiver,
-    SchunkWsgStatusSender,
-)
 from pydrake.systems.analysis import Simulator, SimulatorStatus
 from pydrake.systems.framework import Context, DiagramBuilder, EventStatus
 from pydrake.systems.lcm import LcmInterfaceSystem, LcmPublisherSystem, LcmSubscriberSystem
 from pydrake.systems.primitives import (
-    ConstantVectorSource,
     Multiplexer,
-    SymbolicVectorSystem,
-    TrajectorySource,
     VectorLogSink,
     ZeroOrderHold,
 )
-from pydrake.trajectories import PiecewisePolynomial
 
 from doorlab.cell.arm_cell import (
     STATUS_SIZE,
@@ -119,47 +110,22 @@ from doorlab.cell.arm_cell import (
 )
 from doorlab.cell.station import Station
 from doorlab.config import Scenario
-from doorlab.constants import NUM_JOINTS, Q_HOME
+from doorlab.constants import Q_HOME
 from doorlab.errors import ConfigError
 from doorlab.hardware.ground_truth import GroundTruth
 from doorlab.hardware.protocol import (
-    IIWA_COMMAND_CHANNEL,
-    IIWA_STATUS_CHANNEL,
     IIWA_STATUS_PERIOD,
     START_COMMAND_GUARD,
-    UTIME_WARMUP_STATUSES,
-    WSG_COMMAND_CHANNEL,
-    WSG_STATUS_CHANNEL,
-    WSG_STATUS_PERIOD,
+)
+from doorlab.hardware.sim_bus import (
+    STATUS_DELAY,
+    add_iiwa_command,
+    add_statuses,
+    add_wsg_command,
 )
 
-_UTIME_HORIZON = 1e8
-"""The utime source is defined up to this simulation time [s] (three years)."""
-READ_LEAD = 1e-6
-"""The bus is read this long before each cycle's events [s] (the read tick)."""
-STATUS_DELAY = 1e-6
-"""Each IIWA_STATUS is published this long after its cycle's events [s]."""
-
-
-def _utime_source(utime_warmup: bool, publish_offset: float) -> PiecewisePolynomial:
-    """IiwaStatusSender's ``time_measured`` [s] as a function of simulation time.
-
-    The status of cycle k is sent at t = k * 5 ms + ``publish_offset`` and carries utime
-    k * 5000: the sender truncates time_measured * 1e6 to an integer, and k * 0.005 * 1e6 is
-    often a hair under k * 5000, so half a microsecond added makes the truncation a rounding.
-    The warm-up holds -1e-6 (utime -1) until half a period before the 201st status.
-    """
-    offset = 0.5e-6 - publish_offset
-    if not utime_warmup:
-        return PiecewisePolynomial.FirstOrderHold(
-            [0.0, _UTIME_HORIZON], np.array([[offset, _UTIME_HORIZON + offset]])
-        )
-    t_ready = (UTIME_WARMUP_STATUSES - 0.5) * IIWA_STATUS_PERIOD
-    t_ramp = t_ready + 0.2 * IIWA_STATUS_PERIOD  # no status falls in [t_ready, t_ramp]
-    return PiecewisePolynomial.FirstOrderHold(
-        [0.0, t_ready, t_ramp, _UTIME_HORIZON],
-        np.array([[-1e-6, -1e-6, t_ramp + offset, _UTIME_HORIZON + offset]]),
-    )
+READ_BUS = ("every_step", "every_cycle", "caller")
+"""Who reads the bus (:func:`add_sim_driver`)."""
 
 
 _GROUND_TRUTH_PORTS = (
@@ -186,6 +152,7 @@ class SimDriverSystems:
         scenario: The scenario the arm and its initial state come from.
         utime_warmup: Whether the first 200 statuses carry utime -1.
         log_sizes: Sizes of the ground-truth logger's channels, in the order of its input.
+        lcm: The bus. read_bus: Who reads it (:data:`READ_BUS`; :func:`add_sim_driver`).
     """
 
     arm: ArmCell
@@ -199,6 +166,8 @@ class SimDriverSystems:
     scenario: Scenario
     utime_warmup: bool
     log_sizes: tuple[int, ...] = ()
+    lcm: DrakeLcm | None = None
+    read_bus: str = "every_step"
 
     @property
     def station(self) -> Station:
@@ -223,20 +192,38 @@ class SimDriverSystems:
     def advance_to(self, simulator: Simulator, t: float) -> SimulatorStatus | None:
         """``simulator.AdvanceTo(t)``; while the arm is locked, one cycle at a time, freeing it
         right after the cycle that applied the first command (before the next plant step).
+        With ``read_bus="every_cycle"`` it reads the bus from Python first (what was
+        published since the last call), then just after each status goes out on the way
+        (:attr:`status_offset` after each cycle): every handler, the client's too, runs with
+        the GIL held, and on memq:// a command published by a handler that answers the status
+        is delivered in the same read, before the next cycle.
 
         Returns:
             The last call's status (it stops early when a monitor ends the simulation), or
             None when the simulator already stood at ``t``.
         """
+        status = None
+        if self.read_bus == "every_cycle":
+            context = simulator.get_context()
+            offset = self.status_offset  # status k goes out at k x 5 ms + offset
+            k = math.floor((context.get_time() - offset) / IIWA_STATUS_PERIOD + 1e-9) + 1
+            self.lcm.HandleSubscriptions(0)
+            while (t_read := k * IIWA_STATUS_PERIOD + offset) <= t:
+                status = self._advance(simulator, t_read)
+                if status is not None and _stopped(status):
+                    return status
+                self.lcm.HandleSubscriptions(0)
+                k += 1
+        return self._advance(simulator, t) or status
+
+    def _advance(self, simulator: Simulator, t: float) -> SimulatorStatus | None:
+        """:meth:`advance_to` without the reads."""
         context = simulator.get_mutable_context()
         status = None
         while self.arm.locked(context) and context.get_time() < t:
             k = np.floor((context.get_time() - self.status_offset) / IIWA_STATUS_PERIOD + 1e-9)
             status = simulator.AdvanceTo(min(t, (k + 1) * IIWA_STATUS_PERIOD + self.status_offset))
-            if (
-                not status.succeeded()
-                or status.reason() != status.ReturnReason.kReachedBoundaryTime
-            ):
+            if _stopped(status):
                 return status
             if self.arm.command_applied(context):
                 self.arm.unlock(context)
@@ -328,6 +315,11 @@ class SimDriverSystems:
         return GroundTruth.from_channels(self.station, t, data, utime_warmup=self.utime_warmup)
 
 
+def _stopped(status: SimulatorStatus) -> bool:
+    """Whether ``AdvanceTo`` stopped before its boundary (a monitor ended the simulation)."""
+    return not status.succeeded() or status.reason() != status.ReturnReason.kReachedBoundaryTime
+
+
 def start_guard_message(guard: float = START_COMMAND_GUARD, after: float | None = None) -> str:
     """The abort's message (kuka_driver: "First command received within guard time").
 
@@ -339,164 +331,6 @@ def start_guard_message(guard: float = START_COMMAND_GUARD, after: float | None 
         f"start guard: an IIWA_COMMAND arrived within {guard:g} s of the first status{when}; "
         "the driver aborts, as the real one does (wait before the first command)"
     )
-
-
-_NO_MESSAGE_POSITION = 1e6
-"""The command receiver's "measured position" input [rad]: its position output before the
-first message, far outside any joint's range, marks "no command yet"."""
-_NO_MESSAGE_THRESHOLD = 100.0
-"""A receiver position above this [rad] is the no-message marker."""
-
-
-def _command_valid() -> SymbolicVectorSystem:
-    """[p (7), utime] -> 1 for a command, 0 for none (the receiver's no-message marker in p,
-    or a negative utime: kuka_driver's -1, "no command")."""
-    u = sym.MakeVectorVariable(NUM_JOINTS + 1, "u")
-    none = sym.logical_or(u[0] > _NO_MESSAGE_THRESHOLD, u[NUM_JOINTS] < 0)
-    return SymbolicVectorSystem(input=u, output=[sym.if_then_else(none, 0.0, 1.0)])
-
-
-def _add_iiwa_command(builder: DiagramBuilder, lcm: DrakeLcm, arm_system):
-    """IIWA_COMMAND -> the arm cell's command inputs: the newest message, decoded in C++
-    (IiwaCommandReceiver, position and torque), and whether it is a command. The receiver's
-    position before any message is its "measured position" input, here
-    :data:`_NO_MESSAGE_POSITION`: that is how "no command yet" is told from a command.
-
-    Returns:
-        (the subscriber, the receiver).
-    """
-
-    def add(name: str, system):
-        return builder.AddNamedSystem(name, system)
-
-    subscriber = add(
-        "iiwa_command_subscriber",
-        LcmSubscriberSystem.Make(
-            IIWA_COMMAND_CHANNEL, lcmt_iiwa_command, lcm, use_cpp_serializer=True
-        ),
-    )
-    receiver = add(
-        "iiwa_command", IiwaCommandReceiver(NUM_JOINTS, IiwaControlMode.kPositionAndTorque)
-    )
-    builder.Connect(subscriber.get_output_port(), receiver.get_message_input_port())
-    marker = add(
-        "no_command_marker", ConstantVectorSource(np.full(NUM_JOINTS, _NO_MESSAGE_POSITION))
-    )
-    builder.Connect(marker.get_output_port(), receiver.get_position_measured_input_port())
-    position = receiver.get_commanded_position_output_port()
-    builder.Connect(position, arm_system.GetInputPort("iiwa_position"))
-    builder.Connect(
-        receiver.get_commanded_torque_output_port(),
-        arm_system.GetInputPort("iiwa_feedforward_torque"),
-    )
-    valid_in = add("command_valid_input", Multiplexer([NUM_JOINTS, 1]))
-    builder.Connect(position, valid_in.get_input_port(0))
-    builder.Connect(receiver.GetOutputPort("time"), valid_in.get_input_port(1))
-    valid = add("command_valid", _command_valid())
-    builder.Connect(valid_in.get_output_port(), valid.get_input_port())
-    builder.Connect(valid.get_output_port(), arm_system.GetInputPort("iiwa_command_valid"))
-    return subscriber, receiver
-
-
-def _add_wsg_command(builder: DiagramBuilder, lcm: DrakeLcm, arm_system, gripper):
-    """SCHUNK_WSG_COMMAND -> the arm cell's wsg_position [m] and wsg_force_limit [N]; until
-    the first command the gripper's initial width and force limit. Returns the subscriber."""
-    subscriber = builder.AddNamedSystem(
-        "wsg_command_subscriber",
-        LcmSubscriberSystem.Make(
-            WSG_COMMAND_CHANNEL, lcmt_schunk_wsg_command, lcm, use_cpp_serializer=True
-        ),
-    )
-    receiver = builder.AddNamedSystem(
-        "wsg_command",
-        SchunkWsgCommandReceiver(
-            initial_position=gripper.initial_width, initial_force=gripper.force_limit
-        ),
-    )
-    builder.Connect(subscriber.get_output_port(), receiver.GetInputPort("command_message"))
-    builder.Connect(receiver.get_position_output_port(), arm_system.GetInputPort("wsg_position"))
-    builder.Connect(
-        receiver.get_force_limit_output_port(), arm_system.GetInputPort("wsg_force_limit")
-    )
-    return subscriber
-
-
-def _publisher(builder, lcm, name, channel, lcm_type, period, offset, sender):
-    system = builder.AddNamedSystem(
-        name,
-        LcmPublisherSystem.Make(
-            channel,
-            lcm_type,
-            lcm,
-            publish_period=period,
-            publish_offset=offset,
-            use_cpp_serializer=True,
-        ),
-    )
-    builder.Connect(sender.get_output_port(), system.get_input_port())
-    return system
-
-
-def _add_statuses(
-    builder: DiagramBuilder, lcm: DrakeLcm, arm: ArmCell, arm_system, utime_warmup: bool
-):
-    """The arm cell's status -> IIWA_STATUS every cycle, STATUS_DELAY after its events; its
-    gripper -> SCHUNK_WSG_STATUS every 50 ms; the read tick. Returns (iiwa, wsg publisher)."""
-
-    def add(name: str, system):
-        return builder.AddNamedSystem(name, system)
-
-    offset = arm.offset + STATUS_DELAY
-    iiwa_status = add("iiwa_status", IiwaStatusSender(NUM_JOINTS))
-    for sender_port, arm_port in (
-        ("position_commanded", "iiwa_position_commanded"),
-        ("position_measured", "iiwa_position_measured"),
-        ("velocity_estimated", "iiwa_velocity_estimated"),
-        ("torque_commanded", "iiwa_torque_commanded"),
-        ("torque_external", "iiwa_torque_external"),
-    ):  # torque_measured left open: the sender reports torque_commanded
-        builder.Connect(arm_system.GetOutputPort(arm_port), iiwa_status.GetInputPort(sender_port))
-    utime = add("status_utime", TrajectorySource(_utime_source(utime_warmup, offset)))
-    builder.Connect(utime.get_output_port(), iiwa_status.GetInputPort("time_measured"))
-    iiwa_pub = _publisher(
-        builder,
-        lcm,
-        "iiwa_status_publisher",
-        IIWA_STATUS_CHANNEL,
-        lcmt_iiwa_status,
-        IIWA_STATUS_PERIOD,
-        offset,
-        iiwa_status,
-    )
-    wsg_status = add("wsg_status", SchunkWsgStatusSender())
-    builder.Connect(
-        arm_system.GetOutputPort("wsg_state_measured"), wsg_status.get_state_input_port()
-    )
-    builder.Connect(
-        arm_system.GetOutputPort("wsg_force_measured"), wsg_status.get_force_input_port()
-    )
-    wsg_pub = _publisher(
-        builder,
-        lcm,
-        "wsg_status_publisher",
-        WSG_STATUS_CHANNEL,
-        lcmt_schunk_wsg_status,
-        WSG_STATUS_PERIOD,
-        0.0,
-        wsg_status,
-    )
-    _add_read_tick(builder, arm.offset)
-    return iiwa_pub, wsg_pub
-
-
-def _add_read_tick(builder: DiagramBuilder, offset: float) -> None:
-    """The read tick (module docstring): a simulator step that starts READ_LEAD before every
-    cycle's events at ``offset`` [s] after k x 5 ms (C++, no output used)."""
-    tick_input = builder.AddNamedSystem("tick_input", ConstantVectorSource([0.0]))
-    tick = builder.AddNamedSystem(
-        "read_tick", ZeroOrderHold(IIWA_STATUS_PERIOD, 1, offset_sec=offset - READ_LEAD)
-    )
-    builder.Connect(tick_input.get_output_port(), tick.get_input_port())
 
 
 def _add_records(builder: DiagramBuilder, arm: ArmCell, arm_system, receiver, scenario):
@@ -540,7 +374,7 @@ def add_sim_driver(
     q_initial: np.ndarray = Q_HOME,
     utime_warmup: bool = False,
     record: bool = False,
-    add_lcm_interface: bool = True,
+    read_bus: str = "every_step",
 ) -> SimDriverSystems:
     """Adds doorlab's arm behind the drivers' LCM protocol to ``builder``.
 
@@ -554,21 +388,27 @@ def add_sim_driver(
         utime_warmup: Send utime -1 in the first 200 statuses, as the real driver does.
         record: Log the ground truth, each cycle's status and applied command
             (:meth:`SimDriverSystems.ground_truth`, ``cycle_log``, ``command_delays``).
-        add_lcm_interface: Add the ``LcmInterfaceSystem`` that reads ``lcm`` at every step
-            (added first, before the subscribers). Pass False when the diagram already has
-            one for this ``lcm`` (one per bus), added before this call.
+        read_bus: Who reads ``lcm`` (:data:`READ_BUS`): ``every_step``, an
+            ``LcmInterfaceSystem`` added here (first, before the subscribers), when every
+            handler of the bus is C++ (a driver in its own process); ``every_cycle``,
+            :meth:`SimDriverSystems.advance_to` from Python after each status, when the bus
+            has Python handlers (a client in this process on memq://; module docstring);
+            ``caller``, the diagram's own ``LcmInterfaceSystem`` for this ``lcm`` (one per
+            bus), added before this call.
 
     Returns:
         The systems (call :meth:`SimDriverSystems.initialize` on the simulator's context,
         and advance with :meth:`SimDriverSystems.advance_to`).
     """
-    if add_lcm_interface:
+    if read_bus not in READ_BUS:
+        raise ConfigError(f"read_bus {read_bus!r}: choose one of {', '.join(READ_BUS)}")
+    if read_bus == "every_step":
         builder.AddNamedSystem("lcm_interface", LcmInterfaceSystem(lcm))
     arm = build_arm_cell(scenario.station, q_initial=q_initial)
     arm_system = builder.AddNamedSystem("arm", arm.diagram)
-    iiwa_sub, iiwa_receiver = _add_iiwa_command(builder, lcm, arm_system)
-    wsg_sub = _add_wsg_command(builder, lcm, arm_system, scenario.station.gripper)
-    iiwa_pub, wsg_pub = _add_statuses(builder, lcm, arm, arm_system, utime_warmup)
+    iiwa_sub, iiwa_receiver = add_iiwa_command(builder, lcm, arm_system)
+    wsg_sub = add_wsg_command(builder, lcm, arm_system, scenario.station.gripper)
+    iiwa_pub, wsg_pub = add_statuses(builder, lcm, arm, arm_system, utime_warmup)
     watch = builder.AddNamedSystem(
         "external_torque_watch",
         ExternalTorqueWatch(
@@ -594,4 +434,6 @@ def add_sim_driver(
         scenario=scenario,
         utime_warmup=utime_warmup,
         log_sizes=log_sizes,
+        lcm=lcm,
+        read_bus=read_bus,
     )

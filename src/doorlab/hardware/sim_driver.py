@@ -76,7 +76,9 @@ class SimDriver:
         scenario: The station and its initial state (validated here); ``doors`` sets the
             doors open or closed.
         lcm_url: The bus (check it with :func:`doorlab.hardware.protocol.resolve_lcm_url`);
-            ``memq://`` only to talk to a client in this process.
+            ``memq://`` only to talk to a client in this process (the driver then reads the
+            bus from Python after each status, so the client's Python handlers run with the
+            GIL held: :mod:`doorlab.hardware.sim_cell`).
         utime_warmup: Send utime -1 in the first 200 statuses, as the real driver does.
         record: Log the ground truth (:meth:`ground_truth`, :meth:`write_output`).
         q_initial: The arm's start pose (7,) [rad] (an episode's: q_home).
@@ -102,6 +104,8 @@ class SimDriver:
             q_initial=q_initial,
             utime_warmup=utime_warmup,
             record=record,
+            # On memq:// the client is in this process, its handlers Python: read from Python.
+            read_bus="every_cycle" if lcm_url.startswith("memq://") else "every_step",
         )
         self.diagram = builder.Build()
         self.diagram.set_name("doorlab_sim_driver")

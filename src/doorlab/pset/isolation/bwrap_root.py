@@ -93,6 +93,7 @@ STUDENT_MODULES = (
     "doorlab.pset.isolation.worker",
     "doorlab.pset.isolation.zygote",
     "doorlab.runtime",
+    "doorlab.runtime.drake_compat",
     "doorlab.runtime.inputs",
 )
 """doorlab's modules in the student's view: what the folder's files and the worker import, and
