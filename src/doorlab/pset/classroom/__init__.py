@@ -3,7 +3,9 @@ regrades, the late policy, feedback pages, statistics and gradebook exports, the
 autograder and the students' handout.
 
 :mod:`~doorlab.pset.classroom.grade_all` is ``doorlab pset grade-all`` (locally, or on a Dask
-cluster no student reaches: :mod:`~doorlab.pset.classroom.cluster`);
+cluster no student reaches: :mod:`~doorlab.pset.classroom.cluster`; the class's folder:
+:mod:`~doorlab.pset.classroom.class_folder`; a run's bookkeeping:
+:mod:`~doorlab.pset.classroom.class_run`);
 :mod:`~doorlab.pset.classroom.roster` reads a class's submissions and writes its sheet;
 :mod:`~doorlab.pset.classroom.regrade` plans a regrade; :mod:`~doorlab.pset.classroom.late`
 applies the late policy; :mod:`~doorlab.pset.classroom.class_outputs` writes the pages and

@@ -47,7 +47,7 @@ class Outputs:
 
 Write = Callable[[Path, str, "str | bytes"], None]
 """Writes ``out/rel`` atomically and records it as doorlab's
-(``doorlab.pset.classroom.grade_all``'s)."""
+(``doorlab.pset.classroom.class_folder``'s ``_write_text``)."""
 
 
 def write_changes(out: Path, previous, changes: list[dict], write: Write) -> str | None:

@@ -37,64 +37,41 @@ the same assignment; a different ``--assignment`` is named, with what it costs, 
 is simulated. A run over an existing sheet rewrites the sheet and the exports only when it
 ends: an interrupted one leaves them as they were (its finished results are kept, and the next
 run's ``changes.csv`` lists them).
+
+This module holds :func:`grade_class` and the worker's side (:func:`grade_task`); the class's
+folder (its files' names, what ``--resume`` keeps, its files written atomically) is
+:mod:`doorlab.pset.classroom.class_folder`'s, and a run's bookkeeping (planning, grading
+through the executor, each finished submission, the sheet and the summary)
+:mod:`doorlab.pset.classroom.class_run`'s.
 """
 
 from __future__ import annotations
 
 import atexit
-import concurrent.futures
-import hashlib
-import json
 import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from doorlab.errors import ConfigError, DoorlabError, OutputError
+from doorlab.errors import ConfigError, DoorlabError
+from doorlab.pset.classroom.class_folder import CLASS_FILES as CLASS_FILES
+from doorlab.pset.classroom.class_folder import CLASS_JSON as CLASS_JSON
+from doorlab.pset.classroom.class_folder import GRADES_CSV as GRADES_CSV
+from doorlab.pset.classroom.class_folder import RESULTS_JSON as RESULTS_JSON
+from doorlab.pset.classroom.class_folder import REWRITTEN as REWRITTEN
+from doorlab.pset.classroom.class_folder import SUMMARY_TXT as SUMMARY_TXT
+from doorlab.pset.classroom.class_folder import _check_out, _reserved_names, assignment_digest
 from doorlab.pset.classroom.class_inputs import assignment_changes, cost_line, read_inputs
-from doorlab.pset.classroom.class_statistics import summarize
-from doorlab.pset.classroom.regrade import check_only, old_sheet, settings_of
-from doorlab.pset.classroom.resources import (
-    check_room,
-    class_memory,
-    memory_lines,
-    room_problem,
-    worker_view_memory,
-    write_failure,
-)
-from doorlab.pset.classroom.roster import Submission, find_submissions, sheet_row, sheet_text
-from doorlab.pset.classroom.tables import INSTRUCTOR_FILES
-from doorlab.runtime.interrupts import POLL_S, raise_if_interrupted
+from doorlab.pset.classroom.class_run import QUEUED_PER_WORKER as QUEUED_PER_WORKER
+from doorlab.pset.classroom.class_run import _ClassRun
+from doorlab.pset.classroom.class_statistics import summarize as summarize
+from doorlab.pset.classroom.regrade import check_only, settings_of
+from doorlab.pset.classroom.resources import check_room, class_memory, worker_view_memory
+from doorlab.pset.classroom.roster import find_submissions, sheet_row
 
-GRADES_CSV = "grades.csv"
-"""The sheet: one row per submission."""
-CLASS_JSON = "class.json"
-"""The class's grading: the reference figures, the assignment's digest, doorlab's version."""
-SUMMARY_TXT = "summary.txt"
-"""The summary printed at the end."""
-RESULTS_JSON = "results.json"
-"""Each submission's Gradescope results, in ``DIR/<submission>/``."""
-CLASS_FILES = (
-    GRADES_CSV,
-    CLASS_JSON,
-    SUMMARY_TXT,
-    "changes.csv",
-    "history",
-    "feedback",
-    "class.html",
-    "summary.json",
-    "canvas.csv",
-    "gradescope.csv",
-    "canvas_roster.csv",
-)
-"""What a run rewrites in ``DIR`` besides the submissions' folders
-(:mod:`doorlab.pset.classroom.regrade`, :mod:`doorlab.pset.classroom.class_outputs`)."""
-REWRITTEN = ("feedback", "class.html", "summary.json", "canvas.csv", "gradescope.csv")
-"""What a run rewrites from the results at its end (removed where a full disk left it
-unrecorded: the next run writes it again)."""
-QUEUED_PER_WORKER = 2
-"""Submissions taken and queued per worker at a time (their files held in memory)."""
+# The names imported "as" themselves were defined here before the class's folder and a run's
+# bookkeeping had modules of their own: they stay importable from here.
 
 
 # The worker's side ---------------------------------------------------------------------------
@@ -141,170 +118,6 @@ def grade_task(payload: dict) -> dict:
         return {"error": clean_text(text, 500)}
     results["extra_data"]["batch"] = {"wall_time_s": round(time.perf_counter() - start, 2)}
     return {"results": results}
-
-
-# The class's folder ------------------------------------------------------------------------
-
-
-def _reserved_names() -> tuple[str, ...]:
-    """What no submission's id may be: the class folder's own files."""
-    from doorlab.runtime.folders import MANIFEST_NAME
-
-    return (*CLASS_FILES, MANIFEST_NAME)
-
-
-def assignment_digest(assignment) -> str:
-    """SHA-256 of the assignment's settings (the defaults when None)."""
-    from doorlab.pset.rules.assignment import Assignment
-
-    data = (assignment or Assignment()).to_dict()
-    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
-
-
-def _read_results(folder: Path) -> dict | None:
-    try:
-        data = json.loads((folder / RESULTS_JSON).read_text())
-    except (OSError, ValueError):
-        return None
-    ok = isinstance(data, dict) and isinstance(data.get("tests"), list)
-    return data if ok and isinstance(data.get("extra_data"), dict) else None
-
-
-@dataclass
-class _Previous:
-    """What a resumed class keeps: its reference, its assignment's digest and settings, the
-    results of the submissions it graded, the sheet and the history (kept on)."""
-
-    reference: dict
-    digest: str
-    results: dict[str, dict] = field(default_factory=dict)
-    settings: dict | None = None
-    sheet: str | None = None
-    history: dict[str, bytes] = field(default_factory=dict)
-    failed: set[str] = field(default_factory=set)
-
-    @property
-    def rows(self) -> dict[str, dict]:
-        """The previous sheet's rows (as read), by submission."""
-        import csv
-
-        return {r.get("submission", ""): r for r in csv.DictReader((self.sheet or "").splitlines())}
-
-
-def _check_out(out: Path, submissions: list[Submission], *, resume: bool, force: bool):
-    """Checks that ``out`` may be written (writing nothing); returns what ``--resume`` keeps
-    (None for a new class)."""
-    from doorlab.runtime.folders import check_replaceable, foreign_file
-
-    if out.exists() and not out.is_dir():
-        raise OutputError(f"--out {str(out)!r} is a file, not a folder")
-    existing = out.is_dir() and any(p.name not in INSTRUCTOR_FILES for p in out.iterdir())
-    if not (existing and resume):
-        if existing and not force:
-            raise OutputError(
-                f"--out {str(out)!r} already exists; pass --resume to grade the rest of its "
-                "class or --force to start over"
-            )
-        check_replaceable(out, force=force, keep=INSTRUCTOR_FILES)
-        if not existing:
-            return None
-        sheet, history, _ = old_sheet(out)  # --force: the old sheet goes to the history
-        if sheet is None:
-            return None
-        previous = _Previous({}, "", sheet=sheet, history=history)
-        previous.results = {s.id: r for s in submissions if (r := _read_results(out / s.id))}
-        return previous
-    try:
-        info = json.loads((out / CLASS_JSON).read_text())
-        previous = _Previous(dict(info["reference"]), str(info["assignment_sha256"]))
-        previous.settings = info.get("assignment")
-        previous.sheet, previous.history, previous.failed = old_sheet(out)
-    except (OSError, ValueError, KeyError, TypeError):
-        raise OutputError(
-            f"--out {str(out)!r} holds no class graded by doorlab ({CLASS_JSON} missing or "
-            "unreadable): nothing to resume"
-        ) from None
-    names = [*CLASS_FILES, *(s.id for s in submissions)]
-    found = foreign_file(out, only=names)
-    if found is not None:
-        raise OutputError(
-            f"--out {str(out)!r} holds {found[0]!r}, {found[1]}, and --resume would "
-            "overwrite or trust it; move it away or choose another --out"
-        )
-    for submission in submissions:
-        results = _read_results(out / submission.id)
-        if results is not None:
-            previous.results[submission.id] = results
-    return previous
-
-
-def _commit(out: Path, submission_id: str, results: dict) -> None:
-    """``out/<id>/results.json``, atomically (a staging folder renamed into place), recorded in
-    ``out``'s manifest. Where a full disk stops it, the submission keeps its earlier results or
-    none (never a folder the manifest disagrees with: the next run would refuse it).
-
-    Raises:
-        OutputError: One line (the submission is then an ``error`` row).
-    """
-    import shutil
-
-    from doorlab.pset.grading.grader import write_results
-    from doorlab.runtime.folders import (
-        MANIFEST_NAME,
-        commit_output,
-        discard_output,
-        prepare_output,
-        record_written,
-    )
-
-    target = out / submission_id
-    label = f"{str(target)!r}"
-    staging = prepare_output(target, force=True, label=label)
-    try:
-        write_results(results, staging / RESULTS_JSON)
-        commit_output(staging, target)
-    except (OSError, OutputError) as e:  # nothing moved (its staging folder goes)
-        why = e.strerror if isinstance(e, OSError) else str(e).rsplit(": ", 1)[-1]
-        raise write_failure(target / RESULTS_JSON, OSError(0, why)) from None
-    finally:
-        discard_output(staging)
-    try:
-        record_written(out, [target / RESULTS_JSON, target / MANIFEST_NAME])
-    except OSError as e:  # in place, but not recorded: removed (--resume grades it again)
-        shutil.rmtree(target, ignore_errors=True)
-        raise write_failure(target / RESULTS_JSON, e) from None
-
-
-def _write_text(out: Path, name: str, text: str | bytes, *, record: bool = True) -> None:
-    """``out/name`` (``name`` may be in a subfolder) atomically, recorded as doorlab's (with
-    ``record``: its entry first, then the file, so a full disk leaves both as they were;
-    else the caller records it with others, :func:`record_written`).
-
-    Raises:
-        OutputError: One line (ENOSPC, a folder that cannot be written).
-    """
-    import os
-    import tempfile
-
-    from doorlab.runtime.folders import follow_umask, replace_recorded
-
-    path = out / name
-    tmp = None
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        with os.fdopen(fd, "wb" if isinstance(text, bytes) else "w") as f:
-            f.write(text)
-        follow_umask(Path(tmp), folder=False)
-        if record:
-            replace_recorded(out, Path(tmp), path)
-        else:
-            os.replace(tmp, path)
-    except OSError as e:
-        raise write_failure(path, e) from None
-    finally:
-        if tmp is not None:
-            Path(tmp).unlink(missing_ok=True)
 
 
 # The class -----------------------------------------------------------------------------------
@@ -494,7 +307,7 @@ def grade_class(
                 security=security,
             ) as executor:
                 run.executor = executor.description
-                run.grade(executor, todo)
+                run.grade(executor, todo, grade_task)
         interrupted = False
     except KeyboardInterrupt as e:
         e.doorlab_left = run.left_text()  # what the command line says was left
@@ -511,265 +324,3 @@ def grade_class(
         run.changes,
         run.problems,
     )
-
-
-class _ClassRun:
-    """One run over a class: its rows, its folder's files, its progress bar."""
-
-    def __init__(self, out, submissions, reference, assignment, isolation, progress):
-        from doorlab.pset.rules.verdicts import TESTS
-
-        self.out = out
-        self.order = [s.id for s in submissions]
-        self.reference, self.assignment, self.isolation = reference, assignment, isolation
-        self.progress = progress
-        self.keys = [t.key for t in TESTS]
-        self.rows: dict[str, dict] = {}
-        self.graded: list[str] = []
-        self.kept: list[str] = []
-        self.summary: list[str] = []
-        self.executor = "none (every submission was in the folder)"
-        self.started = False
-        self.bar = None
-        self.network_isolated = False  # a cluster's gradings: no network for the student
-        from doorlab.pset.classroom.regrade import Ledger
-
-        self.ledger = Ledger(assignment, reference)
-        self.submissions = {s.id: s for s in submissions}
-        self.previous = self.outputs = None
-        self.planned: dict[str, dict] = {}  # re-scored results, written once the folder is
-        self.results: dict[str, dict] = {}  # every result in the sheet, by id
-        self.errors: dict[str, str] = {}
-        self.rescored: list[str] = []
-        self.changes: list[dict] = []
-        self.inputs = None  # class_inputs.ClassInputs
-        self.summary_notes: list[str] = []
-        self.deferred = False  # over an existing sheet: the sheet is written when the run ends
-        self.memory = None  # the views' memory plan (doorlab.pset.isolation.memory)
-        self.local = True  # local workers (their TMPDIR is this machine's)
-        self.problems: list[str] = []  # files that could not be written (one line each)
-
-    def left_text(self) -> str | None:
-        """What an interrupted run over an existing sheet left (None: a new class's sheet
-        of the finished submissions, as the command line says it)."""
-        if not self.deferred:
-            return None
-        done = len(self.graded) + len(self.planned)
-        return (
-            f"the sheet and the exports in {str(self.out)!r} are the previous run's, unchanged; "
-            f"{done} submission(s) finished and their results are kept (the next --resume "
-            "lists them in changes.csv and grades the rest)"
-        )
-
-    def plan(self, submissions, previous, only: set[str], reference_changed: bool) -> None:
-        """A class graded before: what to keep, re-score and grade
-        (:mod:`doorlab.pset.classroom.regrade`)."""
-        kept, self.planned = self.ledger.plan(submissions, previous, only, reference_changed)
-        for submission in submissions:
-            if submission.id in kept:
-                self.rows[submission.id] = sheet_row(submission, kept[submission.id])
-                self.results[submission.id] = kept[submission.id]
-                self.kept.append(submission.id)
-        self.rescored = list(self.ledger.rescored)
-
-    def apply_planned(self) -> None:
-        """Writes the re-scored results (their rows, the sheet)."""
-        for sid, results in self.planned.items():
-            _commit(self.out, sid, results)
-            self.rows[sid] = sheet_row(self.submissions[sid], results)
-            self.results[sid] = results
-        if self.planned and not self.deferred:
-            self.write_sheet()
-
-    def start(self, info: dict, *, resume: bool, force: bool, todo: list) -> None:
-        """Creates the folder (a new class) and writes the class's file and sheet."""
-        from doorlab.runtime.folders import staged_output
-
-        if not (resume and self.out.is_dir()):
-            with staged_output(self.out, force=force, keep=INSTRUCTOR_FILES):
-                pass
-        self.started = True
-        _write_text(self.out, CLASS_JSON, json.dumps(info, indent=1) + "\n")
-        if not self.deferred:
-            self.write_sheet()
-        if self.progress and todo:
-            from tqdm import tqdm
-
-            self.bar = tqdm(
-                total=len(self.order),
-                initial=len(self.rows),
-                unit="submission",
-                file=sys.stderr,
-                dynamic_ncols=True,
-                desc="grade-all",
-            )
-
-    def payload(self, submission: Submission) -> dict | None:
-        """What a worker needs to grade ``submission`` (None: taken here already)."""
-        from doorlab.pset.grading.grader import grade_taken, take_files
-        from doorlab.pset.isolation.intake import Intake
-        from doorlab.pset.rules.verdicts import STUDENT_FILES
-
-        short = room_problem(self.out, tmpdir=self.local)
-        if short is not None:  # the grader's: --resume grades it once there is room
-            self.done(submission, {"error": f"not graded: {short}; --resume grades it"})
-            return None
-        try:
-            files, intake = take_files(submission.path)
-        except OutputError as e:  # not a folder or a zip: nothing to grade, every test 0
-            if not submission.path.exists():  # gone since it was listed: the grader's
-                self.done(submission, {"error": str(e)})
-                return None
-            intake = Intake(missing=list(STUDENT_FILES), refused=str(e))
-            self.done(submission, {"results": grade_taken({}, intake, assignment=self.assignment)})
-            return None
-        except OSError as e:
-            self.done(submission, {"error": str(write_failure(submission.path, e))})
-            return None
-        if intake.unreadable:  # this machine could not read it all: no grade of a part
-            why = f"cannot read the submission here ({intake.unreadable[0]}); --resume grades it"
-            self.done(submission, {"error": why})
-            return None
-        self.ledger.took(submission, files, intake)
-        if intake.refused is not None:  # over a bound: not graded, no worker needed
-            self.done(submission, {"results": grade_taken({}, intake, assignment=self.assignment)})
-            return None
-        copied = self.ledger.copy_for(submission)
-        if copied is not None:  # identical files graded already: the same results
-            self.done(submission, {"results": copied})
-            return None
-        if self.ledger.wait(submission):  # identical files being graded: their results
-            return None
-        return {
-            "files": files,
-            "intake": intake.to_dict(),
-            "reference": self.reference,
-            "assignment": None if self.assignment is None else self.assignment.to_dict(),
-            "isolation": self.isolation,
-            "network_isolated": self.network_isolated,
-            "view_memory_bytes": None if self.memory is None else self.memory.view_bytes,
-        }
-
-    def grade(self, executor, todo: list[Submission]) -> None:
-        """Submits the submissions a few at a time per worker; records each as it lands."""
-        waiting = list(todo)
-        futures: dict = {}
-        queued = QUEUED_PER_WORKER * max(1, getattr(executor, "jobs", 1))
-        while waiting or futures:
-            while waiting and len(futures) < queued:
-                submission = waiting.pop(0)
-                payload = self.payload(submission)
-                if payload is not None:
-                    futures[executor.submit(grade_task, payload)] = submission
-            if not futures:
-                continue
-            raise_if_interrupted()  # a Ctrl-C whose exception Python dropped
-            done, _ = concurrent.futures.wait(
-                futures, timeout=POLL_S, return_when=concurrent.futures.FIRST_COMPLETED
-            )
-            for future in done:
-                submission = futures.pop(future)
-                try:
-                    error = future.exception()
-                except concurrent.futures.CancelledError:  # a cluster that lost the task
-                    error = RuntimeError("the grading was cancelled (its worker was lost)")
-                if isinstance(error, KeyboardInterrupt):
-                    raise KeyboardInterrupt
-                if error is not None:  # the worker died or could not run the task
-                    outcome = {"error": f"{type(error).__name__}: {error}"}
-                else:
-                    outcome = future.result()
-                self.done(submission, outcome)
-
-    def done(self, submission: Submission, outcome: dict) -> None:
-        """Writes a finished submission's results and row, then the sheet; then those of the
-        submissions with identical files that waited for it."""
-        results = outcome.get("results")
-        released = self.ledger.released(submission, outcome)
-        if results is not None:
-            results = self.ledger.finish(submission, results)
-            try:
-                _commit(self.out, submission.id, results)
-            except OutputError as e:  # a full disk: the grader's error, graded again later
-                results, outcome = None, {"error": f"{e}; --resume grades it again"}
-        if results is not None:
-            self.rows[submission.id] = sheet_row(submission, results)
-            self.results[submission.id] = results
-        else:
-            error = str(outcome.get("error") or "no results")
-            self.rows[submission.id] = sheet_row(submission, None, error=error)
-            self.errors[submission.id] = error
-        self.graded.append(submission.id)
-        if not self.deferred:
-            self.write_sheet()
-        if self.bar is not None:
-            bad = sum(r.get("status") == "error" for r in self.rows.values())
-            self.bar.set_postfix_str(f"{bad} grading errors", refresh=False)
-            self.bar.update(1)
-        for waiting, copied in released:
-            self.done(waiting, copied)
-
-    def write_sheet(self) -> None:
-        rows = [self.rows[i] for i in self.order if i in self.rows]
-        self.write(GRADES_CSV, sheet_text(rows, self.keys))
-
-    def write(self, name: str, text: str) -> bool:
-        """:func:`_write_text`; a failure (a full disk) is one line in the summary, and the file
-        stays as it was (the sheet: the rows finished before)."""
-        try:
-            _write_text(self.out, name, text)
-            return True
-        except OutputError as e:
-            self.problem(str(e))
-            return False
-
-    def problem(self, line: str) -> None:
-        if line not in self.problems:
-            self.problems.append(line)
-
-    def finish(self, *, interrupted: bool = False) -> None:
-        """The sheet of what finished, whatever ended the run; the summary; the changes and
-        the sheet replaced; then (not after Ctrl-C) the class's pages and exports."""
-        from doorlab.pset.classroom import class_outputs
-
-        if self.bar is not None:
-            self.bar.close()
-        if not self.started or (interrupted and self.deferred):
-            return  # an interrupted regrade: the previous sheet and exports stay
-        self.write_sheet()
-        rows = [self.rows[i] for i in self.order if i in self.rows]
-        self.summary = self.summary_notes + summarize(rows, self.keys, len(self.order))
-        self.summary += memory_lines(self.memory, self.results, self.graded, local=self.local)
-        order = [self.submissions[i] for i in self.order]
-        before = self.previous.rows if self.deferred else None
-        self.changes = self.ledger.changes(order, self.results, self.errors, before)
-        if self.previous is not None and self.previous.sheet is not None:
-            try:
-                class_outputs.write_changes(self.out, self.previous, self.changes, _write_text)
-            except OutputError as e:
-                self.problem(str(e))
-            self.summary.append(class_outputs.changes_line(self.changes))
-        self.write(SUMMARY_TXT, "\n".join([*self.summary, *self.problems]) + "\n")
-        if not interrupted:
-            try:
-                self.summary += class_outputs.write_class_outputs(
-                    self.out,
-                    order,
-                    rows,
-                    self.results,
-                    self.ledger.assignment,
-                    self.outputs,
-                    _write_text,
-                    None if self.inputs is None else self.inputs.exports,
-                )
-            except (OSError, OutputError) as e:  # a full disk: nothing half-recorded is left
-                from doorlab.runtime.folders import remove_unrecorded
-
-                why = e.strerror if isinstance(e, OSError) else str(e).rsplit(": ", 1)[-1]
-                self.problem(
-                    f"cannot write the class's pages and exports in {self.out} ({why}): the "
-                    "next run writes them"
-                )
-                remove_unrecorded(self.out, REWRITTEN)
-            self.write(SUMMARY_TXT, "\n".join([*self.summary, *self.problems]) + "\n")
-        self.summary += self.problems
