@@ -5,7 +5,7 @@ The suite runs on pytest-xdist's workers (``addopts`` in pyproject.toml; ``-n au
 section (``with realtime():``: LCM processes paced to the wall clock, with tolerances derived
 from their latency) must get a core the moment its processes wake. Where they can have
 real-time priority (tests/realtime_priority.py: as root), they do, and ordinary tests run
-beside them: one worker more than there are cores runs the real-time files while the others
+beside them: one of the workers (a worker per core) runs the real-time files while the others
 keep the cores busy. Elsewhere a real-time test runs beside nothing but other real-time tests
 (tests/run_lock.py), on every worker at the start of the run.
 """
@@ -75,14 +75,15 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int | None:
-    """``-n auto``: a worker per core, and one more to run the real-time files where their
-    paced processes have real-time priority (they use a fraction of a core, mostly waiting on
-    the wall clock, while the others keep the cores busy). PYTEST_XDIST_AUTO_NUM_WORKERS, if
-    set, is pytest-xdist's to read."""
+    """``-n auto``: a worker per core, no more (more workers than cores would make every
+    test's own timing a statement about an overloaded host). Where the paced processes have
+    real-time priority, the real-time files go to one worker as one unit of work and the
+    others run ordinary tests meanwhile. PYTEST_XDIST_AUTO_NUM_WORKERS, if set, is
+    pytest-xdist's to read."""
     if os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS"):
         return None
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return (cores or 1) + (1 if realtime_priority.problem() is None else 0)
+    return cores or 1
 
 
 @pytest.hookimpl(tryfirst=True)
