@@ -27,8 +27,10 @@ from doorlab.config_checks import (  # noqa: F401 (the bounds, named here too)
     MAX_EPISODE_DURATION,
     MAX_LOG_SAMPLES,
     MIN_ARC_SAMPLES,
+    absolute_controller,
     check,
     choice,
+    controller_spec,
     gains,
     non_negative,
     positive,
@@ -48,7 +50,8 @@ from doorlab.kuka import (
 from doorlab.runtime.inputs import load_yaml, quote, quote_text, read_text_file, yaml_float_spelling
 
 CONTROLLERS = ("ik", "velocity", "impedance", "adaptive")
-"""Names of the door-opening controllers: the problem set's tasks 1-3, then the adaptive plan."""
+"""Names of the built-in door-opening controllers: the problem set's tasks 1-3, then the adaptive
+plan. ``Scenario.controller`` may also name a plug-in (:mod:`doorlab.episode.plugins`)."""
 DOOR_STATES = tuple(DOOR_ANGLES)
 INNER_LOOPS = ("stiffness", "implicit_pd", "inverse_dynamics", "kuka_joint_impedance")
 IK_OBJECTIVES = ("feasible", "centered")
@@ -354,7 +357,9 @@ class AdaptivePlanConfig:
 class Scenario:
     """Everything one episode needs."""
 
-    controller: str = "velocity"  # one of CONTROLLERS
+    # one of CONTROLLERS, or a plug-in: FILE.py:NAME, MODULE:NAME or an installed plug-in's
+    # name (docs/guides/controllers.md; a relative FILE is relative to this YAML file)
+    controller: str = "velocity"
     doors: str = "closed"  # one of DOOR_STATES; sets the initial hinge angles
     door_angles: list[float] | None = None  # [rad] (left, right); None: from `doors`
     station: StationConfig = field(default_factory=StationConfig)
@@ -405,9 +410,14 @@ def load_scenario(path: str | Path, *, defaults: Scenario | None = None) -> Scen
     path = Path(path)
     text = read_text_file(path, what="config file")
     try:
-        return update_scenario(defaults or Scenario(), text)
+        scenario = update_scenario(defaults or Scenario(), text)
     except ConfigError as e:
         raise ConfigError(f"config file {str(path)!r}: {e}") from None
+    data = load_yaml(text)
+    if isinstance(data, dict) and isinstance(data.get("controller"), str):
+        # A plug-in's relative FILE is the YAML's neighbour, from any working directory.
+        scenario.controller = absolute_controller(data["controller"], path.parent)
+    return scenario
 
 
 def update_scenario(scenario: Scenario, document: str) -> Scenario:
@@ -492,7 +502,7 @@ def validate(scenario: Scenario) -> Scenario:
         ConfigError: Naming the first offending field and its valid range.
     """
     check(isinstance(scenario, Scenario), f"expected a Scenario, got {type(scenario).__name__}")
-    choice("controller", scenario.controller, CONTROLLERS)
+    controller_spec(scenario.controller, CONTROLLERS)  # its syntax; a plug-in loads when it runs
     choice("doors", scenario.doors, DOOR_STATES)
     if scenario.door_angles is not None:
         angles = scenario.door_angles

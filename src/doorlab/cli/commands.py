@@ -261,13 +261,47 @@ def apply_overrides(scenario: Scenario, overrides: Sequence[str]) -> Scenario:
     return scenario
 
 
+def controller_option(text: str) -> str:
+    """A ``--controller`` value checked (its form, not its code) and with a plug-in file's
+    relative path made absolute against the working directory.
+
+    Raises:
+        ConfigError: Not a built-in, an installed plug-in's name or a plug-in's form.
+    """
+    from doorlab.config import CONTROLLERS
+    from doorlab.config_checks import absolute_controller, controller_spec
+
+    try:
+        controller_spec(text, CONTROLLERS)
+    except ConfigError as e:
+        raise ConfigError(f"--controller {quote_text(text)}: {e}") from None
+    return absolute_controller(text, Path.cwd())
+
+
+def load_controller(name: str) -> str:
+    """Loads the controller ``name`` names (a plug-in: imported and checked, in this process,
+    before anything runs or is written); returns what tables and folders call it.
+
+    Raises:
+        ConfigError, PluginError: Unknown, or a plug-in that cannot be used (one line).
+    """
+    from doorlab.episode.controllers import controller_name
+
+    return controller_name(name)
+
+
 def scenario_from_args(args: argparse.Namespace) -> Scenario:
     """The scenario a command runs: ``--config`` (or the defaults), then ``--set``, then the
-    options (``--controller``, ``--doors``, ``--knots``), validated."""
+    options (``--controller``, ``--doors``, ``--knots``), validated. A plug-in file's relative
+    path is the working directory's (the config file's: its folder's)."""
+    from doorlab.config_checks import absolute_controller
+
     scenario = load_scenario(args.config) if args.config is not None else Scenario()
     scenario = apply_overrides(scenario, args.overrides)
-    if getattr(args, "controller", None) is not None:
-        scenario.controller = args.controller
+    scenario.controller = absolute_controller(scenario.controller, Path.cwd())
+    controller = getattr(args, "controller", None)
+    if isinstance(controller, str):
+        scenario.controller = controller_option(controller)
     if getattr(args, "doors", None) is not None:
         scenario.doors = args.doors
         scenario.door_angles = None
@@ -349,12 +383,15 @@ def run(args: argparse.Namespace) -> int:
     if args.hardware:
         from doorlab.hardware.cli import run_hardware_command
 
-        return run_hardware_command(args, scenario_from_args(args))
+        scenario = scenario_from_args(args)
+        load_controller(scenario.controller)  # a plug-in: before the driver is waited for
+        return run_hardware_command(args, scenario)
     for option, given in (("--lcm-url", args.lcm_url), ("--yes", args.yes)):
         if given:
             raise ConfigError(f"{option} applies to --hardware only")
     scenario = scenario_from_args(args)
-    out = args.out or Path("doorlab_out") / f"{scenario.controller}_{scenario.doors}"
+    name = load_controller(scenario.controller)  # a plug-in: before anything is written
+    out = args.out or Path("doorlab_out") / f"{name}_{scenario.doors}"
     meshcat = None
     if args.meshcat:
         from pydrake.geometry import Meshcat
@@ -371,6 +408,8 @@ def run(args: argparse.Namespace) -> int:
         parallel=True,
     )
     print(_summary(outcome))
+    if outcome.status == "controller_error":  # a broken plug-in: its one line, exit 2
+        print(f"doorlab run: error: {outcome.message}", file=sys.stderr)
     if meshcat is not None and sys.stdin.isatty():
         # The live view (with the recording to replay) lives as long as this process.
         input(f"Meshcat is still serving {meshcat.web_url()}; press Enter to quit. ")

@@ -58,9 +58,11 @@ def build_parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="run one controller and write its metrics, logs and plots")
     run.add_argument(
         "--controller",
-        choices=CONTROLLERS,
         default=None,
-        help="which controller (default: velocity, or the config's)",
+        metavar="NAME",
+        help=f"which controller: a built-in ({', '.join(CONTROLLERS)}), an installed plug-in's "
+        "name, or a plug-in FILE.py:NAME or MODULE:NAME (docs/guides/controllers.md; default: "
+        "velocity, or the config's)",
     )
     run.add_argument(
         "--doors",

@@ -41,7 +41,9 @@ def _record_failure(
     run_dir.mkdir(parents=True, exist_ok=True)
     base = {}
     if scenario is not None:
-        base = {"controller": scenario.controller, "doors": scenario.doors}
+        from doorlab.episode.plugins import display_name
+
+        base = {"controller": display_name(scenario.controller), "doors": scenario.doors}
     _write_json(run_dir / "metrics.json", {**base, "status": "error", "error": message})
     return RunRecord(name, run_dir, "error", message, elapsed)
 

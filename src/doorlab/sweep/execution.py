@@ -61,10 +61,11 @@ def run_one(scenario: Scenario) -> dict:
     from doorlab.cell.geometry import true_door_geometry
     from doorlab.episode.controllers import run_controller
     from doorlab.episode.metrics import compute_metrics
+    from doorlab.episode.plugins import display_name
     from doorlab.outputs.runs import status_message
 
     start = time.perf_counter()
-    base = {"controller": scenario.controller, "doors": scenario.doors}
+    base = {"controller": display_name(scenario.controller), "doors": scenario.doors}
     try:
         result, _ = run_controller(scenario)
         metrics = compute_metrics(
