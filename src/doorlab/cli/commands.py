@@ -447,6 +447,15 @@ def _probe(args: argparse.Namespace) -> None:
 def report(args: argparse.Namespace) -> int:
     """``doorlab report``; returns the exit code."""
     base = scenario_from_args(args)
+    from doorlab.config import CONTROLLERS
+
+    chosen = list(CONTROLLERS)
+    for text in args.controller:
+        spec = controller_option(text)
+        load_controller(spec)  # a plug-in: imported and checked before anything runs
+        if spec not in chosen:
+            chosen.append(spec)
+    _check_names(chosen)
     _probe(args)
     from doorlab.report import run_report
 
@@ -466,6 +475,7 @@ def report(args: argparse.Namespace) -> int:
         robustness=not args.no_robustness,
         arm=not args.no_arm,
         arm_band=not args.no_arm_band,
+        controllers=chosen,
     )
     if args.pdf:
         from doorlab.runtime.folders import record_written
@@ -477,6 +487,21 @@ def report(args: argparse.Namespace) -> int:
     return code
 
 
+def _check_names(controllers: Sequence[str]) -> None:
+    """Refuses two controllers of the same name (folders and tables are named after them)."""
+    from doorlab.episode.plugins import display_name
+
+    seen: dict[str, str] = {}
+    for spec in controllers:
+        name = display_name(spec)
+        if name in seen and seen[name] != spec:
+            raise ConfigError(
+                f"--controller {quote_text(spec)} and {quote_text(seen[name])} are both named "
+                f"{name!r}; folders and tables tell controllers apart by name"
+            )
+        seen[name] = spec
+
+
 def sweep(args: argparse.Namespace) -> int:
     """``doorlab sweep``; returns the exit code."""
     from doorlab.sweep import load_spec
@@ -485,7 +510,9 @@ def sweep(args: argparse.Namespace) -> int:
         raise ConfigError("give a SPEC file or at least one --grid KEY=V1,V2,...")
     if args.resume and args.force:
         raise ConfigError("--resume and --force exclude each other")
-    spec = load_spec(args.spec, grid=args.grid)  # before pandas is imported: refusals stay small
+    controllers = [controller_option(c) for c in args.controller]
+    # before pandas is imported: refusals stay small
+    spec = load_spec(args.spec, grid=args.grid, controllers=controllers)
     require_sweep_extra("doorlab sweep", ("pandas", "pyarrow"))
     jobs = args.jobs or os.cpu_count() or 1
     try:

@@ -105,6 +105,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="output folder (default: doorlab_report)",
     )
     report.add_argument(
+        "--controller",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="also report this controller beside the built-ins (repeatable): an installed "
+        "plug-in's name, FILE.py:NAME or MODULE:NAME; it runs with the doors open and closed, "
+        "in the robustness grid and On the arm",
+    )
+    report.add_argument(
         "--jobs",
         type=bounded_int(1),
         default=None,
@@ -152,6 +161,14 @@ def build_parser() -> argparse.ArgumentParser:
         default=[],
         metavar="KEY=V1,V2,...",
         help="sweep a scenario field over these values (repeatable; adds to SPEC's axes)",
+    )
+    sweep.add_argument(
+        "--controller",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="sweep this controller instead of the SPEC's controllers (repeatable): a built-in, "
+        "an installed plug-in's name, FILE.py:NAME or MODULE:NAME",
     )
     sweep.add_argument(
         "--out",

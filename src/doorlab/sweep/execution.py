@@ -129,11 +129,13 @@ def _make_dir(out_dir: Path, *, resume: bool, force: bool) -> None:
 
 
 def _row(run: PlannedRun, outcome: dict) -> dict:
+    from doorlab.episode.plugins import display_name
+
     return {
         **outcome,
         "run": run.index,
         "key": run.key,
-        "controller": run.scenario.controller,
+        "controller": display_name(run.scenario.controller),
         "doors": run.scenario.doors,
         **run.values,
     }
