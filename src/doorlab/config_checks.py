@@ -305,8 +305,8 @@ def controller_spec(value: object, builtins: tuple[str, ...]) -> ControllerSpec:
         return ControllerSpec("file", target, name)
     if not _dotted(target):
         raise ConfigError(
-            f"controller {shown}: {quote(target)} is neither a Python file (FILE.py) nor a "
-            "module name (dotted Python names)"
+            f"controller {shown}: {quote(target)} is neither a Python file nor a module name "
+            f"(dotted Python names); a plug-in is {CONTROLLER_FORMS}"
         )
     return ControllerSpec("module", target, name)
 

@@ -172,13 +172,7 @@ def _attribute(module, spec: ControllerSpec, shown: str, path: Path | None) -> o
     for part in spec.name.split("."):
         if not hasattr(obj, part):
             where = str(path) if path is not None else spec.target
-            found = sorted(
-                n
-                for n, v in vars(module).items()
-                if not n.startswith("_")
-                and (isinstance(v, Controller) or inspect.isfunction(v))
-                and getattr(v, "__module__", module.__name__) == module.__name__
-            )
+            found = sorted(n for n, v in vars(module).items() if _offered(n, v, module))
             hint = f"; it defines {', '.join(found)}" if found else ""
             raise PluginError(f"{shown}: {where} has no {spec.name!r}{hint}")
         obj = getattr(obj, part)
