@@ -112,6 +112,28 @@ def validate_timeline(scenario) -> None:
     )
 
 
+MAX_CUPBOARD_POSITION_ERROR = 0.05
+"""Largest |station.cupboard_position_error| per axis [m]: 5 cm, twice the fingers' opening
+for the approach (25 mm): beyond it a plan grasps at thin air whatever it does."""
+
+
+def validate_position_error(error) -> None:
+    """``station.cupboard_position_error``: three numbers within the bound [m]."""
+    check(
+        isinstance(error, (list, tuple))
+        and len(error) == 3
+        and all(
+            isinstance(v, (int, float))
+            and not isinstance(v, bool)
+            and math.isfinite(v)
+            and abs(v) <= MAX_CUPBOARD_POSITION_ERROR
+            for v in error
+        ),
+        f"station.cupboard_position_error must be three numbers [m] within "
+        f"+-{MAX_CUPBOARD_POSITION_ERROR:g} m, got {quote(error)}",
+    )
+
+
 def validate_safety(safety) -> None:
     check(isinstance(safety.enabled, bool), "station.safety.enabled must be true or false")
     check(
