@@ -1,6 +1,7 @@
 """The ``doorlab`` command: ``doorlab run`` (one controller), ``doorlab report`` (all),
-``doorlab sweep`` (scenario fields over a grid or random samples) and ``doorlab sim-driver``
-(the simulated cell behind the real drivers' LCM protocol).
+``doorlab sweep`` (scenario fields over a grid or random samples), ``doorlab bench`` (the
+benchmark card: :mod:`doorlab.cli.bench`) and ``doorlab sim-driver`` (the simulated cell
+behind the real drivers' LCM protocol).
 
 Bad input prints one line naming the valid choices and exits with code 2; a run's status
 sets the exit code otherwise (see :data:`doorlab.outputs.runs.EXIT_CODES`).
@@ -17,6 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from doorlab.cli import commands
+from doorlab.cli.bench import add_bench_parser, bench
 from doorlab.config import (
     CONTROLLERS,
     DOOR_STATES,
@@ -51,7 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(
         dest="command",
-        metavar="{run,report,sweep,pset,sim-driver,identify}",
+        metavar="{run,report,sweep,bench,pset,sim-driver,identify}",
         parser_class=OneLineParser,
     )
 
@@ -189,6 +191,7 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument(
         "--force", action="store_true", help="start over in an existing output folder"
     )
+    add_bench_parser(sub, _scheduler, _common)
     add_pset_parser(sub)
     add_sim_driver_parser(sub)
     add_identify_parser(sub)
@@ -570,6 +573,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "run": commands.run,
             "report": commands.report,
             "sweep": commands.sweep,
+            "bench": bench,
             "pset": commands.pset,
             "sim-driver": commands.sim_driver,
             "identify": commands.identify,

@@ -86,6 +86,12 @@ def run_one(scenario: Scenario, measure: Callable | None = None) -> dict:
     except (IkError, SimulationError, RunStopped) as e:  # results of the run, not errors
         status = "ik_failed" if isinstance(e, IkError) else getattr(e, "status", "diverged")
         row = {**base, "status": status, "error": str(e)}
+        partial = getattr(e, "result", None)  # a stopped run's logs up to its stop
+        if measure is not None and partial is not None:
+            try:
+                row.update(measure(partial, scenario, None))
+            except Exception as m:  # the row keeps its status, and says why it has no more
+                row["error"] += f" (its logs could not be measured: {type(m).__name__}: {m})"
     except Exception as e:  # a run's bug must not end the sweep
         row = {**base, "status": "error", "error": f"{type(e).__name__}: {e}"}
     row["run_wall_time_s"] = time.perf_counter() - start
