@@ -443,3 +443,30 @@ def test_the_example_file_runs_on_the_simulated_driver(tmp_path):
     metrics = json.loads((tmp_path / "arm" / "metrics.json").read_text())
     assert metrics["controller"] == "dls" and metrics["fingers_on_handle"]
     assert metrics["door_opening_arc_end_estimated_rad"] > np.radians(35)  # opened
+
+
+def test_the_report_iterates_the_controllers_chosen(folder):
+    """report --controller: a plug-in's runs with the doors open and closed beside the
+    problem set's, and a row of its own in the robustness grid and On the arm (untuned: the
+    arm's tuning is the built-ins'); every built-in of the registry keeps its rows."""
+    from doorlab.report.experiments import (
+        ARM_CONDITIONS,
+        make_arm_cases,
+        make_experiments,
+        make_plugin_experiments,
+        make_robustness_cases,
+    )
+
+    chosen = [*REGISTRY, spec(folder, "NAMED")]
+    plugin_runs = make_plugin_experiments(chosen)
+    assert [name for name, _ in plugin_runs] == ["tidy_open", "tidy_closed"]
+    assert all(s.controller == spec(folder, "NAMED") for _, s in plugin_runs)
+    experiments = (*make_experiments(), *plugin_runs)
+    cases, _ = make_robustness_cases(None, experiments, controllers=chosen)
+    assert list(dict.fromkeys(c.controller for c in cases)) == [*REGISTRY, "tidy"]
+    assert {c.run for c in cases if c.controller == "tidy"} >= {"robust_tidy_yaw_m10"}
+    arm, _ = make_arm_cases(None, experiments, band=False, controllers=chosen)
+    tidy = [c for c in arm if c.controller == "tidy"]
+    assert sorted(c.condition for c in tidy) == sorted(ARM_CONDITIONS)
+    assert not any(c.tuned for c in tidy)
+    assert {c.controller for c in arm} == {*REGISTRY, "tidy"}
