@@ -470,3 +470,19 @@ def test_the_report_iterates_the_controllers_chosen(folder):
     assert sorted(c.condition for c in tidy) == sorted(ARM_CONDITIONS)
     assert not any(c.tuned for c in tidy)
     assert {c.controller for c in arm} == {*REGISTRY, "tidy"}
+
+
+@pytest.mark.slow
+def test_a_sweep_runs_a_plug_in_in_its_workers(folder, tmp_path):
+    """A SPEC's plug-in (relative to the SPEC) runs in a spawned worker process, which loads
+    it from the same spec; the table names it by its own name."""
+    from doorlab.sweep import load_spec, read_table, run_sweep
+
+    short = "{arc_duration: 2.0, approach_duration: 2.0, hold_duration: 0.5, extra_time: 0.5}"
+    (folder / "spec.yaml").write_text(
+        f"controllers: [ctl.py:NAMED]\ndoors: [open]\nscenario: {{timeline: {short}}}\n"
+        "axes: {velocity.kv: [100]}\n"
+    )
+    run_sweep(load_spec(folder / "spec.yaml"), tmp_path / "sweep", jobs=1)
+    table = read_table(tmp_path / "sweep")
+    assert table[["controller", "status"]].values.tolist() == [["tidy", "ok"]]

@@ -106,12 +106,9 @@ def build_parser() -> argparse.ArgumentParser:
         default=Path("doorlab_report"),
         help="output folder (default: doorlab_report)",
     )
-    report.add_argument(
-        "--controller",
-        action="append",
-        default=[],
-        metavar="NAME",
-        help="also report this controller beside the built-ins (repeatable): an installed "
+    _controllers(
+        report,
+        "also report this controller beside the built-ins (repeatable): an installed "
         "plug-in's name, FILE.py:NAME or MODULE:NAME; it runs with the doors open and closed, "
         "in the robustness grid and On the arm",
     )
@@ -164,12 +161,9 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="KEY=V1,V2,...",
         help="sweep a scenario field over these values (repeatable; adds to SPEC's axes)",
     )
-    sweep.add_argument(
-        "--controller",
-        action="append",
-        default=[],
-        metavar="NAME",
-        help="sweep this controller instead of the SPEC's controllers (repeatable): a built-in, "
+    _controllers(
+        sweep,
+        "sweep this controller instead of the SPEC's controllers (repeatable): a built-in, "
         "an installed plug-in's name, FILE.py:NAME or MODULE:NAME",
     )
     sweep.add_argument(
@@ -224,6 +218,11 @@ def add_hardware_options(run: argparse.ArgumentParser) -> None:
     group.add_argument(
         "--yes", action="store_true", help="do not ask before the arm moves (the plan is printed)"
     )
+
+
+def _controllers(parser: argparse.ArgumentParser, text: str) -> None:
+    """A repeatable ``--controller NAME`` (a built-in or a plug-in)."""
+    parser.add_argument("--controller", action="append", default=[], metavar="NAME", help=text)
 
 
 def _scheduler(parser: argparse.ArgumentParser) -> None:
