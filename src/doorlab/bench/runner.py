@@ -61,15 +61,17 @@ class BenchResult:
 
 def controller_names(controllers: Sequence[str]) -> dict[str, str]:
     """Name -> spec of each controller, loaded and checked (a plug-in: imported, before
-    anything runs).
+    anything runs; a relative FILE made absolute against the working directory).
 
     Raises:
         ConfigError, PluginError: Unknown, broken, listed twice, or two of one name.
     """
+    from doorlab.config_checks import absolute_controller
     from doorlab.episode.controllers import controller_name
 
     names: dict[str, str] = {}
     for spec in controllers:
+        spec = absolute_controller(spec, Path.cwd())  # the same file for every worker
         name = controller_name(spec)
         if name in names:
             raise ConfigError(

@@ -182,6 +182,10 @@ def run_report(
         raise ConfigError(f"jobs must be an integer >= 1, got {jobs!r}")
     if base is not None:
         validate(base)
+    if controllers is not None:  # a plug-in's relative FILE: the same file for every worker
+        from doorlab.config_checks import absolute_controller
+
+        controllers = [absolute_controller(c, Path.cwd()) for c in controllers]
     if experiments is None:
         experiments = (*make_experiments(base), *make_plugin_experiments(controllers or (), base))
     experiments = tuple(experiments)
