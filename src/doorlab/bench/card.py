@@ -99,7 +99,8 @@ def table_rows(summary: dict[str, dict], cost: dict[str, dict]) -> list[dict]:
                 "range": f"{_shown(key, m['q05'])}-{_shown(key, m['q95'])}",
                 "n": m["n"],
             }
-        seconds = cost.get(name, {}).get("median")
+        seconds = cost.get(name, {}).get("cpu", {}).get("median")
+        wall = cost.get(name, {}).get("wall", {}).get("median")
         rows.append(
             {
                 "name": name,
@@ -112,6 +113,7 @@ def table_rows(summary: dict[str, dict], cost: dict[str, dict]) -> list[dict]:
                 "failures": [s["failures"][k] for k in FAILURE_KINDS],
                 "metrics": metrics,
                 "seconds": format_number(seconds) if seconds is not None else "n/a",
+                "wall": format_number(wall) if wall is not None else "n/a",
             }
         )
     return rows

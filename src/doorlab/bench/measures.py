@@ -21,6 +21,7 @@ angle (None if it never is).
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 
@@ -46,6 +47,7 @@ COLUMNS = {
     "success": "boolean",
     "success_robosuite": "boolean",
     "failure": "string",
+    "episode_cpu_s": "float64",
 }
 """The columns a benchmark adds to the sweep's table, name -> pandas dtype."""
 
@@ -100,10 +102,14 @@ def _number(value: object) -> float | None:
 
 def bench_episode(scenario: Scenario) -> dict:
     """Worker: one benchmark episode's row (:func:`doorlab.sweep.execution.run_one` with the
-    benchmark's columns, and its verdict); never raises."""
+    benchmark's columns, its verdict, and ``episode_cpu_s``: the worker's CPU seconds on it,
+    which other processes on the machine do not inflate as they do its wall time); never
+    raises."""
     from doorlab.sweep.execution import run_one
 
+    start = time.process_time()
     row = run_one(scenario, measure=episode_columns)
     success, robosuite, kind = classify(row)
     row.update(success=success, success_robosuite=robosuite, failure=kind)
+    row["episode_cpu_s"] = time.process_time() - start
     return row

@@ -203,20 +203,21 @@ def _command(specs: list[str], episodes: int, seed: int) -> str:
 
 
 def _cost(rows: list[dict], executed, specs: dict[str, str]) -> dict:
-    """What the benchmark cost: per controller the seconds of one worker per episode
-    (``run_wall_time_s``: IK, simulation, metrics), the run's wall time and throughput."""
+    """What the benchmark cost: per controller the seconds of one worker per episode, on the
+    wall clock (``run_wall_time_s``: IK, simulation, metrics; the machine's load inflates
+    it) and in CPU time (``episode_cpu_s``: what a core of its own gives), the run's wall time
+    and throughput."""
     per: dict[str, dict] = {}
     for name in specs:
-        seconds = [
-            r["run_wall_time_s"]
-            for r in rows
-            if r.get("controller") == name and r.get("run_wall_time_s") is not None
-        ]
-        per[name] = {
-            "median": statistics.median(seconds) if seconds else None,
-            "mean": statistics.fmean(seconds) if seconds else None,
-            "n": len(seconds),
-        }
+        mine = [r for r in rows if r.get("controller") == name]
+        per[name] = {}
+        for key, column in (("wall", "run_wall_time_s"), ("cpu", "episode_cpu_s")):
+            seconds = [r[column] for r in mine if r.get(column) is not None]
+            per[name][key] = {
+                "median": statistics.median(seconds) if seconds else None,
+                "mean": statistics.fmean(seconds) if seconds else None,
+                "n": len(seconds),
+            }
     rate = None
     if executed.ran and executed.wall_time_s > 0 and executed.workers:
         rate = executed.ran / executed.wall_time_s / executed.workers
