@@ -167,6 +167,9 @@ def test_a_function_or_a_controller_is_a_plug_in(folder):
     assert (named.name, named.title) == ("tidy", "Tidy")
     assert get_controller(spec(folder, "good")) is good  # loaded once per process
     assert get_controller("velocity") is REGISTRY["velocity"]
+    # what a failed run's folder is named by, whatever its controller was
+    assert plugins.display_name("teleport") == "teleport"
+    assert plugins.display_name(str(folder / "broken.py:build")) == "build"
 
 
 BROKEN = [

@@ -40,7 +40,7 @@ from doorlab.config_checks import ENTRY_POINT_GROUP, ControllerSpec, controller_
 from doorlab.constants import NUM_JOINTS
 from doorlab.control.plan_base import JointSpacePlan
 from doorlab.episode.contract import ArcPlan, Command, Controller
-from doorlab.errors import ControllerError, IkError, PluginError
+from doorlab.errors import ConfigError, ControllerError, IkError, PluginError
 
 _loaded: dict[str, tuple[Controller, Path | None]] = {}
 """Plug-ins loaded in this process, by spec: the controller and the file of its code."""
@@ -82,12 +82,12 @@ def load_plugin(spec_text: str, builtins: tuple[str, ...] = CONTROLLERS) -> Cont
 def display_name(spec_text: str, builtins: tuple[str, ...] = CONTROLLERS) -> str:
     """What tables, metrics and folders call a controller: a built-in's name, a plug-in's own
     (loaded to read it; a plug-in that no longer loads, say the logs of a run whose file has
-    moved: NAME of its spec)."""
+    moved, or no controller at all, a failed run's: NAME of its spec, or the text)."""
     if spec_text in builtins:
         return spec_text
     try:
         return load_plugin(spec_text, builtins).name
-    except PluginError:
+    except ConfigError:  # not a controller at all (a failed run's), or a plug-in gone
         return spec_text.rpartition(":")[2].split(".")[-1] or spec_text
 
 
