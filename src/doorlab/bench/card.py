@@ -265,13 +265,27 @@ def machine() -> dict:
 
 
 def write_card(out_dir: Path, document: dict, rows: Sequence[dict]) -> list[Path]:
-    """Writes ``index.html`` and ``figures/*.png`` (each file atomically) from ``bench.json``'s
-    ``document`` and the table's rows; returns the files written."""
-    from doorlab.outputs.pages import Figures, format_number, machine_rows, render
+    """Writes ``index.html`` (atomically) and ``figures/*.png`` from ``bench.json``'s
+    ``document`` and the table's rows, each recorded in the folder's manifest as it is written
+    (however the card ends, a ``--resume`` may replace them); returns the files written."""
+    from doorlab.outputs.pages import Figures
+    from doorlab.runtime.folders import record_written
+
+    figures = Figures(out_dir / FIGURES)
+    written: list[Path] = []
+    try:
+        written.append(_write_page(out_dir, document, rows, figures))
+    finally:
+        record_written(out_dir, [*figures.paths, *written])
+    return [*written, *figures.paths]
+
+
+def _write_page(out_dir: Path, document: dict, rows: Sequence[dict], figures) -> Path:
+    """The figures and ``index.html``; returns the page's path."""
+    from doorlab.outputs.pages import format_number, machine_rows, render
 
     summary = document["controllers"]
     names = list(summary)
-    figures = Figures(out_dir / FIGURES)
     shown = []
     if summary:
         shown = [
@@ -335,7 +349,7 @@ def write_card(out_dir: Path, document: dict, rows: Sequence[dict]) -> list[Path
     )
     index = out_dir / INDEX_HTML
     _atomic_text(index, html)
-    return [index, *figures.paths]
+    return index
 
 
 def _atomic_text(path: Path, text: str) -> None:
