@@ -16,6 +16,10 @@ seconds of one worker per episode per controller, the card's rates with their in
 whether the two ``bench.json`` are the same but for ``cost`` and ``machine`` (they must be:
 the same episodes). The cluster's start is not timed. ``busy_cores``: the cores the whole
 machine kept busy meanwhile (from /proc/stat); above ``--workers`` other processes competed.
+
+``--compare A B`` runs nothing: it compares two benchmark folders already written (say a local
+run and a cluster's, each perhaps completed by ``--resume``) the same way, and records both
+cards' rates and costs.
 """
 
 from __future__ import annotations
@@ -56,7 +60,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--local", type=Path, default=None, help="a local run's folder")
     parser.add_argument("--out-dir", type=Path, default=None, help="the card's folder")
     parser.add_argument("--out", type=Path, default=None, help="JSON file to write")
+    parser.add_argument(
+        "--compare", nargs=2, type=Path, metavar=("A", "B"), help="compare two folders, run nothing"
+    )
     args = parser.parse_args(argv)
+    if args.compare:
+        return compare(*args.compare, args.out)
 
     from distributed import LocalCluster
 
@@ -134,6 +143,37 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(f"written to {out}")
     return 0 if code == 0 and same is not False else 1
+
+
+def compare(a: Path, b: Path, out: Path | None) -> int:
+    """Whether two benchmark folders hold the same card but for ``cost`` and ``machine``."""
+    documents = [json.loads((folder / "bench.json").read_text()) for folder in (a, b)]
+    same = _results(a) == _results(b)
+    summary = {
+        "same_card": same,
+        "folders": [str(a), str(b)],
+        "episodes": [d["bench"]["episodes"] for d in documents],
+        "rates": {
+            name: {
+                "successes": c["successes"],
+                "episodes": c["episodes"],
+                "success_rate": c["success_rate"],
+                "ci95": c["ci95"],
+                "robosuite": c["robosuite"],
+                "failures": c["failures"],
+            }
+            for name, c in documents[0]["controllers"].items()
+        },
+        "cost": [d["cost"] for d in documents],
+    }
+    print(json.dumps({k: v for k, v in summary.items() if k != "cost"}, indent=2))
+    out = out or RESULTS_DIR / (
+        f"bench-compare-{datetime.datetime.now().strftime('%Y%m%d-%H%M%S')}.json"
+    )
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(summary, indent=2) + "\n")
+    print(f"written to {out}")
+    return 0 if same else 1
 
 
 if __name__ == "__main__":
