@@ -489,3 +489,21 @@ def test_a_sweep_runs_a_plug_in_in_its_workers(folder, tmp_path):
     run_sweep(load_spec(folder / "spec.yaml"), tmp_path / "sweep", jobs=1)
     table = read_table(tmp_path / "sweep")
     assert table[["controller", "status"]].values.tolist() == [["tidy", "ok"]]
+
+
+def test_a_report_with_a_plug_in_that_raised_exits_2(tmp_path):
+    """doorlab report's exit code: 2 when a run of its ended controller_error (the line names
+    the run and the error), else the report's own."""
+    from doorlab.cli.commands import _broken_plugin_run
+
+    summary = {"runs": [{"name": "velocity_open", "status": "ok"}]}
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    assert _broken_plugin_run(tmp_path) is None
+    summary["runs"].append(
+        {"name": "mine_closed", "status": "controller_error", "error": "controller 'mine' raised"}
+    )
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    assert _broken_plugin_run(tmp_path) == (
+        "run mine_closed ended controller_error: controller 'mine' raised"
+    )
+    assert _broken_plugin_run(tmp_path / "absent") is None

@@ -484,7 +484,26 @@ def report(args: argparse.Namespace) -> int:
         pdf = print_pdf(args.out / "index.html", args.out / "report.pdf", chromium=chromium)
         record_written(args.out, [pdf])  # doorlab's, so a later --force may replace it
         print(f"doorlab report: wrote {pdf}")
+    broken = _broken_plugin_run(args.out)
+    if broken is not None:  # a plug-in that raised in a tick: its one line, exit 2
+        print(f"doorlab report: error: {broken}", file=sys.stderr)
+        return 2
     return code
+
+
+def _broken_plugin_run(out: Path) -> str | None:
+    """The first of a report's runs that ended ``controller_error`` (its name and error), or
+    None."""
+    import json
+
+    try:
+        runs = json.loads((out / "summary.json").read_text())["runs"]
+    except (OSError, ValueError, KeyError):
+        return None
+    for run in runs:
+        if run.get("status") == "controller_error":
+            return f"run {run.get('name')} ended controller_error: {run.get('error', '')}"
+    return None
 
 
 def _check_names(controllers: Sequence[str]) -> None:
