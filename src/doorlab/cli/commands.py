@@ -559,6 +559,15 @@ def sweep(args: argparse.Namespace) -> int:
     print(
         f"  table: {args.out / RESULTS_PARQUET} (and results.csv); page: {args.out / 'index.html'}"
     )
+    broken = frame[frame["status"] == "controller_error"]
+    if len(broken):  # a plug-in that raised in a tick: its first line, exit 2
+        first = broken.iloc[0]
+        print(
+            f"doorlab sweep: error: {len(broken)} runs of {first['controller']} ended "
+            f"controller_error; the first: {first['error']}",
+            file=sys.stderr,
+        )
+        return 2
     # Failed runs are results of a sweep (the table has them); an exception in a run is not.
     return 1 if (frame["status"] == "error").any() else 0
 
