@@ -476,19 +476,27 @@ def test_the_report_iterates_the_controllers_chosen(folder):
 
 
 @pytest.mark.slow
-def test_a_sweep_runs_a_plug_in_in_its_workers(folder, tmp_path):
-    """A SPEC's plug-in (relative to the SPEC) runs in a spawned worker process, which loads
-    it from the same spec; the table names it by its own name."""
-    from doorlab.sweep import load_spec, read_table, run_sweep
+def test_a_sweep_runs_a_plug_in_in_its_workers(folder, tmp_path, capsys):
+    """A SPEC's plug-ins (relative to the SPEC) run in a spawned worker process, which loads
+    them from the same spec; the table names them by their own names; one that raised in a
+    tick is a row with its status, and the sweep exits 2 with its line."""
+    from doorlab.sweep import read_table
 
     short = "{arc_duration: 2.0, approach_duration: 2.0, hold_duration: 0.5, extra_time: 0.5}"
     (folder / "spec.yaml").write_text(
-        f"controllers: [ctl.py:NAMED]\ndoors: [open]\nscenario: {{timeline: {short}}}\n"
-        "axes: {velocity.kv: [100]}\n"
+        f"controllers: [ctl.py:NAMED, ctl.py:raise_in_tick]\ndoors: [open]\n"
+        f"scenario: {{timeline: {short}}}\naxes: {{velocity.kv: [100]}}\n"
     )
-    run_sweep(load_spec(folder / "spec.yaml"), tmp_path / "sweep", jobs=1)
+    code = main(
+        ["sweep", str(folder / "spec.yaml"), "--out", str(tmp_path / "sweep"), "--jobs", "1"]
+    )
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and "raise_in_tick" in err[-1] and "ZeroDivisionError" in err[-1]
     table = read_table(tmp_path / "sweep")
-    assert table[["controller", "status"]].values.tolist() == [["tidy", "ok"]]
+    assert table[["controller", "status"]].values.tolist() == [
+        ["tidy", "ok"],
+        ["raise_in_tick", "controller_error"],
+    ]
 
 
 def test_a_report_with_a_plug_in_that_raised_exits_2(tmp_path):
