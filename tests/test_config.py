@@ -174,6 +174,14 @@ BAD_VALUES = [
         )
         for v in (0.786, -0.786, NAN, INF)
     ],
+    *[
+        (
+            f"cupboard_position_error={v!r}",
+            _with("station.cupboard_position_error", v),
+            "station.cupboard_position_error",
+        )
+        for v in ([0.051, 0.0, 0.0], [0.0, NAN, 0.0], [0.0, 0.0], [0.0, 0.0, True])
+    ],
     # arc end angle: [15, 90] deg
     *[
         (f"arc.angle_end_deg={v!r}", _with("arc.angle_end_deg", v), "arc.angle_end_deg")

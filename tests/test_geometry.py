@@ -133,3 +133,31 @@ def test_true_geometry_matches_the_turned_model_at_any_hinge_angle():
         np.testing.assert_allclose(
             true.handle_position(angle), frame.CalcPoseInWorld(context).translation(), atol=1e-9
         )
+
+
+def test_a_position_error_moves_the_true_door_and_the_simulated_model():
+    """station.cupboard_position_error: the true geometry's handle and hinge move by the error
+    (with a yaw error too: the turn is about the moved handle), the plans' belief does not,
+    and the simulated model's handle is the true geometry's at any hinge angle."""
+    from doorlab.cell.geometry import scenario_door_geometry, true_door_geometry
+    from doorlab.cell.station import build_station
+    from doorlab.config import Scenario
+
+    scenario = Scenario()
+    scenario.station.cupboard_position_error = [0.004, -0.003, 0.002]
+    scenario.station.cupboard_yaw_error = math.radians(3.0)
+    believed, true = scenario_door_geometry(scenario), true_door_geometry(scenario)
+    shift = np.array(scenario.station.cupboard_position_error)
+    np.testing.assert_allclose(true.p_W_handle, believed.p_W_handle + shift, atol=1e-9)
+    turned_only = default_door_geometry(yaw_error=math.radians(3.0))
+    np.testing.assert_allclose(true.p_W_hinge, turned_only.p_W_hinge + shift, atol=1e-9)
+    station = build_station(scenario.station)
+    plant = station.plant
+    context = plant.CreateDefaultContext()
+    cupboard = plant.GetModelInstanceByName(CUPBOARD_MODEL)
+    for angle in (-0.001, -0.5):
+        plant.GetJointByName(LEFT_HINGE, cupboard).set_angle(context, angle)
+        frame = plant.GetFrameByName(LEFT_HANDLE_FRAME, cupboard)
+        np.testing.assert_allclose(
+            true.handle_position(angle), frame.CalcPoseInWorld(context).translation(), atol=1e-9
+        )

@@ -94,6 +94,7 @@ LAYERS = (
     ("doorlab.studies",),
     ("doorlab.hardware",),
     ("doorlab.report", "doorlab.sweep", "doorlab.pset"),
+    ("doorlab.bench",),
     ("doorlab.cli",),
 )
 """doorlab's parts from the bottom up: a module imports only from its own part and from the

@@ -116,7 +116,7 @@ def test_failing_robustness_runs_do_not_fail_the_report(tmp_path: Path, monkeypa
     monkeypatch.setattr(
         runner,
         "make_robustness_cases",
-        lambda base, given: ((case,), (("robust_broken", broken),)),
+        lambda base, given, **_: ((case,), (("robust_broken", broken),)),
     )
     out = tmp_path / "with"
     assert run_report(out, jobs=1, experiments=[], progress=False, robustness=True) == 0

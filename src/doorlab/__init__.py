@@ -4,7 +4,9 @@ fourth (``adaptive``) that opens one whose hinge it does not know.
 Public API (the site's Python API reference shows it all): :class:`Scenario` and
 :func:`load_scenario` (configuration), :func:`run_controller` (one episode of a registered
 controller), :func:`run_episode` (your own plans), :class:`EpisodeResult` (named logs),
-:func:`compute_metrics`; sweeps in
+:func:`compute_metrics`; the contract of a controller of your own (a plug-in every command
+runs: :mod:`doorlab.episode.contract`): :class:`Controller`, :class:`ArcPlan`, :class:`Plan`,
+:class:`ArmState`, :class:`Command`, and :func:`grasp_configuration`; sweeps in
 :mod:`doorlab.sweep` (``run_sweep(spec) -> pandas.DataFrame``), the report in
 :mod:`doorlab.report`.
 
@@ -13,11 +15,25 @@ The names below are imported on first use (PEP 562), so importing one submodule 
 must not load doorlab's reference solutions (:mod:`doorlab.pset.isolation.guard`).
 """
 
-from doorlab.errors import ConfigError, DoorlabError, IkError, OutputError, SimulationError
+from doorlab.errors import (
+    ConfigError,
+    ControllerError,
+    DoorlabError,
+    IkError,
+    OutputError,
+    PluginError,
+    SimulationError,
+)
 
 __version__ = "0.1.0"
 
 _LAZY = {
+    "ArcPlan": "doorlab.episode.contract",
+    "ArmState": "doorlab.control.plan_base",
+    "Command": "doorlab.control.plan_base",
+    "Controller": "doorlab.episode.contract",
+    "Plan": "doorlab.control.plan_base",
+    "grasp_configuration": "doorlab.episode.controllers",
     "Scenario": "doorlab.config",
     "load_scenario": "doorlab.config",
     "validate": "doorlab.config",
@@ -33,14 +49,22 @@ _LAZY = {
 
 __all__ = [
     "REGISTRY",
+    "ArcPlan",
+    "ArmState",
+    "Command",
     "ConfigError",
+    "Controller",
+    "ControllerError",
     "DoorlabError",
     "EpisodeResult",
     "IkError",
     "OutputError",
+    "Plan",
+    "PluginError",
     "Scenario",
     "SimulationError",
     "get_controller",
+    "grasp_configuration",
     "load_scenario",
     "run_controller",
     "run_episode",

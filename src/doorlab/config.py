@@ -24,16 +24,20 @@ from pydrake.common.yaml import yaml_load_typed
 from doorlab.config_checks import (  # noqa: F401 (the bounds, named here too)
     COMMAND_TIMINGS,
     KUKA_DAMPING_MODELS,
+    MAX_CUPBOARD_POSITION_ERROR,
     MAX_EPISODE_DURATION,
     MAX_LOG_SAMPLES,
     MIN_ARC_SAMPLES,
+    absolute_controller,
     check,
     choice,
+    controller_spec,
     gains,
     non_negative,
     positive,
     validate_arm_model,
     validate_kuka,
+    validate_position_error,
     validate_safety,
     validate_timeline,
 )
@@ -49,9 +53,10 @@ from doorlab.runtime.drake_compat import missing_contact_approximation
 from doorlab.runtime.inputs import load_yaml, quote, quote_text, read_text_file, yaml_float_spelling
 
 CONTROLLERS = ("ik", "velocity", "impedance", "adaptive", "diffik", "osc")
-"""Names of the door-opening controllers: the problem set's tasks 1-3, the adaptive plan, then
-the two a manipulation course teaches next (differential IK with limits, operational-space
-control)."""
+"""Names of the built-in door-opening controllers: the problem set's tasks 1-3, the adaptive
+plan, then the two a manipulation course teaches next (differential IK with limits,
+operational-space control). ``Scenario.controller`` may also name a plug-in
+(:mod:`doorlab.episode.plugins`)."""
 DOOR_STATES = tuple(DOOR_ANGLES)
 INNER_LOOPS = ("stiffness", "implicit_pd", "inverse_dynamics", "kuka_joint_impedance")
 IK_OBJECTIVES = ("feasible", "centered")
@@ -256,6 +261,10 @@ class StationConfig:
     # handle stays where the plans believe it is, the hinge does not (10 deg moves it 4.7 cm);
     # the problem set's plans follow the believed arc, metrics use the true one.
     cupboard_yaw_error: float = 0.0
+    # [m] (3,) The TRUE cupboard also stands this far from the believed one, in W (x, y, z):
+    # handle and hinge move with it, the plans aim where they believe (doorlab bench draws
+    # it); the metrics use the true cupboard.
+    cupboard_position_error: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     hinge_damping: float = 1.0  # [N m s/rad] viscous damping of the door hinges
     friction: float = 1.0  # Coulomb friction of fingers and handle [-]
     inner_loop: InnerLoopConfig = field(default_factory=InnerLoopConfig)
@@ -395,7 +404,9 @@ class AdaptivePlanConfig:
 class Scenario:
     """Everything one episode needs."""
 
-    controller: str = "velocity"  # one of CONTROLLERS
+    # one of CONTROLLERS, or a plug-in: FILE.py:NAME, MODULE:NAME or an installed plug-in's
+    # name (docs/guides/controllers.md; a relative FILE is relative to this YAML file)
+    controller: str = "velocity"
     doors: str = "closed"  # one of DOOR_STATES; sets the initial hinge angles
     door_angles: list[float] | None = None  # [rad] (left, right); None: from `doors`
     station: StationConfig = field(default_factory=StationConfig)
@@ -448,9 +459,14 @@ def load_scenario(path: str | Path, *, defaults: Scenario | None = None) -> Scen
     path = Path(path)
     text = read_text_file(path, what="config file")
     try:
-        return update_scenario(defaults or Scenario(), text)
+        scenario = update_scenario(defaults or Scenario(), text)
     except ConfigError as e:
         raise ConfigError(f"config file {str(path)!r}: {e}") from None
+    data = load_yaml(text)
+    if isinstance(data, dict) and isinstance(data.get("controller"), str):
+        # A plug-in's relative FILE is the YAML's neighbour, from any working directory.
+        scenario.controller = absolute_controller(data["controller"], path.parent)
+    return scenario
 
 
 def update_scenario(scenario: Scenario, document: str) -> Scenario:
@@ -535,7 +551,7 @@ def validate(scenario: Scenario) -> Scenario:
         ConfigError: Naming the first offending field and its valid range.
     """
     check(isinstance(scenario, Scenario), f"expected a Scenario, got {type(scenario).__name__}")
-    choice("controller", scenario.controller, CONTROLLERS)
+    controller_spec(scenario.controller, CONTROLLERS)  # its syntax; a plug-in loads when it runs
     choice("doors", scenario.doors, DOOR_STATES)
     if scenario.door_angles is not None:
         angles = scenario.door_angles
@@ -571,6 +587,7 @@ def validate(scenario: Scenario) -> Scenario:
         f"station.cupboard_yaw_error must be a number in [-{MAX_CUPBOARD_YAW_ERROR:.4f}, "
         f"{MAX_CUPBOARD_YAW_ERROR:.4f}] rad (+-45 deg), got {quote(yaw)}",
     )
+    validate_position_error(station.cupboard_position_error)
     non_negative("station.hinge_damping", station.hinge_damping)
     non_negative("station.friction", station.friction)
     loop = station.inner_loop

@@ -7,7 +7,10 @@ sections are duck-typed here, so this module imports no dataclass of
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+import os
+from dataclasses import dataclass
 
 from doorlab.constants import NUM_JOINTS
 from doorlab.errors import ConfigError
@@ -106,6 +109,28 @@ def validate_timeline(scenario) -> None:
         samples <= MAX_LOG_SAMPLES,
         f"timeline.log_period ({timeline.log_period} s) gives {samples:.0f} log samples over "
         f"the episode; at most {MAX_LOG_SAMPLES} (about 50 numbers each, kept in memory)",
+    )
+
+
+MAX_CUPBOARD_POSITION_ERROR = 0.05
+"""Largest |station.cupboard_position_error| per axis [m]: 5 cm, twice the fingers' opening
+for the approach (25 mm): beyond it a plan grasps at thin air whatever it does."""
+
+
+def validate_position_error(error) -> None:
+    """``station.cupboard_position_error``: three numbers within the bound [m]."""
+    check(
+        isinstance(error, (list, tuple))
+        and len(error) == 3
+        and all(
+            isinstance(v, (int, float))
+            and not isinstance(v, bool)
+            and math.isfinite(v)
+            and abs(v) <= MAX_CUPBOARD_POSITION_ERROR
+            for v in error
+        ),
+        f"station.cupboard_position_error must be three numbers [m] within "
+        f"+-{MAX_CUPBOARD_POSITION_ERROR:g} m, got {quote(error)}",
     )
 
 
@@ -228,3 +253,96 @@ def validate_arm_model(arm, time_step: float) -> None:
         isinstance(arm.seed, int) and not isinstance(arm.seed, bool) and 0 <= arm.seed < 2**31,
         f"station.arm.seed must be an integer in [0, 2^31), got {quote(arm.seed)}",
     )
+
+
+ENTRY_POINT_GROUP = "doorlab.controllers"
+"""The entry-point group of installed controller plug-ins (:mod:`doorlab.episode.plugins`)."""
+CONTROLLER_FORMS = "FILE.py:NAME, MODULE:NAME"
+"""How a plug-in is named besides an installed one's name."""
+
+
+@dataclass(frozen=True)
+class ControllerSpec:
+    """What a controller spec names (``Scenario.controller``, ``--controller``).
+
+    Attributes:
+        kind: ``builtin``, ``file`` (FILE.py:NAME), ``module`` (MODULE:NAME) or
+            ``entry_point`` (an installed plug-in's name).
+        target: The built-in's or entry point's name, the file's path or the module's name.
+        name: NAME, the attribute in the file or module ("" for built-ins and entry points).
+    """
+
+    kind: str
+    target: str
+    name: str = ""
+
+
+@functools.cache
+def installed_controller_names() -> tuple[str, ...]:
+    """The names of the installed plug-ins (entry points of :data:`ENTRY_POINT_GROUP`), read
+    once per process."""
+    from importlib.metadata import entry_points
+
+    return tuple(sorted({entry.name for entry in entry_points(group=ENTRY_POINT_GROUP)}))
+
+
+def _dotted(text: str) -> bool:
+    return bool(text) and all(part.isidentifier() for part in text.split("."))
+
+
+def controller_choices(builtins: tuple[str, ...]) -> str:
+    """The valid controllers in words: the built-ins, the installed plug-ins, the forms."""
+    installed = installed_controller_names()
+    extra = f", installed: {', '.join(installed)}" if installed else ""
+    return f"{', '.join(builtins)} (built-in{extra}), or a plug-in {CONTROLLER_FORMS}"
+
+
+def controller_spec(value: object, builtins: tuple[str, ...]) -> ControllerSpec:
+    """Parses a controller spec, without importing anything.
+
+    Args:
+        value: A built-in's name, an installed plug-in's name, ``FILE.py:NAME`` or
+            ``MODULE:NAME`` (NAME may be dotted: an attribute of an attribute).
+        builtins: The built-ins' names.
+
+    Raises:
+        ConfigError: Not one of those (the message lists the valid ones).
+    """
+    shown = quote(value)
+    if not isinstance(value, str) or not value or value != value.strip():
+        raise ConfigError(f"controller must be one of {controller_choices(builtins)}; got {shown}")
+    if ":" not in value:
+        if value in builtins:
+            return ControllerSpec("builtin", value)
+        if value in installed_controller_names():
+            return ControllerSpec("entry_point", value)
+        raise ConfigError(f"controller must be one of {controller_choices(builtins)}; got {shown}")
+    target, _, name = value.rpartition(":")
+    if not target or not _dotted(name):
+        raise ConfigError(
+            f"controller {shown}: a plug-in is {CONTROLLER_FORMS} (NAME a Python name, e.g. "
+            "my_controller.py:build_plan)"
+        )
+    if target.endswith(".py") or "/" in target or os.sep in target:
+        return ControllerSpec("file", target, name)
+    if not _dotted(target):
+        raise ConfigError(
+            f"controller {shown}: {quote(target)} is neither a Python file nor a module name "
+            f"(dotted Python names); a plug-in is {CONTROLLER_FORMS}"
+        )
+    return ControllerSpec("module", target, name)
+
+
+def absolute_controller(value: str, base_dir: str | os.PathLike) -> str:
+    """``value`` with a plug-in file's relative path made absolute against ``base_dir`` (other
+    specs unchanged): a scenario then names the same file from any working directory, and a
+    worker process or machine loads that file."""
+    if not isinstance(value, str) or ":" not in value:
+        return value
+    target, _, name = value.rpartition(":")
+    if not (target.endswith(".py") or "/" in target or os.sep in target):
+        return value
+    path = os.path.expanduser(target)
+    if not os.path.isabs(path):
+        path = os.path.join(os.fspath(base_dir), path)
+    return f"{os.path.normpath(path)}:{name}"

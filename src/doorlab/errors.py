@@ -15,6 +15,13 @@ class ConfigError(DoorlabError, ValueError):
     """A scenario, CLI option or API argument is invalid (names the field and range)."""
 
 
+class PluginError(ConfigError):
+    """A controller plug-in (``--controller FILE.py:NAME``, ``MODULE:NAME`` or an installed one)
+    cannot be used: it does not import, NAME is neither a :class:`doorlab.Controller` nor a
+    function ``(scenario, geometry, plant) -> ArcPlan``, or its build raised or returned no
+    ArcPlan. The message is one line naming the plug-in and what went wrong."""
+
+
 class IkError(DoorlabError):
     """Inverse kinematics found no solution within the tolerances.
 
@@ -97,6 +104,15 @@ class DriverLost(RunStopped):
     """The arm's driver stopped sending statuses during the run; commanding stopped."""
 
     status = "driver_lost"
+
+
+class ControllerError(RunStopped):
+    """A controller raised during a control tick, or returned something that is not a command
+    (a q_ref and a tau_ff of 7 finite numbers each): the run stopped there (status
+    ``controller_error``), with its logs up to the stop. Only plug-ins are checked so:
+    a built-in's exception is a bug of doorlab's."""
+
+    status = "controller_error"
 
 
 class NoDriver(DoorlabError):

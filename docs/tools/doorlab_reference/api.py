@@ -38,6 +38,7 @@ API_GROUPS = {
     "hardware": ("The real arm and the simulated driver", ["doorlab.hardware"]),
     "report": ("The report (doorlab report)", ["doorlab.report"]),
     "sweep": ("Sweeps (doorlab sweep)", ["doorlab.sweep"]),
+    "bench": ("The benchmark card (doorlab bench)", ["doorlab.bench"]),
     "pset": ("The problem set (doorlab pset): its parts", ["doorlab.pset"]),
     "pset-rules": (
         "The problem set's rules: the graded tests, the assignment, a test's time",

@@ -21,6 +21,10 @@ STATUS_MEANINGS = {
     "written), or none for 50 ms during the run (commanding stopped, the folder written)",
     "safety_stop": "a command broke a safety limit and was not sent (limit, joint and time in "
     "`metrics.json`; `--hardware`, or `station.safety.enabled` in simulation)",
+    "controller_error": "a controller plug-in raised during a tick, or returned no valid command "
+    "(7 + 7 finite numbers): the run stopped there, `log.npz` and `metrics.json` hold the logs "
+    "and the error; a plug-in that does not load or has the wrong signature is `usage` "
+    "([your own controller](../guides/controllers.md))",
 }
 """What each status of :data:`doorlab.outputs.runs.EXIT_CODES` means (a new status without an entry
 here stops the build)."""

@@ -17,10 +17,11 @@ theta is the angle of the handle-to-hinge vector (sin theta, cos theta) measured
 axis towards +x; at theta0 the door is closed, and theta grows as the left door opens.
 
 Believed and true geometry: with ``station.cupboard_yaw_error`` the simulated cupboard stands
-turned about the handle's vertical axis. The plans use :func:`scenario_door_geometry` (the
-believed cupboard, what the model says); metrics use :func:`true_door_geometry` (where the
-handle really moves: same handle, moved hinge, L7's reference turned by the yaw error). With no
-yaw error the two are equal.
+turned about the handle's vertical axis, with ``station.cupboard_position_error`` moved. The
+plans use :func:`scenario_door_geometry` (the believed cupboard, what the model says); metrics
+use :func:`true_door_geometry` (where the handle really moves: the handle moved by the position
+error, the hinge by both, L7's reference turned by the yaw error). With no error the two are
+equal.
 """
 
 from __future__ import annotations
@@ -142,9 +143,13 @@ def scenario_door_geometry(scenario: Scenario) -> DoorGeometry:
 
 
 def true_door_geometry(scenario: Scenario) -> DoorGeometry:
-    """The simulated door's geometry: :func:`scenario_door_geometry` turned by the yaw error."""
+    """The simulated door's geometry: :func:`scenario_door_geometry` moved by the position
+    error and turned by the yaw error (``station.cupboard_position_error``,
+    ``station.cupboard_yaw_error``)."""
+    station = scenario.station
+    error = station.cupboard_position_error
     return default_door_geometry(
         scenario.arc.angle_end_deg,
-        p_WC=scenario.station.cupboard_position,
-        yaw_error=scenario.station.cupboard_yaw_error,
+        p_WC=[p + e for p, e in zip(station.cupboard_position, error, strict=True)],
+        yaw_error=station.cupboard_yaw_error,
     )

@@ -192,6 +192,14 @@ def _p_C_left_handle() -> tuple[float, float, float]:
     return (float(p[0]), float(p[1]), float(p[2]))
 
 
+def true_cupboard_position(config: StationConfig) -> list[float]:
+    """Where the cupboard frame C really is in W (3,) [m]: the believed
+    ``cupboard_position`` plus ``cupboard_position_error`` (before the yaw error's turn about
+    the handle, :func:`cupboard_turned_about_handle`)."""
+    error = config.cupboard_position_error
+    return [float(p + e) for p, e in zip(config.cupboard_position, error, strict=True)]
+
+
 def cupboard_turned_about_handle(X_WC: RigidTransform, yaw: float) -> RigidTransform:
     """The cupboard pose X_WC turned by ``yaw`` [rad] about the closed left handle's vertical axis.
 
@@ -400,7 +408,7 @@ def build_station(
     iiwa, wsg, cupboard = add_cell(
         plant,
         arm_collision=config.arm_collision,
-        p_WC=config.cupboard_position,
+        p_WC=true_cupboard_position(config),
         yaw_error=config.cupboard_yaw_error,
     )
     for hinge in (LEFT_HINGE, RIGHT_HINGE):

@@ -309,13 +309,47 @@ def apply_overrides(scenario: Scenario, overrides: Sequence[str]) -> Scenario:
     return scenario
 
 
+def controller_option(text: str) -> str:
+    """A ``--controller`` value checked (its form, not its code) and with a plug-in file's
+    relative path made absolute against the working directory.
+
+    Raises:
+        ConfigError: Not a built-in, an installed plug-in's name or a plug-in's form.
+    """
+    from doorlab.config import CONTROLLERS
+    from doorlab.config_checks import absolute_controller, controller_spec
+
+    try:
+        controller_spec(text, CONTROLLERS)
+    except ConfigError as e:
+        raise ConfigError(f"--controller {quote_text(text)}: {e}") from None
+    return absolute_controller(text, Path.cwd())
+
+
+def load_controller(name: str) -> str:
+    """Loads the controller ``name`` names (a plug-in: imported and checked, in this process,
+    before anything runs or is written); returns what tables and folders call it.
+
+    Raises:
+        ConfigError, PluginError: Unknown, or a plug-in that cannot be used (one line).
+    """
+    from doorlab.episode.controllers import controller_name
+
+    return controller_name(name)
+
+
 def scenario_from_args(args: argparse.Namespace) -> Scenario:
     """The scenario a command runs: ``--config`` (or the defaults), then ``--set``, then the
-    options (``--controller``, ``--doors``, ``--knots``), validated."""
+    options (``--controller``, ``--doors``, ``--knots``), validated. A plug-in file's relative
+    path is the working directory's (the config file's: its folder's)."""
+    from doorlab.config_checks import absolute_controller
+
     scenario = load_scenario(args.config) if args.config is not None else Scenario()
     scenario = apply_overrides(scenario, args.overrides)
-    if getattr(args, "controller", None) is not None:
-        scenario.controller = args.controller
+    scenario.controller = absolute_controller(scenario.controller, Path.cwd())
+    controller = getattr(args, "controller", None)
+    if isinstance(controller, str):
+        scenario.controller = controller_option(controller)
     if getattr(args, "doors", None) is not None:
         scenario.doors = args.doors
         scenario.door_angles = None
@@ -397,12 +431,15 @@ def run(args: argparse.Namespace) -> int:
     if args.hardware:
         from doorlab.hardware.cli import run_hardware_command
 
-        return run_hardware_command(args, scenario_from_args(args))
+        scenario = scenario_from_args(args)
+        load_controller(scenario.controller)  # a plug-in: before the driver is waited for
+        return run_hardware_command(args, scenario)
     for option, given in (("--lcm-url", args.lcm_url), ("--yes", args.yes)):
         if given:
             raise ConfigError(f"{option} applies to --hardware only")
     scenario = scenario_from_args(args)
-    out = args.out or Path("doorlab_out") / f"{scenario.controller}_{scenario.doors}"
+    name = load_controller(scenario.controller)  # a plug-in: before anything is written
+    out = args.out or Path("doorlab_out") / f"{name}_{scenario.doors}"
     meshcat = None
     if args.meshcat:
         from pydrake.geometry import Meshcat
@@ -419,6 +456,8 @@ def run(args: argparse.Namespace) -> int:
         parallel=True,
     )
     print(_summary(outcome))
+    if outcome.status == "controller_error":  # a broken plug-in: its one line, exit 2
+        print(f"doorlab run: error: {outcome.message}", file=sys.stderr)
     if meshcat is not None and sys.stdin.isatty():
         # The live view (with the recording to replay) lives as long as this process.
         input(f"Meshcat is still serving {meshcat.web_url()}; press Enter to quit. ")
@@ -462,6 +501,15 @@ def report(args: argparse.Namespace) -> int:
             "it only when asked)"
         )
     base = scenario_from_args(args)
+    from doorlab.config import CONTROLLERS
+
+    chosen = list(CONTROLLERS)
+    for text in args.controller:
+        spec = controller_option(text)
+        load_controller(spec)  # a plug-in: imported and checked before anything runs
+        if spec not in chosen:
+            chosen.append(spec)
+    _check_names(chosen)
     _probe(args)
     from doorlab.report import run_report
 
@@ -481,6 +529,7 @@ def report(args: argparse.Namespace) -> int:
         robustness=args.robustness,
         arm=args.arm,
         arm_band=not args.no_arm_band,
+        controllers=chosen,
     )
     if args.pdf:
         from doorlab.runtime.folders import record_written
@@ -489,7 +538,41 @@ def report(args: argparse.Namespace) -> int:
         pdf = print_pdf(args.out / "index.html", args.out / "report.pdf", chromium=chromium)
         record_written(args.out, [pdf])  # doorlab's, so a later --force may replace it
         print(f"doorlab report: wrote {pdf}")
+    broken = _broken_plugin_run(args.out)
+    if broken is not None:  # a plug-in that raised in a tick: its one line, exit 2
+        print(f"doorlab report: error: {broken}", file=sys.stderr)
+        return 2
     return code
+
+
+def _broken_plugin_run(out: Path) -> str | None:
+    """The first of a report's runs that ended ``controller_error`` (its name and error), or
+    None."""
+    import json
+
+    try:
+        runs = json.loads((out / "summary.json").read_text())["runs"]
+    except (OSError, ValueError, KeyError):
+        return None
+    for run in runs:
+        if run.get("status") == "controller_error":
+            return f"run {run.get('name')} ended controller_error: {run.get('error', '')}"
+    return None
+
+
+def _check_names(controllers: Sequence[str]) -> None:
+    """Refuses two controllers of the same name (folders and tables are named after them)."""
+    from doorlab.episode.plugins import display_name
+
+    seen: dict[str, str] = {}
+    for spec in controllers:
+        name = display_name(spec)
+        if name in seen and seen[name] != spec:
+            raise ConfigError(
+                f"--controller {quote_text(spec)} and {quote_text(seen[name])} are both named "
+                f"{name!r}; folders and tables tell controllers apart by name"
+            )
+        seen[name] = spec
 
 
 def sweep(args: argparse.Namespace) -> int:
@@ -500,7 +583,9 @@ def sweep(args: argparse.Namespace) -> int:
         raise ConfigError("give a SPEC file or at least one --grid KEY=V1,V2,...")
     if args.resume and args.force:
         raise ConfigError("--resume and --force exclude each other")
-    spec = load_spec(args.spec, grid=args.grid)  # before pandas is imported: refusals stay small
+    controllers = [controller_option(c) for c in args.controller]
+    # before pandas is imported: refusals stay small
+    spec = load_spec(args.spec, grid=args.grid, controllers=controllers)
     require_sweep_extra("doorlab sweep", ("pandas", "pyarrow"))
     jobs = args.jobs or os.cpu_count() or 1
     try:
@@ -528,6 +613,15 @@ def sweep(args: argparse.Namespace) -> int:
     print(
         f"  table: {args.out / RESULTS_PARQUET} (and results.csv); page: {args.out / 'index.html'}"
     )
+    broken = frame[frame["status"] == "controller_error"]
+    if len(broken):  # a plug-in that raised in a tick: its first line, exit 2
+        first = broken.iloc[0]
+        print(
+            f"doorlab sweep: error: {len(broken)} runs of {first['controller']} ended "
+            f"controller_error; the first: {first['error']}",
+            file=sys.stderr,
+        )
+        return 2
     # Failed runs are results of a sweep (the table has them); an exception in a run is not.
     return 1 if (frame["status"] == "error").any() else 0
 

@@ -1,6 +1,7 @@
 """The ``doorlab`` command: ``doorlab run`` (one controller), ``doorlab report`` (all),
-``doorlab sweep`` (scenario fields over a grid or random samples) and ``doorlab sim-driver``
-(the simulated cell behind the real drivers' LCM protocol).
+``doorlab sweep`` (scenario fields over a grid or random samples), ``doorlab bench`` (the
+benchmark card: :mod:`doorlab.cli.bench`) and ``doorlab sim-driver`` (the simulated cell
+behind the real drivers' LCM protocol).
 
 Bad input prints one line naming the valid choices and exits with code 2; a run's status
 sets the exit code otherwise (see :data:`doorlab.outputs.runs.EXIT_CODES`).
@@ -19,6 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from doorlab.cli import commands
+from doorlab.cli.bench import add_bench_parser, bench
 from doorlab.cli.options import add_config_options, add_scheduler_options
 from doorlab.cli.pset_parser import add_pset_parser
 from doorlab.config import (
@@ -56,16 +58,18 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(
         dest="command",
-        metavar="{run,report,sweep,pset,sim-driver,identify}",
+        metavar="{run,report,sweep,bench,pset,sim-driver,identify}",
         parser_class=OneLineParser,
     )
 
     run = sub.add_parser("run", help="run one controller and write its metrics, logs and plots")
     run.add_argument(
         "--controller",
-        choices=CONTROLLERS,
         default=None,
-        help="which controller (default: velocity, or the config's)",
+        metavar="NAME",
+        help=f"which controller: a built-in ({', '.join(CONTROLLERS)}), an installed plug-in's "
+        "name, or a plug-in FILE.py:NAME or MODULE:NAME (docs/guides/controllers.md; default: "
+        "velocity, or the config's)",
     )
     run.add_argument(
         "--doors",
@@ -106,6 +110,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         default=Path("doorlab_report"),
         help="output folder (default: doorlab_report)",
+    )
+    _controllers(
+        report,
+        "also report this controller beside the built-ins (repeatable): an installed "
+        "plug-in's name, FILE.py:NAME or MODULE:NAME; it runs with the doors open and closed, "
+        "in the robustness grid and On the arm",
     )
     report.add_argument(
         "--jobs",
@@ -162,6 +172,11 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="KEY=V1,V2,...",
         help="sweep a scenario field over these values (repeatable; adds to SPEC's axes)",
     )
+    _controllers(
+        sweep,
+        "sweep this controller instead of the SPEC's controllers (repeatable): a built-in, "
+        "an installed plug-in's name, FILE.py:NAME or MODULE:NAME",
+    )
     sweep.add_argument(
         "--out",
         type=Path,
@@ -181,6 +196,7 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument(
         "--force", action="store_true", help="start over in an existing output folder"
     )
+    add_bench_parser(sub, add_scheduler_options, add_config_options)
     add_pset_parser(sub)
     add_sim_driver_parser(sub)
     add_identify_parser(sub)
@@ -213,6 +229,11 @@ def add_hardware_options(run: argparse.ArgumentParser) -> None:
     group.add_argument(
         "--yes", action="store_true", help="do not ask before the arm moves (the plan is printed)"
     )
+
+
+def _controllers(parser: argparse.ArgumentParser, text: str) -> None:
+    """A repeatable ``--controller NAME`` (a built-in or a plug-in)."""
+    parser.add_argument("--controller", action="append", default=[], metavar="NAME", help=text)
 
 
 def add_sim_driver_parser(sub) -> None:
@@ -344,6 +365,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "run": commands.run,
             "report": commands.report,
             "sweep": commands.sweep,
+            "bench": bench,
             "pset": commands.pset,
             "sim-driver": commands.sim_driver,
             "identify": commands.identify,

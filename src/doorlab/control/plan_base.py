@@ -20,11 +20,14 @@ from doorlab.errors import ConfigError
 
 
 class ArmState(NamedTuple):
-    """Measured arm state at a control tick.
+    """Measured arm state at a control tick, the joints in order ``iiwa_joint_1`` .. ``_7``.
 
     Attributes:
-        q: Joint positions (7,) [rad]. v: Joint velocities (7,) [rad/s].
-        tau_external: Generalized contact torques on the joints (7,) [N m].
+        q: Joint positions (7,) [rad].
+        v: Joint velocities (7,) [rad/s] (on the lab's arm: kuka_driver's filtered estimate).
+        tau_external: The external (contact) torques on the joints (7,) [N m]: in
+            simulation the contact forces' generalized torques on the arm; on the arm KUKA's
+            estimate (measured torque minus its model's).
     """
 
     q: np.ndarray
@@ -33,20 +36,33 @@ class ArmState(NamedTuple):
 
 
 class Command(NamedTuple):
-    """What a plan sends to the inner loop: q_ref (7,) [rad] and tau_ff (7,) [N m]."""
+    """What a plan sends to the inner loop, which applies
+    tau = Kq (q_ref - q) - Dq v + g(q) + tau_ff (the lab arm: KUKA's joint impedance).
+
+    Attributes:
+        q_ref: Joint position reference (7,) [rad].
+        tau_ff: Feed-forward joint torque (7,) [N m], added to the loop's.
+    """
 
     q_ref: np.ndarray
     tau_ff: np.ndarray
 
 
 class Plan(Protocol):
-    """Anything the plan runner can execute."""
+    """Anything the plan runner can execute: a name, a duration [s], and a command per control
+    tick (every ``timeline.control_period``, 5 ms, in Python).
+
+    A plan may also offer ``log_table() -> dict[str, numpy.ndarray]``: its own per-tick
+    channels (with a ``t`` column [s] since it started), saved in ``log.npz`` as
+    ``plan_log.<channel>``.
+    """
 
     name: str
     duration: float  # [s]
 
     def command(self, t: float, state: ArmState) -> Command:
-        """Command at time t [s] since the plan started (t may exceed duration: hold)."""
+        """Command at time t [s] since the plan started (t may exceed duration: the plan
+        stays active 1 s longer, hold there), from the measured ``state``."""
         ...
 
 

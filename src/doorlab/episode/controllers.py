@@ -1,15 +1,14 @@
 """The registry of the door-opening controllers and the episode each one runs.
 
-Each controller turns a scenario into the arc plan and the configuration it starts from;
-:func:`run_controller` wraps it in the problem set's episode: close the gripper on the handle at
-the start configuration, then follow the arc (:func:`episode_plans`, for either cell; the
-simulated episode is :func:`doorlab.episode.simulation.run_episode`).
+Each controller turns a scenario into the arc plan and the configuration it starts from
+(the contract: :mod:`doorlab.episode.contract`); :func:`run_controller` wraps it in the
+problem set's episode: close the gripper on the handle at the start configuration, then
+follow the arc (:func:`episode_plans`, for either cell; the simulated episode is
+:func:`doorlab.episode.simulation.run_episode`). :func:`get_controller` finds a built-in of
+:data:`REGISTRY` or loads a plug-in (:mod:`doorlab.episode.plugins`).
 """
 
 from __future__ import annotations
-
-from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 from pydrake.geometry import Meshcat
@@ -18,11 +17,12 @@ from pydrake.multibody.plant import MultibodyPlant
 from doorlab.cell.geometry import DoorGeometry, scenario_door_geometry
 from doorlab.cell.station import STIFFNESS_LOOPS, joint_damping, make_controller_plant
 from doorlab.config import Scenario, validate
+from doorlab.config_checks import controller_spec
 from doorlab.constants import Q_HOME
 from doorlab.control.adaptive import AdaptivePlan, velocity_lead
 from doorlab.control.diffik import DiffIkPlan
 from doorlab.control.ik import solve_ik
-from doorlab.control.ik_pointwise import IkResult, pointwise_ik
+from doorlab.control.ik_pointwise import pointwise_ik
 from doorlab.control.osc import OperationalSpacePlan
 from doorlab.control.plans import (
     JointSpacePlan,
@@ -30,41 +30,37 @@ from doorlab.control.plans import (
     TaskSpaceImpedancePlan,
     TaskSpaceVelocityPlan,
 )
+from doorlab.episode.contract import ArcPlan, Controller
+from doorlab.episode.plugins import build_arc, display_name, load_plugin
 from doorlab.episode.result import EpisodeResult
 from doorlab.episode.simulation import run_episode
 from doorlab.errors import ConfigError
 
-
-@dataclass(frozen=True)
-class ArcPlan:
-    """What a controller runs along the arc.
-
-    Attributes:
-        plan: The door-opening plan. q_start: Where it starts (7,) [rad].
-        ik: The pointwise IK behind the plan (task 1 only).
-    """
-
-    plan: Plan
-    q_start: np.ndarray
-    ik: IkResult | None = None
+__all__ = [
+    "REGISTRY",
+    "ArcPlan",
+    "Controller",
+    "controller_name",
+    "episode_plans",
+    "get_controller",
+    "grasp_configuration",
+    "run_controller",
+    "simulate_controller",
+]
 
 
-@dataclass(frozen=True)
-class Controller:
-    """A registered controller: its CLI name, the problem set's task number and a builder."""
-
-    name: str
-    task: int
-    title: str
-    summary: str
-    build: Callable[[Scenario, DoorGeometry, MultibodyPlant], ArcPlan]
-
-
-def _grasp_configuration(
+def grasp_configuration(
     scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPlant
 ) -> np.ndarray:
-    """One-shot IK: Q at the handle (plus ``ik.grasp_offset``), L7 at the arc's initial
-    orientation."""
+    """Where the task-space plans start: the arm's configuration (7,) [rad] with Q at the
+    (believed) handle plus ``ik.grasp_offset`` and L7 at the arc's initial orientation
+    ``geometry.R_WL7_ref(0)``, by one-shot IK from the home configuration (within
+    ``ik.grasp_position_tolerance`` [m] and ``ik.theta_bound`` [rad]). A plug-in's
+    ``ArcPlan.q_start`` may be this.
+
+    Raises:
+        IkError: No solution within the tolerances.
+    """
     return solve_ik(
         plant,
         geometry.p_WQ_ref(0.0) + np.asarray(scenario.ik.grasp_offset, dtype=float),
@@ -73,6 +69,9 @@ def _grasp_configuration(
         position_tolerance=scenario.ik.grasp_position_tolerance,
         theta_bound=scenario.ik.theta_bound,
     )
+
+
+_grasp_configuration = grasp_configuration  # the built-ins' name for it
 
 
 def build_ik_plan(scenario: Scenario, geometry: DoorGeometry, plant: MultibodyPlant) -> ArcPlan:
@@ -213,14 +212,35 @@ manipulation course teaches next."""
 
 
 def get_controller(name: str) -> Controller:
-    """The registered controller ``name``.
+    """The controller ``name`` names: a built-in of :data:`REGISTRY`, or a plug-in
+    (``FILE.py:NAME``, ``MODULE:NAME`` or an installed one's name), loaded once per process
+    and checked (:func:`doorlab.episode.plugins.load_plugin`).
 
     Raises:
         ConfigError: Unknown name (the message lists the valid ones).
+        PluginError: A plug-in that cannot be loaded or used (one line naming it).
     """
-    if name not in REGISTRY:
-        raise ConfigError(f"unknown controller {name!r}; choose one of {', '.join(REGISTRY)}")
-    return REGISTRY[name]
+    if name in REGISTRY:
+        return REGISTRY[name]
+    try:
+        controller_spec(name, tuple(REGISTRY))
+    except ConfigError as e:
+        raise ConfigError(
+            f"unknown controller {name!r}; choose one of {', '.join(REGISTRY)}; {e}"
+        ) from None
+    return load_plugin(name, tuple(REGISTRY))
+
+
+def controller_name(name: str) -> str:
+    """What tables, metrics and folders call the controller ``name`` names: a built-in's
+    name, a plug-in's own (a Controller's ``name``, a function's NAME, an installed one's
+    entry point name). A plug-in is loaded to read it (once per process).
+
+    Raises:
+        ConfigError, PluginError: As :func:`get_controller`.
+    """
+    get_controller(name)  # one line if it does not load
+    return display_name(name, tuple(REGISTRY))
 
 
 def run_controller(
@@ -262,11 +282,17 @@ def episode_plans(scenario: Scenario) -> tuple[list[Plan], list[float], ArcPlan]
         The plans, their gripper setpoints [m] and the arc plan.
 
     Raises:
-        ConfigError: Unknown controller. IkError: No IK solution.
+        ConfigError: Unknown controller. PluginError: A plug-in that cannot be loaded or
+            whose build failed. IkError: No IK solution.
     """
     controller = get_controller(scenario.controller)
     geometry = scenario_door_geometry(scenario)
-    arc = controller.build(scenario, geometry, make_controller_plant())
+    if scenario.controller in REGISTRY:
+        arc = controller.build(scenario, geometry, make_controller_plant())
+    else:  # a plug-in: its build and every tick watched (doorlab.episode.plugins)
+        arc = build_arc(
+            controller, scenario.controller, scenario, geometry, make_controller_plant()
+        )
     grasp = JointSpacePlan.hold(arc.q_start, scenario.timeline.grasp_duration, name="grasp")
     width = scenario.station.gripper.grasp_width
     return [grasp, arc.plan], [width, width], arc

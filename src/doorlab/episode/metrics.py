@@ -31,6 +31,7 @@ from doorlab.cell.geometry import DoorGeometry
 from doorlab.cell.station import STIFFNESS_LOOPS, loop_gains, make_controller_plant
 from doorlab.config import Scenario
 from doorlab.constants import JOINT_SPEED_LIMITS, JOINT_TORQUE_LIMITS
+from doorlab.episode.plugins import display_name
 from doorlab.episode.result import EpisodeResult
 from doorlab.errors import ConfigError
 
@@ -142,7 +143,8 @@ class DoorMetrics:
     key says ``cmd`` (from q_ref, as the problem set's plots drew them).
 
     Attributes:
-        controller: The controller that ran (``Scenario.controller``).
+        controller: The controller that ran: a built-in's name (``Scenario.controller``),
+            a plug-in's own name (:func:`doorlab.episode.plugins.display_name`).
         doors: ``open`` or ``closed`` (``Scenario.doors``).
         knots: IK knot points (``ik.knots``) for the ``ik`` controller, else None.
         status: One of :data:`STATUSES` (sets the exit code).
@@ -271,7 +273,7 @@ def compute_metrics(
         status = "ok"
     wall = float(result.wall_time_s)
     return DoorMetrics(
-        controller=scenario.controller,
+        controller=display_name(scenario.controller),
         doors=scenario.doors,
         knots=scenario.ik.knots if scenario.controller == "ik" else None,
         status=status,

@@ -46,7 +46,7 @@ from doorlab.control.plan_base import Plan
 from doorlab.episode.result import EpisodeResult, schedule_fields
 from doorlab.episode.schedule import ScheduledPlan, make_schedule, tick_lag
 from doorlab.episode.wiring import CommandWiring, EpisodeLogger, wire_commands
-from doorlab.errors import ConfigError, SafetyStop, SimulationError
+from doorlab.errors import ConfigError, ControllerError, SafetyStop, SimulationError
 from doorlab.kuka import CYCLE_PERIOD, WSG_COMMAND_PERIOD
 
 HINGES = (LEFT_HINGE, RIGHT_HINGE)
@@ -113,6 +113,9 @@ def run_episode(
 
     Raises:
         SimulationError: The physics engine failed or the state became non-finite.
+        SafetyStop, ControllerError: A command broke a safety limit, a plug-in's plan raised
+            or sent no valid command: the run stopped there (the error's ``result`` holds
+            the logs up to it).
     """
     q_initial = np.asarray(q_initial, float)
     schedule = make_schedule(
@@ -130,6 +133,10 @@ def run_episode(
         wall_time = time.perf_counter() - wall_start
         partial, _ = _result(episode, simulator, scenario, wall_time, arc_index)
         raise SafetyStop(stop.violation, result=partial) from None
+    except ControllerError as stop:  # a plug-in raised in a tick: its logs up to there
+        wall_time = time.perf_counter() - wall_start
+        partial, _ = _result(episode, simulator, scenario, wall_time, arc_index)
+        raise ControllerError(str(stop), result=partial) from None
     result, finite = _result(episode, simulator, scenario, wall_time, arc_index)
     if not finite:
         raise SimulationError("the simulation diverged: the plant state became non-finite")

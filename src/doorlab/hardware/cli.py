@@ -66,7 +66,10 @@ def run_hardware_command(args: argparse.Namespace, scenario: Scenario) -> int:
         )
     url = resolve_lcm_url(args.lcm_url)  # a second process: not memq
     answer_delay = _answer_delay()
-    out = args.out or Path("doorlab_out") / f"{scenario.controller}_{scenario.doors}_hardware"
+    from doorlab.episode.plugins import display_name
+
+    name = display_name(scenario.controller)
+    out = args.out or Path("doorlab_out") / f"{name}_{scenario.doors}_hardware"
     check_out_dir(out, force=args.force)
     link = DriverLink(url=url)
     print(
@@ -90,6 +93,8 @@ def run_hardware_command(args: argparse.Namespace, scenario: Scenario) -> int:
         print(f"doorlab run: error: {e}", file=sys.stderr)
         return _exit_promptly(EXIT_CODES["driver_lost"])
     print(hardware_summary(outcome), flush=True)
+    if outcome.status == "controller_error":  # a broken plug-in: its one line, exit 2
+        print(f"doorlab run: error: {outcome.message}", file=sys.stderr, flush=True)
     return _exit_promptly(outcome.exit_code)
 
 

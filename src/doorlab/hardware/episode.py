@@ -19,7 +19,10 @@ Safety, in the order it acts (the values are the module's constants):
   the run stops (status ``safety_stop``); one that is ready more than ``STALE_ANSWER`` (5 ms)
   after its status arrived is dropped (the arm holds the previous one; the next status gets a
   fresh answer);
-- Ctrl-C or SIGTERM stops commanding at once (status ``interrupted``).
+- Ctrl-C or SIGTERM stops commanding at once (status ``interrupted``);
+- a plug-in's plan that raises in a tick, or computes no valid command, stops commanding there
+  (status ``controller_error``: :class:`doorlab.episode.plugins.GuardedPlan`); its command of
+  that tick is never sent.
 
 When commanding stops, for whatever reason, the driver holds the last command it received
 (in position mode a command never expires).
@@ -43,7 +46,7 @@ from doorlab.control.plan_base import Plan
 from doorlab.episode.result import EpisodeResult, schedule_fields
 from doorlab.episode.schedule import ScheduledPlan, make_schedule
 from doorlab.episode.wiring import CommandWiring, EpisodeLogger, wire_commands
-from doorlab.errors import NoDriver
+from doorlab.errors import ControllerError, NoDriver
 from doorlab.hardware.estimates import door_angle_estimate, hardware_plant_positions
 from doorlab.hardware.interface import HardwareCell, build_hardware_cell
 from doorlab.hardware.link import DriverLink, Status
@@ -62,7 +65,7 @@ STALE_ANSWER = STATUS_PERIOD
 """A command not ready within this of its status's arrival [s] is dropped, not sent: the next
 status is due and gets a fresh answer (a descheduled client on a busy host)."""
 
-STOP_STATUSES = ("driver_lost", "safety_stop", "interrupted")
+STOP_STATUSES = ("driver_lost", "safety_stop", "interrupted", "controller_error")
 _ROUND_TRIP_SEARCH = 20
 """A command is looked for in the next this many statuses (100 ms) after it went out."""
 
@@ -417,6 +420,8 @@ def run_hardware_episode(
         status, message, violation = runner.run(first)
     except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM (doorlab.errors.Interrupted)
         status, message, violation, interrupt = "interrupted", "interrupted", None, e
+    except ControllerError as e:  # a plug-in raised in a tick, or sent no valid command
+        status, message, violation = "controller_error", str(e), None
     stopped = link.clock()
     wall = time.perf_counter() - wall_start
     arc_index = (len(plans) - 1 if arc_plan_index is None else arc_plan_index) + 2

@@ -22,6 +22,7 @@ from doorlab.cell.geometry import scenario_door_geometry
 from doorlab.config import Scenario
 from doorlab.constants import JOINT_SPEED_LIMITS, JOINT_TORQUE_LIMITS
 from doorlab.episode.metrics import Kinematics, compute_tracking
+from doorlab.episode.plugins import display_name
 from doorlab.episode.result import EpisodeResult
 from doorlab.hardware.episode import HardwareOutcome, describe_latency
 from doorlab.hardware.estimates import held_width
@@ -122,7 +123,7 @@ def compute_hardware_metrics(
             stop["violation"] = outcome.violation.to_dict()
     arc = result.window(t0, t1)
     return HardwareMetrics(
-        controller=scenario.controller,
+        controller=display_name(scenario.controller),
         doors=scenario.doors,
         knots=scenario.ik.knots if scenario.controller == "ik" else None,
         status=status,

@@ -22,6 +22,7 @@ from doorlab.cell.frames import ARM_JOINTS, p_L7Q
 from doorlab.cell.geometry import true_door_geometry
 from doorlab.config import Scenario, validate
 from doorlab.episode.metrics import Kinematics
+from doorlab.episode.plugins import display_name
 from doorlab.episode.schedule import PLAN_SETTLE_TIME
 from doorlab.errors import IkError, interrupt_exit_code
 from doorlab.hardware.episode import HardwareOutcome, run_hardware_episode
@@ -76,7 +77,7 @@ def describe_plan(scenario: Scenario, q_start: np.ndarray, status: Status, url: 
     safety = scenario.station.safety
     knots = f" ({scenario.ik.knots} knots)" if scenario.controller == "ik" else ""
     rows = [
-        ("controller / doors", f"{scenario.controller}{knots} / {scenario.doors}"),
+        ("controller / doors", f"{display_name(scenario.controller)}{knots} / {scenario.doors}"),
         ("duration", f"{total:g} s ({parts}, extra {timeline.extra_time:g} s)"),
         (
             "start pose",
@@ -142,7 +143,11 @@ def run_hardware_to_folder(
     out_dir = Path(out_dir)
     check_out_dir(out_dir, force=force)
     first = first or link.wait_first_status(wait)
-    base = {"controller": scenario.controller, "doors": scenario.doors, "cell": "hardware"}
+    base = {
+        "controller": display_name(scenario.controller),
+        "doors": scenario.doors,
+        "cell": "hardware",
+    }
     try:
         plans, widths, arc = episode_plans(scenario)
     except IkError as e:

@@ -443,7 +443,9 @@ def run_label(result: EpisodeResult) -> str:
     except (RuntimeError, ValueError, TypeError):
         return ""
     knots = f", {scenario.ik.knots} knots" if scenario.controller == "ik" else ""
-    return f"{scenario.controller}{knots}, doors {scenario.doors}"
+    from doorlab.episode.plugins import display_name
+
+    return f"{display_name(scenario.controller)}{knots}, doors {scenario.doors}"
 
 
 def save_figure(fig: Figure, path: Path, *, dpi: int = DPI) -> Path:

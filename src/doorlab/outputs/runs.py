@@ -22,6 +22,7 @@ from pydrake.geometry import Meshcat
 from doorlab.cell.geometry import true_door_geometry
 from doorlab.config import Scenario
 from doorlab.episode.metrics import DoorMetrics, Kinematics, compute_metrics
+from doorlab.episode.plugins import display_name
 from doorlab.errors import IkError, RunStopped, SafetyStop, SimulationError
 from doorlab.runtime.folders import staged_output, write_json
 from doorlab.runtime.interrupts import (
@@ -39,10 +40,13 @@ EXIT_CODES = {
     "ik_failed": 6,
     "driver_lost": 7,
     "safety_stop": 8,
+    "controller_error": 2,
 }
 """Exit codes of ``doorlab run`` by status (``usage``: bad input; ``driver_lost``: no status
 from the arm's driver, ``doorlab run --hardware``; ``safety_stop``: a command broke a limit of
-:mod:`doorlab.cell.safety`). A signal exits with 128 + its number (130 for Ctrl-C)."""
+:mod:`doorlab.cell.safety`; ``controller_error``: a plug-in raised in a tick or sent no valid
+command, a broken plug-in as one that does not load is: 2). A signal exits with 128 + its
+number (130 for Ctrl-C)."""
 
 
 @dataclass(frozen=True)
@@ -164,7 +168,7 @@ def _run_into(
     """Runs the episode and writes its files into ``staging`` (see :func:`run_to_folder`)."""
     from doorlab.episode.controllers import simulate_controller
 
-    base = {"controller": scenario.controller, "doors": scenario.doors}
+    base = {"controller": display_name(scenario.controller), "doors": scenario.doors}
     try:
         result, _ = simulate_controller(scenario, meshcat=meshcat, realtime_rate=realtime_rate)
     except (IkError, SimulationError, RunStopped) as e:

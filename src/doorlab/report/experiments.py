@@ -82,18 +82,43 @@ class RobustnessCase:
     yaw_error_rad: float
 
 
+def make_plugin_experiments(
+    controllers: Sequence[str], base: Scenario | None = None
+) -> tuple[tuple[str, Scenario], ...]:
+    """The runs of the report's controllers that are not built-ins (plug-ins): each with the
+    doors open and closed, ``<name>_open`` and ``<name>_closed`` (a copy of ``base`` each), so
+    that the tables and the overlays show them beside the problem set's."""
+    from doorlab.config import CONTROLLERS
+    from doorlab.episode.plugins import display_name
+
+    base = base if base is not None else Scenario()
+    out = []
+    for controller in controllers:
+        if controller in CONTROLLERS:
+            continue
+        name = display_name(controller)
+        for doors in ("open", "closed"):
+            scenario = copy.deepcopy(base)
+            scenario.controller, scenario.doors, scenario.door_angles = controller, doors, None
+            out.append((f"{name}_{doors}", scenario))
+    return tuple(out)
+
+
 def make_robustness_cases(
     base: Scenario | None = None,
     experiments: Sequence[tuple[str, Scenario]] = (),
     yaw_errors_deg: Sequence[float] | None = None,
+    controllers: Sequence[str] | None = None,
 ) -> tuple[tuple[RobustnessCase, ...], tuple[tuple[str, Scenario], ...]]:
-    """The robustness grid: every controller of the registry on every yaw error, doors closed.
+    """The robustness grid: every controller on every yaw error, doors closed.
 
     Args:
         base: The scenario the cases vary (:func:`doorlab.studies.robustness.case_scenario`).
         experiments: Runs already in the report: a case whose scenario equals one of them
             reuses that run instead of running it twice.
         yaw_errors_deg: The yaw errors [deg] (default: the acceptance grid, -10 to +10).
+        controllers: The controllers (built-ins' names or plug-ins' specs; default: every
+            built-in of the registry).
 
     Returns:
         (cases in (controller, yaw) order, the (name, scenario) experiments still to run).
@@ -101,14 +126,16 @@ def make_robustness_cases(
     import math
 
     from doorlab.episode.controllers import REGISTRY
+    from doorlab.episode.plugins import display_name
     from doorlab.studies.robustness import ACCEPTANCE_YAW_ERRORS_DEG, case_scenario
 
     base = base if base is not None else Scenario()
     yaws = ACCEPTANCE_YAW_ERRORS_DEG if yaw_errors_deg is None else tuple(yaw_errors_deg)
     cases, new = [], []
-    for controller in REGISTRY:
+    for spec in controllers if controllers is not None else list(REGISTRY):
+        controller = display_name(spec)
         for yaw_deg in yaws:
-            scenario = case_scenario(base, controller, math.radians(yaw_deg))
+            scenario = case_scenario(base, spec, math.radians(yaw_deg))
             same = [name for name, existing in experiments if existing == scenario]
             if same:
                 name = same[0]
@@ -327,6 +354,7 @@ def make_arm_cases(
     existing: Sequence[tuple[str, Scenario]] = (),
     *,
     band: bool = True,
+    controllers: Sequence[str] | None = None,
 ) -> tuple[tuple[ArmCase, ...], tuple[tuple[str, Scenario], ...]]:
     """The "On the arm" runs: every controller under every condition; the plans of
     :data:`ARM_TUNING` tuned on the arm and in doorlab's cell, there also with the cupboard
@@ -337,17 +365,21 @@ def make_arm_cases(
         base: The report's base scenario. existing: Runs the report has already: a case
             with the very same scenario reuses it.
         band: Also the band's models (False: the nominal arm only).
+        controllers: The controllers (built-ins' names or plug-ins' specs; default: every
+            built-in of the registry); :data:`ARM_TUNING` tunes built-ins only.
 
     Returns:
         (the cases, the (name, scenario) runs still to run).
     """
     from doorlab.config import update_scenario
     from doorlab.episode.controllers import REGISTRY
+    from doorlab.episode.plugins import display_name
 
     base = base if base is not None else Scenario()
+    chosen = list(controllers) if controllers is not None else list(REGISTRY)
     yaw = math.radians(ARM_COST_YAW_DEG)
-    wanted = [(c, condition, False, 0.0, "") for c in REGISTRY for condition in ARM_CONDITIONS]
-    for controller in ARM_TUNING:
+    wanted = [(c, condition, False, 0.0, "") for c in chosen for condition in ARM_CONDITIONS]
+    for controller in (c for c in ARM_TUNING if c in chosen):
         wanted += [
             (controller, "arm", True, 0.0, ""),
             (controller, "cell", True, 0.0, ""),
@@ -355,7 +387,7 @@ def make_arm_cases(
             (controller, "cell", True, yaw, ""),
         ]
     if band:
-        plans = [(c, False) for c in REGISTRY] + [(c, True) for c in ARM_TUNING]
+        plans = [(c, False) for c in chosen] + [(c, True) for c in ARM_TUNING if c in chosen]
         wanted += [
             (c, "arm", tuned, 0.0, model)
             for c, tuned in plans
@@ -364,9 +396,10 @@ def make_arm_cases(
         ]
     known = list(existing)
     cases, new = [], []
-    for controller, condition, tuned, yaw_error, model in wanted:
+    for spec, condition, tuned, yaw_error, model in wanted:
+        controller = display_name(spec)
         scenario = arm_condition(base, condition)
-        scenario.controller = controller
+        scenario.controller = spec
         scenario.station.cupboard_yaw_error = yaw_error
         if tuned:
             scenario = update_scenario(scenario, ARM_TUNING[controller])

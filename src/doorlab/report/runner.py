@@ -22,6 +22,7 @@ from doorlab.report.experiments import (
     RunRecord,
     make_arm_cases,
     make_experiments,
+    make_plugin_experiments,
     make_robustness_cases,
 )
 from doorlab.runtime.interrupts import completed
@@ -41,7 +42,9 @@ def _record_failure(
     run_dir.mkdir(parents=True, exist_ok=True)
     base = {}
     if scenario is not None:
-        base = {"controller": scenario.controller, "doors": scenario.doors}
+        from doorlab.episode.plugins import display_name
+
+        base = {"controller": display_name(scenario.controller), "doors": scenario.doors}
     _write_json(run_dir / "metrics.json", {**base, "status": "error", "error": message})
     return RunRecord(name, run_dir, "error", message, elapsed)
 
@@ -133,6 +136,7 @@ def run_report(
     scheduler_timeout_s: float | None = None,
     arm: bool = False,
     arm_band: bool = True,
+    controllers: Sequence[str] | None = None,
 ) -> int:
     """Runs the experiments in parallel and writes the report folder atomically.
 
@@ -156,6 +160,11 @@ def run_report(
             --arm``).
         arm_band: With ``arm``, also each plan under the band's other models of the arm
             (:func:`doorlab.report.experiments.arm_model_names`): the verdicts with their band.
+        controllers: The controllers the report compares (built-ins' names, plug-ins'
+            specs; default: every built-in): the robustness grid and "On the arm" run each;
+            a plug-in also runs with the doors open and closed beside the problem set's
+            experiments (:func:`doorlab.report.experiments.make_plugin_experiments`; not with
+            ``experiments`` given).
 
     Returns:
         0 if every experiment's status is ``ok``, 1 otherwise (failed runs are on the page).
@@ -175,7 +184,13 @@ def run_report(
         raise ConfigError(f"jobs must be an integer >= 1, got {jobs!r}")
     if base is not None:
         validate(base)
-    experiments = tuple(experiments) if experiments is not None else make_experiments(base)
+    if controllers is not None:  # a plug-in's relative FILE: the same file for every worker
+        from doorlab.config_checks import absolute_controller
+
+        controllers = [absolute_controller(c, Path.cwd()) for c in controllers]
+    if experiments is None:
+        experiments = (*make_experiments(base), *make_plugin_experiments(controllers or (), base))
+    experiments = tuple(experiments)
     names = [name for name, _ in experiments]
     if len(set(names)) != len(names):
         raise ConfigError(f"experiment names must be unique, got {names}")
@@ -186,13 +201,15 @@ def run_report(
     cases: tuple[RobustnessCase, ...] = ()
     extra: tuple[tuple[str, Scenario], ...] = ()
     if robustness:
-        cases, extra = make_robustness_cases(base, experiments)
+        cases, extra = make_robustness_cases(base, experiments, controllers=controllers)
         clash = sorted(set(names) & {name for name, _ in extra})
         if clash:
             raise ConfigError(f"experiment names clash with the robustness runs: {clash}")
     arm_cases: tuple[ArmCase, ...] = ()
     if arm:
-        arm_cases, arm_extra = make_arm_cases(base, (*experiments, *extra), band=arm_band)
+        arm_cases, arm_extra = make_arm_cases(
+            base, (*experiments, *extra), band=arm_band, controllers=controllers
+        )
         clash = sorted(set(names) & {name for name, _ in arm_extra})
         if clash:
             raise ConfigError(f"experiment names clash with the arm runs: {clash}")

@@ -3,7 +3,9 @@
 ``doorlab sweep SPEC.yaml`` and :func:`run_sweep` run every combination of controllers, door
 states and axis values (:mod:`doorlab.sweep.spec`) through one executor
 (:mod:`doorlab.runtime.executor`), collect one row per run (:mod:`doorlab.sweep.results`) and write
-the sweep page (:mod:`doorlab.sweep.page`).
+the sweep page (:mod:`doorlab.sweep.page`). The runner itself,
+:func:`doorlab.sweep.execution.execute_runs`, also runs ``doorlab bench``'s episodes
+(:mod:`doorlab.bench`).
 
 Running and the table (pandas) are imported on first use, so reading and checking a SPEC
 (:func:`load_spec`) costs no pandas import: a refused SPEC stays small and fast.

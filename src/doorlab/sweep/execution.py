@@ -13,6 +13,8 @@ import concurrent.futures
 import sys
 import threading
 import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
@@ -51,29 +53,45 @@ def _kinematics():
     return _local.kinematics
 
 
-def run_one(scenario: Scenario) -> dict:
+def run_one(scenario: Scenario, measure: Callable | None = None) -> dict:
     """Worker: runs one scenario and returns its row (status, error, metrics); never raises.
+
+    Args:
+        scenario: The run.
+        measure: ``measure(result, scenario, metrics) -> dict``: more columns from the
+            episode's logs, for a run that produced metrics (a benchmark's, e.g.
+            :func:`doorlab.bench.measures.episode_columns`); module-level, so that it pickles.
 
     Returns:
         ``status``, ``error``, ``run_wall_time_s`` [s] and every key of ``metrics.json`` the
-        run produced (none for ik_failed, diverged, safety_stop and error).
+        run produced (none for ik_failed, diverged, safety_stop, controller_error and error),
+        and ``measure``'s columns.
     """
     from doorlab.cell.geometry import true_door_geometry
     from doorlab.episode.controllers import run_controller
     from doorlab.episode.metrics import compute_metrics
+    from doorlab.episode.plugins import display_name
     from doorlab.outputs.runs import status_message
 
     start = time.perf_counter()
-    base = {"controller": scenario.controller, "doors": scenario.doors}
+    base = {"controller": display_name(scenario.controller), "doors": scenario.doors}
     try:
         result, _ = run_controller(scenario)
         metrics = compute_metrics(
             result, scenario, true_door_geometry(scenario), kinematics=_kinematics()
         )
         row = {**metrics.to_dict(), "error": status_message(metrics)}
+        if measure is not None:
+            row.update(measure(result, scenario, metrics))
     except (IkError, SimulationError, RunStopped) as e:  # results of the run, not errors
         status = "ik_failed" if isinstance(e, IkError) else getattr(e, "status", "diverged")
         row = {**base, "status": status, "error": str(e)}
+        partial = getattr(e, "result", None)  # a stopped run's logs up to its stop
+        if measure is not None and partial is not None:
+            try:
+                row.update(measure(partial, scenario, None))
+            except Exception as m:  # the row keeps its status, and says why it has no more
+                row["error"] += f" (its logs could not be measured: {type(m).__name__}: {m})"
     except Exception as e:  # a run's bug must not end the sweep
         row = {**base, "status": "error", "error": f"{type(e).__name__}: {e}"}
     row["run_wall_time_s"] = time.perf_counter() - start
@@ -84,7 +102,9 @@ SWEEP_FILES = (RESULTS_PARQUET, RESULTS_CSV, *PAGE_FILES)
 """What a sweep writes into its folder (and a resumed sweep rewrites)."""
 
 
-def _check_dir(out_dir: Path, *, resume: bool, force: bool) -> pd.DataFrame | None:
+def _check_dir(
+    out_dir: Path, *, resume: bool, force: bool, files: Sequence[str] = SWEEP_FILES
+) -> pd.DataFrame | None:
     """Checks ``out_dir`` may be written (writing nothing); returns the table to resume from.
 
     A new sweep needs a missing or empty folder, or with ``force`` one holding nothing but
@@ -97,7 +117,7 @@ def _check_dir(out_dir: Path, *, resume: bool, force: bool) -> pd.DataFrame | No
         raise OutputError(f"--out {str(out_dir)!r} is a file, not a folder")
     existing = out_dir.is_dir() and any(out_dir.iterdir())
     if existing and resume:
-        found = foreign_file(out_dir, only=SWEEP_FILES)
+        found = foreign_file(out_dir, only=files)
         if found is not None:
             raise OutputError(
                 f"--out {str(out_dir)!r} holds {found[0]!r}, {found[1]}, and --resume would "
@@ -109,7 +129,7 @@ def _check_dir(out_dir: Path, *, resume: bool, force: bool) -> pd.DataFrame | No
             raise OutputError(f"cannot resume from {out_dir / RESULTS_PARQUET}: {e}") from None
     if existing and not force:
         raise OutputError(
-            f"--out {str(out_dir)!r} already exists; pass --resume to continue its sweep or "
+            f"--out {str(out_dir)!r} already exists; pass --resume to continue its runs or "
             "--force to start over"
         )
     check_replaceable(out_dir, force=force)
@@ -128,11 +148,13 @@ def _make_dir(out_dir: Path, *, resume: bool, force: bool) -> None:
 
 
 def _row(run: PlannedRun, outcome: dict) -> dict:
+    from doorlab.episode.plugins import display_name
+
     return {
         **outcome,
         "run": run.index,
         "key": run.key,
-        "controller": run.scenario.controller,
+        "controller": display_name(run.scenario.controller),
         "doors": run.scenario.doors,
         **run.values,
     }
@@ -173,18 +195,99 @@ def run_sweep(
             ``resume`` or ``force``) or cannot be written.
         KeyboardInterrupt: After writing the table of the runs finished so far.
     """
-    from doorlab.runtime.executor import CONNECT_TIMEOUT_S, check_scheduler, open_executor
-
     if not isinstance(spec, SweepSpec):
         spec = load_spec(spec)
     runs = plan_runs(spec)
-    axes = [axis.field for axis in spec.axes]
+    executed = execute_runs(
+        runs,
+        out_dir,
+        axes=[axis.field for axis in spec.axes],
+        jobs=jobs,
+        scheduler=scheduler,
+        scheduler_timeout_s=scheduler_timeout_s,
+        resume=resume,
+        force=force,
+        progress=progress,
+    )
+    if executed.out is not None and page:
+        from doorlab.sweep.page import build_sweep_page
+
+        build_sweep_page(
+            executed.frame,
+            spec,
+            executed.out,
+            wall_time_s=executed.wall_time_s,
+            executor=executed.executor,
+            total_runs=len(runs),
+        )
+    return executed.frame
+
+
+@dataclass(frozen=True)
+class ExecutedRuns:
+    """What :func:`execute_runs` did.
+
+    Attributes:
+        frame: The table of every run (resumed rows included), in run order.
+        out: The folder written (None: nothing written).
+        executor: What ran them (e.g. "2 local worker processes"; "none" if every run was
+            in the table already).
+        wall_time_s: From the start to the last row [s].
+        workers: Worker processes or threads that ran them (0 if none ran).
+        ran: How many runs ran now (the others came from the table).
+    """
+
+    frame: pd.DataFrame
+    out: Path | None
+    executor: str
+    wall_time_s: float
+    workers: int
+    ran: int
+
+
+def execute_runs(
+    runs: Sequence[PlannedRun],
+    out_dir: str | Path | None,
+    *,
+    axes: Sequence[str],
+    worker: Callable[[Scenario], dict] = run_one,
+    jobs: int = 1,
+    scheduler: str | None = None,
+    scheduler_timeout_s: float | None = None,
+    resume: bool = False,
+    force: bool = False,
+    progress: bool = False,
+    label: str = "sweep",
+    files: Sequence[str] = SWEEP_FILES,
+    extra_columns: dict[str, str] | None = None,
+) -> ExecutedRuns:
+    """Runs planned runs through one executor into a results table: the machinery of
+    ``doorlab sweep`` and ``doorlab bench`` (the folder's rules, the table written as rows
+    land, ``resume``, the progress bar, Ctrl-C).
+
+    Args:
+        runs: The runs (their ``values`` are the table's axis columns).
+        out_dir: The folder for the table (None: write nothing).
+        axes: The axis columns, in order.
+        worker: ``worker(scenario) -> row`` in the worker processes (default :func:`run_one`;
+            a module-level function or a ``functools.partial`` of one, so that it pickles).
+        jobs, scheduler, scheduler_timeout_s, resume, force, progress: As :func:`run_sweep`.
+        label: The progress bar's and the messages' name of the command.
+        files: The top-level names the command writes into ``out_dir`` (what ``resume``
+            may overwrite).
+        extra_columns: More columns the worker's rows hold, name -> pandas dtype.
+
+    Raises:
+        ConfigError, OutputError, KeyboardInterrupt: As :func:`run_sweep`.
+    """
+    from doorlab.runtime.executor import CONNECT_TIMEOUT_S, check_scheduler, open_executor
+
     if scheduler is not None:
         check_scheduler(scheduler)
     elif not isinstance(jobs, int) or isinstance(jobs, bool) or jobs < 1:
         raise ConfigError(f"jobs must be an integer >= 1, got {jobs!r}")
     out = Path(out_dir) if out_dir is not None else None
-    previous = _check_dir(out, resume=resume, force=force) if out is not None else None
+    previous = _check_dir(out, resume=resume, force=force, files=files) if out is not None else None
 
     rows: dict[int, dict] = {}
     if previous is not None:
@@ -199,7 +302,7 @@ def run_sweep(
     last_write, write_duration, writes = -float("inf"), 0.0, 0
 
     def table() -> pd.DataFrame:
-        return make_table(list(rows.values()), axes)
+        return make_table(list(rows.values()), axes, extra_columns)
 
     def save(*, now: bool) -> None:
         nonlocal last_write, write_duration, writes
@@ -215,7 +318,7 @@ def run_sweep(
     bar = None
     failures = sum(r.get("status") != "ok" for r in rows.values())
     start = time.perf_counter()
-    description = "none (every run was in the table)"
+    description, workers = "none (every run was in the table)", 0
     started = False  # the folder is ours to write from here on
     try:
         if not todo and out is not None:
@@ -233,11 +336,11 @@ def run_sweep(
                     _make_dir(out, resume=resume, force=force)
                     started = True
                     save(now=True)
-                description = executor.description
-                bar = _progress_bar(len(runs), initial=len(rows), enabled=progress)
+                description, workers = executor.description, executor.jobs
+                bar = _progress_bar(len(runs), initial=len(rows), enabled=progress, label=label)
                 if bar is not None:
-                    bar.write(f"doorlab sweep: {len(todo)} runs on {description}")
-                futures = {executor.submit(run_one, run.scenario): run for run in todo}
+                    bar.write(f"doorlab {label}: {len(todo)} runs on {description}")
+                futures = {executor.submit(worker, run.scenario): run for run in todo}
                 for future in completed(futures):  # raises a Ctrl-C Python dropped
                     run = futures[future]
                     try:
@@ -265,19 +368,7 @@ def run_sweep(
             bar.close()
         if out is not None and started:
             write_table(table(), out)  # the finished runs, whatever ended the loop
-    frame = table()
-    if out is not None and page:
-        from doorlab.sweep.page import build_sweep_page
-
-        build_sweep_page(
-            frame,
-            spec,
-            out,
-            wall_time_s=time.perf_counter() - start,
-            executor=description,
-            total_runs=len(runs),
-        )
-    return frame
+    return ExecutedRuns(table(), out, description, time.perf_counter() - start, workers, len(todo))
 
 
 def _missing(value: object) -> bool:
@@ -287,11 +378,11 @@ def _missing(value: object) -> bool:
         return False
 
 
-def _progress_bar(total: int, *, initial: int, enabled: bool):
+def _progress_bar(total: int, *, initial: int, enabled: bool, label: str = "sweep"):
     if not enabled:
         return None
     from tqdm import tqdm
 
     return tqdm(
-        total=total, initial=initial, unit="run", file=sys.stderr, dynamic_ncols=True, desc="sweep"
+        total=total, initial=initial, unit="run", file=sys.stderr, dynamic_ncols=True, desc=label
     )

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from doorlab.episode.plugins import display_name
 from doorlab.outputs.pages import (
     Figures,
     format_number,
@@ -182,7 +183,7 @@ def build_sweep_page(
         failures=failures if len(failed) else "",
         design=design,
         axes=[{"name": a.label, "shown": _axis_values(a)} for a in spec.axes],
-        controllers=", ".join(spec.controllers),
+        controllers=", ".join(display_name(c) for c in spec.controllers),
         doors=", ".join(spec.doors),
         axis_sections=sections,
         heatmaps=heatmaps,

@@ -55,14 +55,18 @@ def metric_columns() -> list[str]:
     return [k for k in METRIC_DTYPES if k not in LEAD_COLUMNS + STATUS_COLUMNS]
 
 
-def make_table(rows: Sequence[dict], axes: Sequence[str]) -> pd.DataFrame:
+def make_table(
+    rows: Sequence[dict], axes: Sequence[str], extra: dict[str, str] | None = None
+) -> pd.DataFrame:
     """The results table of ``rows`` (dicts from :func:`doorlab.sweep.execution.run_one`).
 
     Args:
         rows: One dict per run (``run``, ``key``, the axis values, status, metrics...).
         axes: The axis fields, in SPEC order.
+        extra: More columns after the metrics (a benchmark's), name -> pandas dtype.
     """
-    columns = [*LEAD_COLUMNS, *axes, *STATUS_COLUMNS, *metric_columns()]
+    extra = extra or {}
+    columns = [*LEAD_COLUMNS, *axes, *STATUS_COLUMNS, *metric_columns(), *extra]
     frame = pd.DataFrame([{c: row.get(c) for c in columns} for row in rows], columns=columns)
     dtypes = {
         "run": "int64",
@@ -74,6 +78,7 @@ def make_table(rows: Sequence[dict], axes: Sequence[str]) -> pd.DataFrame:
         "run_wall_time_s": "float64",
     }
     dtypes.update({k: v for k, v in METRIC_DTYPES.items() if k in metric_columns()})
+    dtypes.update(extra)
     for column, dtype in dtypes.items():
         frame[column] = frame[column].astype(dtype)
     frame["error"] = frame["error"].fillna("")

@@ -5,7 +5,8 @@ Example (every key but ``axes`` optional; unknown keys are errors)::
     base: scenario.yaml              # a scenario file, relative to the SPEC (default: defaults)
     scenario:                        # fields changed on top of the base (a scenario mapping)
       timeline: {extra_time: 1.0}
-    controllers: [impedance]         # default: every registered controller
+    controllers: [impedance]         # default: every built-in; a plug-in: FILE.py:NAME
+                                     # (relative to the SPEC), MODULE:NAME, an installed one
     doors: [closed]                  # default: the base scenario's
     axes:                            # dotted scenario field -> values
       impedance.kv: [50, 100, 200]                      # a list of values
@@ -331,11 +332,7 @@ def parse_spec(data: object, *, base_dir: Path | None = None) -> SweepSpec:
             raise ConfigError(f"scenario: {e}") from None
 
     controllers = document.controllers if document.controllers is not None else list(REGISTRY)
-    for name in controllers:
-        if name not in REGISTRY:
-            raise ConfigError(
-                f"controllers: unknown controller {quote(name)}; choose from {', '.join(REGISTRY)}"
-            )
+    controllers = check_controllers(controllers, base_dir=base_dir)
     doors = document.doors if document.doors is not None else [base.doors]
     for state in doors:
         if state not in DOOR_STATES:
@@ -367,6 +364,38 @@ def parse_spec(data: object, *, base_dir: Path | None = None) -> SweepSpec:
     return spec
 
 
+def check_controllers(names: list[str], *, base_dir: Path | None = None) -> list[str]:
+    """The SPEC's controllers, each checked and loaded now (a plug-in: imported and its
+    signature checked, before anything runs), a plug-in file's relative path made absolute
+    against ``base_dir`` (default: the working directory).
+
+    Raises:
+        ConfigError: An unknown controller, a plug-in that cannot be used, two that share a
+            name (the table's ``controller`` column tells them apart by it).
+    """
+    from doorlab.config_checks import absolute_controller
+    from doorlab.episode.controllers import REGISTRY, controller_name
+
+    out, by_name = [], {}
+    for name in names:
+        name = absolute_controller(name, base_dir or Path.cwd())
+        try:
+            shown = controller_name(name)
+        except ConfigError as e:
+            message = str(e)
+            if name not in REGISTRY and ":" not in name and "unknown controller" in message:
+                message = f"unknown controller {quote(name)}; choose from {', '.join(REGISTRY)}"
+            raise ConfigError(f"controllers: {message}") from None
+        if shown in by_name and by_name[shown] != name:
+            raise ConfigError(
+                f"controllers: {quote(by_name[shown])} and {quote(name)} are both named "
+                f"{quote(shown)}; the table tells controllers apart by name"
+            )
+        by_name[shown] = name
+        out.append(name)
+    return out
+
+
 def _check_draft_count(data: dict, axes: dict, prefix: str) -> None:
     """:func:`check_run_count` on a SPEC not yet parsed (controllers and doors as written, or
     their defaults: every controller, one door state)."""
@@ -384,12 +413,16 @@ def _check_draft_count(data: dict, axes: dict, prefix: str) -> None:
         raise ConfigError(f"{prefix}{e}") from None
 
 
-def load_spec(path: str | Path | None, *, grid: list[str] = ()) -> SweepSpec:
+def load_spec(
+    path: str | Path | None, *, grid: list[str] = (), controllers: list[str] | None = None
+) -> SweepSpec:
     """Loads a SPEC file and applies ``--grid KEY=V1,V2,...`` shorthands.
 
     Args:
         path: The SPEC YAML (None: no file; the axes come from ``grid``).
         grid: ``KEY=V1,V2,...`` items; each adds or replaces the list axis KEY (values YAML).
+        controllers: ``--controller`` values: they replace the SPEC's ``controllers``
+            (a plug-in file relative to the working directory).
 
     Raises:
         ConfigError: Missing or invalid file, bad shorthand, invalid SPEC (one line naming
@@ -426,6 +459,12 @@ def load_spec(path: str | Path | None, *, grid: list[str] = ()) -> SweepSpec:
             except ConfigError as e:
                 raise ConfigError(f"--grid {quote_text(item)}: {e}") from None
         data = {**data, "axes": axes}
+    if controllers:
+        if not isinstance(data, dict):
+            raise ConfigError(f"{prefix}a SPEC must be a mapping")
+        from doorlab.config_checks import absolute_controller
+
+        data = {**data, "controllers": [absolute_controller(c, Path.cwd()) for c in controllers]}
     try:
         return parse_spec(data, base_dir=base_dir)
     except ConfigError as e:

@@ -124,6 +124,7 @@ STUDENT_WHEEL_LEAVES_OUT = {
     "doorlab/report/": "the report (doorlab's answers to the notebook's questions)",
     "doorlab/templates/": "the report's and the sweep's pages",
     "doorlab/sweep/": "the sweeps (they run the reference controllers)",
+    "doorlab/bench/": "the benchmark card (it runs the reference controllers)",
     "doorlab/pset/grading/answer_key.py": "the grader's answer key (its expected answers)",
     "doorlab/pset/handout/templates/": "the problem set's templates (the solutions' text)",
     "doorlab/pset/classroom/gradescope.py": (
