@@ -302,7 +302,17 @@ def _covered(intervals: list[tuple[float, float]]) -> float:
 
 def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
     """What the real-time sections cost the run: how long they ran, side by side or not, and
-    how long workers waited for their turn (idle: tests/run_lock.py) (docs/development.md)."""
+    how long workers waited for their turn (idle: tests/run_lock.py) (docs/development.md);
+    and the docs' blocks the docs tests ran (tests/doc_commands.py), each with its time."""
+    if not hasattr(config, "workerinput"):
+        import doc_commands
+
+        for row in doc_commands.report():
+            terminalreporter.write_line(
+                f"docs: {row['page']} block {row['block']} (line {row['line']}): {row['how']}"
+                + (f", {row['seconds']:.0f} s" if row["how"] == "ran" else "")
+                + f": {row['first'][:70]}"
+            )
     folder = run_dir()
     path = None if folder is None else folder / SECTIONS_FILE
     if hasattr(config, "workerinput") or path is None or not path.is_file():
