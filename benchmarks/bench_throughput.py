@@ -236,7 +236,7 @@ def main(argv: list[str] | None = None) -> int:
                     "drake": drake_version(),
                     "loadavg": os.getloadavg(),
                 },
-                "settings": vars(args) | {"out": str(out)},
+                "settings": vars(args) | {"out": out.name},  # no one machine's path
                 "samples": samples,
                 "summary": summary,
                 "sweep_over_bench_per_cpu_s": ratio,

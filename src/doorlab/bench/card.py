@@ -1,15 +1,15 @@
 """The benchmark card: ``bench.json`` (the numbers) and ``index.html`` (one self-contained page:
 the definition, the distribution, the table, the figures), from the benchmark's table only.
 
-``bench.json``'s keys: ``bench`` (episodes, seed, controllers and their specs), ``definition``
-(success and failure, in words and thresholds), ``distribution`` (its fields and, in words,
-``draws``), ``base_scenario`` (YAML: every field an episode does not draw), ``controllers``
-(per controller: ``episodes``, ``successes``, ``success_rate``, ``ci95`` as [low, high],
-``robosuite`` the same under robosuite's definition, ``failures`` by kind, ``statuses``,
-``metrics``: each distribution's ``n``, ``mean``, ``q05`` .. ``q95`` in SI units), and
-``cost`` and ``machine`` (how long it took, on what). Every key but ``cost`` and ``machine``
-depends on the seed, the distribution, the base and the controllers only: the same whatever
-the jobs, the executor or the machine's load.
+``bench.json``'s keys: ``bench`` (episodes, random seed, controllers and their specs),
+``definition`` (success and failure, in words and thresholds), ``distribution`` (its fields and,
+in words, ``draws``), ``base_scenario`` (YAML: every field an episode does not draw),
+``controllers`` (per controller: ``episodes``, ``successes``, ``success_rate``, ``ci95`` as
+[low, high], ``robosuite`` the same under robosuite's definition, ``failures`` by kind,
+``statuses``, ``metrics``: each distribution's ``n``, ``mean``, ``q05`` .. ``q95`` in SI units),
+and ``cost`` and ``machine`` (how long it took, on what). Every key but ``cost`` and ``machine``
+depends on the random seed, the distribution, the base and the controllers only: the same
+whatever the jobs, the executor or the machine's load.
 """
 
 from __future__ import annotations
@@ -320,7 +320,7 @@ def _write_page(out_dir: Path, document: dict, rows: Sequence[dict], figures) ->
     bench = document["bench"]
     meta = [
         *machine_rows(),
-        ("episodes", f"{bench['episodes']} per controller, seed {bench['seed']}"),
+        ("episodes", f"{bench['episodes']} per controller, random seed {bench['seed']}"),
         ("controllers", ", ".join(names) or "none"),
         ("executor", cost["executor"]),
         (

@@ -202,7 +202,7 @@ def plan_bench(
     (controller, episode) order, each scenario validated.
 
     Raises:
-        ConfigError: Bad counts or seed, an episode's scenario invalid (naming its values).
+        ConfigError: Bad counts or random seed, an episode's scenario invalid (naming its values).
     """
     if not isinstance(episodes, int) or isinstance(episodes, bool) or not 1 <= episodes:
         raise ConfigError(f"episodes must be an integer >= 1, got {quote(episodes)}")
@@ -217,7 +217,7 @@ def plan_bench(
         raise ConfigError("a benchmark needs at least one controller")
     base = validate(copy.deepcopy(base) if base is not None else Scenario())
     distribution = validate_distribution(distribution or BenchDistribution())
-    draws = [draw_episode(distribution, seed, i) for i in range(episodes)]
+    draws = [draw_episode(distribution, seed=seed, episode=i) for i in range(episodes)]
     runs = []
     for controller in controllers:
         for i, values in enumerate(draws):

@@ -153,7 +153,7 @@ def run_bench(
             "seed": seed,
             "controllers": list(specs),
             "specs": {n: s for n, s in specs.items() if n != s},
-            "command": command or _command(list(specs.values()), episodes, seed),
+            "command": command or _command(list(specs.values()), episodes, seed=seed),
         },
         "definition": definition(_threshold_deg(runs)),
         "distribution": {

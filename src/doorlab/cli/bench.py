@@ -43,7 +43,7 @@ def add_bench_parser(sub, scheduler, common) -> None:
         type=bounded_int(0, 2**63 - 1),
         default=0,
         metavar="S",
-        help="the cupboards' seed (default 0): episode i's cupboard depends on S and i only",
+        help="the cupboards' random seed (default 0): episode i's cupboard depends on S and i only",
     )
     bench.add_argument(
         "--distribution",
