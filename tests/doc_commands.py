@@ -17,6 +17,7 @@ call ``doorlab`` and ``dask`` bare). What a block may hold:
 - ``python``: the block runs as a script in that folder.
 - ``yaml``: a sweep SPEC the page shows is loaded as one (``doorlab.sweep.load_spec``); other
   YAML is parsed.
+- ``toml``: an excerpt of a pyproject.toml: parsed.
 - no language: not a command (a layout, a table of text): listed, not run.
 
 A block that cannot run here says why on the line before it, ``<!-- docs-test: skip (REASON)
@@ -71,7 +72,7 @@ class Block:
     page: str  # its path from the repository's root
     number: int  # 1, 2, ... in the page's order
     line: int  # the line of its opening fence (1-based)
-    lang: str  # the fence's info string ("bash", "python", "yaml" or "")
+    lang: str  # the fence's info string ("bash", "python", "yaml", "toml" or "")
     text: str
     skip: str | None = None  # why it cannot run here
     run_by: str | None = None  # the test that runs it as written
@@ -251,6 +252,10 @@ class Page:
             outcome.outputs.append(self.run_command(f"python {script.name}"))
         elif block.lang == "yaml":
             _check_yaml(block, self.root)
+        elif block.lang == "toml":  # a pyproject.toml excerpt: it parses
+            import tomllib  # Python 3.11+ (the project's tests run on 3.11 and later)
+
+            tomllib.loads(block.text)
         else:
             return Outcome(block, "not a command")
         outcome.seconds = time.monotonic() - start

@@ -20,7 +20,7 @@ def test_controllers(tmp_path, lcm_url, realtime):  # noqa: F811
         outcomes = page.run_blocks()
     ran = [o for o in outcomes if o.how == "ran"]
     assert len(ran) >= 5, [o.how for o in outcomes]
-    for folder in ("dls_closed", "ff_closed", "doorlab_out/dls_closed_hardware"):
+    for folder in ("dls_closed", "ff_closed", "dls_arm"):
         metrics = json.loads((tmp_path / folder / "metrics.json").read_text())
         assert metrics["status"] == "ok", (folder, metrics["status"])
     assert (tmp_path / "sweep_dls" / "results.csv").is_file()

@@ -31,7 +31,7 @@ def test_every_page_is_covered_and_every_block_known():
                 named = re.findall(r"tests/[\w.]+\.py|\.ci/run", block.run_by)
                 assert named, f"{page}:{block.line}: run by what? {block.run_by!r}"
                 assert all((tests.parent / n).is_file() for n in named), block.run_by
-            known = ("bash", "python", "yaml", "text", "")
+            known = ("bash", "python", "yaml", "toml", "text", "")
             assert block.lang in known, (page, block.line, block.lang)
 
 
