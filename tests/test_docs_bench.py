@@ -19,8 +19,8 @@ def test_bench(tmp_path):
     assert [o.how for o in outcomes] == ["ran"] * 3
     card = json.loads((tmp_path / "bench_builtins" / "bench.json").read_text())
     assert set(card["controllers"]) == set(CONTROLLERS)
-    for entry in card["controllers"].values():  # resumed: 4 episodes each, 3 of them kept
-        assert entry["episodes"] == 4, entry
+    for entry in card["controllers"].values():  # resumed: 3 episodes each, 2 of them kept
+        assert entry["episodes"] == 3, entry
         low, high = entry["ci95"]
         assert 0.0 <= low <= entry["success_rate"] <= high <= 1.0, entry
     assert (tmp_path / "bench_two" / "index.html").is_file()
