@@ -208,24 +208,29 @@ class _ClassRun:
     def done(self, submission: Submission, outcome: dict) -> None:
         """Writes a finished submission's results and row, then the sheet; then those of the
         submissions with identical files that waited for it."""
+        from doorlab.runtime.interrupts import deferred_signals
+
         results = outcome.get("results")
         released = self.ledger.released(submission, outcome)
-        if results is not None:
-            results = self.ledger.finish(submission, results)
-            try:
-                _commit(self.out, submission.id, results)
-            except OutputError as e:  # a full disk: the grader's error, graded again later
-                results, outcome = None, {"error": f"{e}; --resume grades it again"}
-        if results is not None:
-            self.rows[submission.id] = sheet_row(submission, results)
-            self.results[submission.id] = results
-        else:
-            error = str(outcome.get("error") or "no results")
-            self.rows[submission.id] = sheet_row(submission, None, error=error)
-            self.errors[submission.id] = error
-        self.graded.append(submission.id)
-        if not self.deferred:
-            self.write_sheet()
+        # Its results file and its row go together: a Ctrl-C meanwhile is raised after both
+        # (else a results file without its row would be left, which --resume would not know).
+        with deferred_signals():
+            if results is not None:
+                results = self.ledger.finish(submission, results)
+                try:
+                    _commit(self.out, submission.id, results)
+                except OutputError as e:  # a full disk: the grader's error, graded again later
+                    results, outcome = None, {"error": f"{e}; --resume grades it again"}
+            if results is not None:
+                self.rows[submission.id] = sheet_row(submission, results)
+                self.results[submission.id] = results
+            else:
+                error = str(outcome.get("error") or "no results")
+                self.rows[submission.id] = sheet_row(submission, None, error=error)
+                self.errors[submission.id] = error
+            self.graded.append(submission.id)
+            if not self.deferred:
+                self.write_sheet()
         if self.bar is not None:
             bad = sum(r.get("status") == "error" for r in self.rows.values())
             self.bar.set_postfix_str(f"{bad} grading errors", refresh=False)
