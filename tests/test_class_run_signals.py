@@ -22,9 +22,7 @@ class _Ledger:
         return results
 
 
-def test_a_ctrl_c_between_the_results_file_and_the_row_comes_after_the_row(
-    tmp_path, monkeypatch
-):
+def test_a_ctrl_c_between_the_results_file_and_the_row_comes_after_the_row(tmp_path, monkeypatch):
     run = object.__new__(class_run._ClassRun)  # only what done() reads
     run.out, run.ledger, run.bar, run.deferred = tmp_path, _Ledger(), None, True
     run.rows, run.results, run.errors, run.graded = {}, {}, {}, []
