@@ -34,6 +34,18 @@ def test_a_missed_timing_is_excused_on_a_loaded_host_only():
             raise AssertionError("IIWA_STATUS at 191.0 Hz")
 
 
+def _skip_if_starved(burned: float, tolerance: float) -> None:
+    """The burning process's share of a core [cores] must exceed the check's ``tolerance``
+    [cores] by 0.05 (the watch's sampling, 10 ms ticks over 1 s, with room), or the check could
+    pass without seeing it: on a host so loaded that it did not (other processes on every
+    core), the test skips and says what it measured."""
+    if burned < tolerance + 0.05:
+        pytest.skip(
+            f"the burning process got {burned:.2f} of a core (other processes on this "
+            f"host's cores): too little for the check of +-{tolerance} to see it"
+        )
+
+
 def test_another_process_s_cpu_counts_as_load():
     """A process this test does not wait for burns a core for a second: the watch sees at
     least what it used (a core, or its share of a loaded host's), measured from its /proc."""
@@ -47,7 +59,7 @@ def test_another_process_s_cpu_counts_as_load():
         time.sleep(1.0)
         other = watch.stop()
         burned = (_cpu_s(burner.pid) - before) / (time.monotonic() - start)
-        assert burned > 0.3, burned  # it ran
+        _skip_if_starved(burned, 0.1)
         assert other >= burned - 0.1, (watch.describe(), burned)
     finally:
         burner.kill()
@@ -81,7 +93,7 @@ def test_the_suite_s_other_workers_do_not_count_as_load():
         told.stop()
         burned = (_cpu_s(int(child)) - burned) / (time.monotonic() - start)
         difference = untold.other_cores - told.other_cores
-        assert burned > 0.3, burned  # it ran (a core, or its share of a loaded host's)
+        _skip_if_starved(burned, 0.15)
         assert abs(difference - burned) < 0.15, (difference, burned, told.describe())
     finally:
         controller.kill()  # its child ends by itself
