@@ -34,17 +34,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from common import cpu_times
+
 BENCH_DIR = Path(__file__).resolve().parent
 RESULTS_DIR = BENCH_DIR / "results"
-
-
-def _cpu_times() -> tuple[float, float] | None:
-    try:
-        fields = [float(x) for x in Path("/proc/stat").read_text().split("\n")[0].split()[1:]]
-    except OSError:
-        return None
-    idle = fields[3] + fields[4]
-    return sum(fields) - idle, sum(fields)
 
 
 def _results(folder: Path) -> dict:
@@ -80,14 +73,14 @@ def main(argv: list[str] | None = None) -> int:
         dashboard_address=None,
         silence_logs=40,
     ) as cluster:
-        before = _cpu_times()
+        before = cpu_times()
         start = time.perf_counter()
         code = doorlab(
             ["bench", "--episodes", str(args.episodes), "--seed", str(args.seed), "--out",
              str(folder), "--scheduler", cluster.scheduler_address]
         )  # fmt: skip
         wall = time.perf_counter() - start
-        after = _cpu_times()
+        after = cpu_times()
     busy = None
     if before and after:
         busy = (after[0] - before[0]) / max(after[1] - before[1], 1.0) * (os.cpu_count() or 1)

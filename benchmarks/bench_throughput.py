@@ -47,6 +47,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from common import cpu_times
+
 BENCH_DIR = Path(__file__).resolve().parent
 RESULTS_DIR = BENCH_DIR / "results"
 SHORT_TIMELINE = {
@@ -57,16 +59,6 @@ SHORT_TIMELINE = {
 }
 TARGET_RATIO = 1.1
 """The sweep's throughput per core over the benchmark's: at most this."""
-
-
-def _cpu_times() -> tuple[float, float] | None:
-    """(busy, total) jiffies of all CPUs from /proc/stat, or None off Linux."""
-    try:
-        fields = [float(x) for x in Path("/proc/stat").read_text().split("\n")[0].split()[1:]]
-    except OSError:
-        return None
-    idle = fields[3] + fields[4]
-    return sum(fields) - idle, sum(fields)
 
 
 def _cpu_seconds() -> float:
@@ -122,7 +114,7 @@ def bench_arguments(short: bool) -> dict:
 def time_variant(name: str, episodes: int, jobs: int, short: bool, spec) -> dict:
     """Runs one variant into a temporary folder: wall time, throughput per core, the
     episodes' own median cost, statuses, busy cores."""
-    before = _cpu_times()
+    before = cpu_times()
     cpu_before = _cpu_seconds()
     with tempfile.TemporaryDirectory(prefix="doorlab_bench_throughput_") as tmp:
         out = Path(tmp) / name
@@ -139,7 +131,7 @@ def time_variant(name: str, episodes: int, jobs: int, short: bool, spec) -> dict
             ).frame
         wall = time.perf_counter() - start
     cpu = _cpu_seconds() - cpu_before
-    after = _cpu_times()
+    after = cpu_times()
     busy = None
     if before and after:
         share = (after[0] - before[0]) / max(after[1] - before[1], 1.0)

@@ -113,6 +113,17 @@ class Settings:
 # Noise: how much CPU other processes used while we measured.
 
 
+def cpu_times() -> tuple[float, float] | None:
+    """(busy, total) jiffies of all CPUs from /proc/stat (idle and iowait not busy), or None
+    off Linux: the machine's busy share over a span is the ratio of two readings' differences."""
+    try:
+        fields = [float(x) for x in Path("/proc/stat").read_text().split("\n")[0].split()[1:]]
+    except OSError:
+        return None
+    idle = fields[3] + fields[4]
+    return sum(fields) - idle, sum(fields)
+
+
 def _busy_cpu_seconds() -> float | None:
     """CPU seconds spent busy by the whole machine since boot (/proc/stat), None if unknown."""
     try:
