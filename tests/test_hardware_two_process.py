@@ -7,7 +7,8 @@ kuka_driver's cycle makes the episode independent of the client's speed: a comma
 answers status k and reaches the driver before cycle k + 1 acts from cycle k + 1, exactly as
 in a one-process run with the same preset (``examples/kuka_arm.yaml``, on both sides). So
 with the client's answers held back (the test-only knob ``DOORLAB_TEST_ANSWER_DELAY_MS``: each
-command leaves that long after its status arrived) by 0, 1.5 and 3 ms, the episode is the
+command leaves that long after its status arrived) by 0 or 3 ms (the latest a client
+answers with the host's scheduling on top still within the 5 ms cycle), the episode is the
 one-process run's: the door at the arc's end within 0.05 deg and Q's max radial error within
 0.01 mm (with no command late it is the same bit for bit, as on memq: test_hardware_wiring.py;
 here the host makes a few late: docs/guides/real-arm.md, "A rehearsal on one machine").
@@ -24,8 +25,10 @@ driver fell behind real time) is skipped with those measurements; late commands 
 does not explain, or a different episode with no late command, fail.
 
 The timelines are short (hold 0.2 s, move 2 s with the position-gap limit relaxed to 80 ms,
-grasp 0.5 s, arc 3 s, no extra time): what is compared is the arc's, and 6 real-time runs
-of 10 s cost over a minute already.
+grasp 0.5 s, arc 3 s, no extra time): what is compared is the arc's, and each real-time run
+costs a worker 12 s of wall time. The two delays bracket the period's first 3 ms; a delay
+between them (1.5 ms, run here until issue 42) tells nothing the two do not: each command
+reaches the driver before the next cycle or it does not.
 """
 
 from __future__ import annotations
@@ -171,7 +174,7 @@ def compare(controller: str, reference: EpisodeResult, gt: GroundTruth, log: Epi
 @pytest.mark.slow
 @pytest.mark.parametrize(
     ("controller", "delay_ms"),
-    [(c, d) for c in ("velocity", "impedance") for d in (0.0, 1.5, 3.0)],
+    [(c, d) for c in ("velocity", "impedance") for d in (0.0, 3.0)],
 )
 def test_any_client_within_the_period_gets_the_same_episode(
     realtime,
@@ -181,7 +184,7 @@ def test_any_client_within_the_period_gets_the_same_episode(
     controller,
     delay_ms,
 ):
-    """With the arm preset on both sides and the answers held 0, 1.5 or 3 ms: no command
+    """With the arm preset on both sides and the answers held 0 or 3 ms: no command
     late, the door at the arc's end within 0.05 deg and Q's max radial error within 0.01 mm
     of the one-process run (module docstring: a host that could not keep real time skips)."""
     reference = one_process(controller, heavy)  # before the real-time section
