@@ -98,6 +98,81 @@ def yaw_error_table(out: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _span(values: list[float], digits: int) -> str:
+    """``a-b`` (or ``a`` when the two print the same) at ``digits`` decimals."""
+    low, high = f"{min(values):.{digits}f}", f"{max(values):.{digits}f}"
+    return low if low == high else f"{low}-{high}"
+
+
+def _yaws(values: list[float]) -> str:
+    """Yaw errors [rad] as the table heads them: ``-15, -10 and +10`` [deg]."""
+    words = [f"{math.degrees(y):+.0f}" for y in values]
+    return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]
+
+
+def yaw_error_summary(out: Path) -> str:
+    """What the hinge-error sweep's table shows, in words, with the numbers from its rows
+    (and the adaptive plan's final hinge estimate, which the table leaves out)."""
+    rows = _rows(out)
+    by: dict[str, dict[float, dict[str, str]]] = {}
+    for r in rows:
+        by.setdefault(r["controller"], {})[float(r["station.cupboard_yaw_error"])] = r
+
+    def doors(name: str) -> dict[float, float]:
+        return {y: _deg(r["door_opening_arc_end_rad"]) for y, r in by[name].items()}
+
+    def torques(name: str) -> list[float]:
+        return [float(r["peak_external_torque_arc_Nm"]) for r in by[name].values()]
+
+    def slipped(name: str) -> list[float]:
+        return sorted(y for y, r in by[name].items() if r.get("handle_held") == "False")
+
+    lost = [f"{label} at {_yaws(slipped(name))}" for name, label in
+            (("ik", "IK"), ("velocity", "velocity")) if slipped(name)]  # fmt: skip
+    def grows(name: str) -> bool:  # larger at both ends of the range than without error
+        ends = (min(by[name]), max(by[name]))
+        at = {y: float(r["peak_external_torque_arc_Nm"]) for y, r in by[name].items()}
+        return all(at[end] > at[0.0] for end in ends)
+
+    position = (
+        "The two position-controlled plans force the handle along an arc about the wrong axis"
+        + (": their contact torque grows with the error on both sides" if grows("ik") and
+           grows("velocity") else "")
+        + (f", and they lose the handle ({'; '.join(lost)})." if lost else ".")
+    )  # fmt: skip
+    impedance, velocity = doors("impedance"), doors("velocity")
+    lag = [velocity[y] - impedance[y] for y in impedance]
+    widest = min(impedance)
+    held = (
+        "keeps the handle over the whole range"
+        if not slipped("impedance")
+        else (f"loses the handle at {_yaws(slipped('impedance'))}")
+    )
+    yields = (
+        f"The impedance plan yields: its contact torque stays at {_span(torques('impedance'), 1)} "
+        f"N m and it {held}, its door {impedance[0.0] - impedance[widest]:.1f} deg less open at "
+        f"{math.degrees(widest):+.0f} deg than without error (it trails the velocity plan by "
+        f"{_span(lag, 0)} deg: the damping lag above)."
+    )
+    adaptive = by["adaptive"]
+    hinge = [
+        1e3 * float(r["hinge_estimate_error_m"])
+        for r in adaptive.values()
+        if r.get("hinge_estimate_error_m") not in (None, "")
+    ]
+    estimate = (
+        f", and its final hinge estimate is {_span(hinge, 1)} mm from the true axis"
+        if hinge
+        else ""
+    )
+    knows = (
+        f"The adaptive plan, which knows only the grasp, opens the door "
+        f"{_span(list(doors('adaptive').values()), 1)} deg by the arc's end over the whole range "
+        f"with {_span(torques('adaptive'), 2)} N m of contact torque{estimate}."
+    )
+    return "\n".join([position, yields, knows]) + "\n"
+
+
 def _number(value: float | None, scale: float = 1.0) -> str:
     """3 significant digits, as the report prints them."""
     if value is None or not math.isfinite(value):
@@ -162,6 +237,22 @@ def _report_time(name: str) -> Callable[[Path], str]:
         return module.block(name, results) + "\n"
 
     return block
+
+
+BENCH_CARD = "benchmarks/results/bench_card_200.json"
+"""The benchmark card at 200 episodes per built-in (benchmarks/bench_scale.py's local run)."""
+
+
+def _bench_table(out: Path) -> str:  # noqa: ARG001 (the benchmark wrote its results file)
+    """The card's table, as benchmarks/bench_scale.py --table prints it."""
+    import importlib.util
+
+    path = ROOT / "benchmarks" / "bench_scale.py"
+    sys.path.insert(0, str(path.parent))
+    spec = importlib.util.spec_from_file_location("doorlab_bench_scale", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.table(json.loads((ROOT / BENCH_CARD).read_text()))
 
 
 TARGETS = {
@@ -239,12 +330,17 @@ TARGETS = {
                 "The controllers against the cupboard's yaw error, doors closed",
             ),
         },
-        tables={"table": yaw_error_table},
+        tables={"table": yaw_error_table, "summary": yaw_error_summary},
     ),
     "report_time": Target(
         "python benchmarks/report_time.py",
         {},
         tables={name: _report_time(name) for name in ("summary", "table", "arm")},
+    ),
+    "bench_200": Target(
+        f"python benchmarks/bench_scale.py --table {BENCH_CARD}",
+        {},
+        tables={"table": _bench_table},
     ),
     "suite": Target(
         "python -m pytest -p no:cacheprovider",
