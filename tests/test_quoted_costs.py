@@ -50,4 +50,3 @@ def test_the_readme_s_grading_costs_are_the_recorded_benchmarks():
     readme = _readme()
     missing = [phrase for phrase in _quoted() if phrase not in readme]
     assert missing == [], missing
-
