@@ -39,7 +39,6 @@ import argparse
 import datetime
 import json
 import os
-import platform
 import resource
 import statistics
 import sys
@@ -47,7 +46,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from common import cpu_times
+from common import cpu_times, machine
 
 BENCH_DIR = Path(__file__).resolve().parent
 RESULTS_DIR = BENCH_DIR / "results"
@@ -217,17 +216,10 @@ def main(argv: list[str] | None = None) -> int:
         f"bench-throughput-{datetime.datetime.now().strftime('%Y%m%d-%H%M%S')}.json"
     )
     out.parent.mkdir(parents=True, exist_ok=True)
-    from doorlab.outputs.pages import drake_version
-
     out.write_text(
         json.dumps(
             {
-                "machine": {
-                    "cpu_count": os.cpu_count(),
-                    "python": platform.python_version(),
-                    "drake": drake_version(),
-                    "loadavg": os.getloadavg(),
-                },
+                "machine": machine(),
                 "settings": vars(args) | {"out": out.name},  # no one machine's path
                 "samples": samples,
                 "summary": summary,

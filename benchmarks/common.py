@@ -223,6 +223,21 @@ def source_label(src: Path | str) -> str:
     return commit + ("-dirty" if git("status", "--porcelain", "--untracked-files=no") else "")
 
 
+def machine() -> dict:
+    """What a results file says of the machine it was measured on: cores, Python, Drake and
+    the load average (1, 5, 15 min) at the time of writing."""
+    import platform
+
+    from doorlab.outputs.pages import drake_version
+
+    return {
+        "cpu_count": os.cpu_count(),
+        "python": platform.python_version(),
+        "drake": drake_version(),
+        "loadavg": os.getloadavg(),
+    }
+
+
 def children_cpu_s() -> float:
     import resource
 

@@ -37,12 +37,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
-
-
-def _cpu_times() -> tuple[float, float]:
-    fields = [float(x) for x in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
-    idle = fields[3] + fields[4]
-    return sum(fields) - idle, sum(fields)
+from common import cpu_times
 
 
 def _process_cpu(pid: int) -> float:
@@ -196,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
     runs: dict[str, list] = {k: [] for k in ("local", "remote", "remote_trivial")}
     episodes: dict[str, list] = {"local": [], "remote": []}
     ticks_per_episode = 0
-    busy0, total0 = _cpu_times()
+    busy0, total0 = cpu_times()
     self0 = os.times()
     for r in range(args.repeats):
         runs["local"].append(_local_ticks(plans_module, states))
@@ -205,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
         episodes["local"].append(_local_episode(plans_module))
         wall, cpu, ticks_per_episode = _remote_episode(solutions, root, f"e{r}")
         episodes["remote"].append((wall, cpu))
-    busy1, total1 = _cpu_times()
+    busy1, total1 = cpu_times()
     self1 = os.times()
     ticks = os.sysconf("SC_CLK_TCK")
     cores = os.cpu_count() or 1

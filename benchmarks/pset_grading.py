@@ -29,20 +29,13 @@ import tempfile
 import time
 from pathlib import Path
 
-from common import source_label
+from common import cpu_times, source_label
 
 from doorlab.pset.grading.grader import grade
 from doorlab.pset.handout.folder import init_folder
 
 TARGET_S = 180.0
 """The issue's target for a full grading on 2 cores [s]."""
-
-
-def _cpu_times() -> tuple[float, float]:
-    """(busy, total) jiffies of the whole machine, from /proc/stat."""
-    fields = [float(x) for x in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
-    idle = fields[3] + fields[4]
-    return sum(fields) - idle, sum(fields)
 
 
 _GRADE = """
@@ -156,7 +149,7 @@ def _side_by_side(args) -> int:
             "this": Path(sys.executable),
             "baseline": _baseline_python(args.baseline_src, Path(tmp) / "baseline-venv"),
         }
-        busy0, total0 = _cpu_times()
+        busy0, total0 = cpu_times()
         for _ in range(args.repeats):
             for name, python in pythons.items():
                 out = _grade_in_subprocess(folder, args.jobs, python)
@@ -165,7 +158,7 @@ def _side_by_side(args) -> int:
                 scores[name] = out["score"]
                 origins[name] = source_label(Path(out["doorlab"]).resolve().parents[1])
                 cpu_source = out["cpu_source"]
-        busy1, total1 = _cpu_times()
+        busy1, total1 = cpu_times()
     ticks = os.sysconf("SC_CLK_TCK")
     cores = os.cpu_count() or 1
     elapsed = (total1 - total0) / ticks / cores
@@ -217,13 +210,13 @@ def main(argv: list[str] | None = None) -> int:
     walls, last = [], None
     with tempfile.TemporaryDirectory(prefix="doorlab_pset_bench_") as tmp:
         folder = init_folder(Path(tmp) / "solutions", solutions=True)
-        busy0, total0 = _cpu_times()
+        busy0, total0 = cpu_times()
         self0 = os.times()
         for _ in range(args.repeats):
             start = time.perf_counter()
             last = grade(folder, jobs=args.jobs)
             walls.append(time.perf_counter() - start)
-        busy1, total1 = _cpu_times()
+        busy1, total1 = cpu_times()
         self1 = os.times()
     ticks = os.sysconf("SC_CLK_TCK")
     cores = os.cpu_count() or 1

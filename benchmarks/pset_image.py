@@ -32,18 +32,13 @@ import time
 import zipfile
 from pathlib import Path
 
+from common import cpu_times
 from pset_grading import _cgroup_cpu, _new_cgroup
 
 from doorlab.pset.classroom import gradescope
 from doorlab.pset.handout.folder import STUDENT_FILES, render_folder
 
 SAMPLE_S = 0.05
-
-
-def _cpu_times() -> tuple[float, float]:
-    fields = [float(x) for x in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
-    idle = fields[3] + fields[4]
-    return sum(fields) - idle, sum(fields)
 
 
 def _tree(pid: int) -> list[int]:
@@ -174,12 +169,12 @@ def main(argv: list[str] | None = None) -> int:
         key = render_folder(solutions=True)
         for rel in STUDENT_FILES:
             (submission / Path(rel).name).write_text(key[rel])
-        busy0, total0 = _cpu_times()
+        busy0, total0 = cpu_times()
         runs: dict[str, list[dict]] = {}
         for _ in range(args.gradings):
             for jobs in args.jobs:
                 runs.setdefault(str(jobs), []).append(_grade(root, jobs))
-        busy1, total1 = _cpu_times()
+        busy1, total1 = cpu_times()
     ticks, cores = os.sysconf("SC_CLK_TCK"), os.cpu_count() or 1
     elapsed = (total1 - total0) / ticks / cores
     ours = sum(r["cpu_s"] for rs in runs.values() for r in rs)

@@ -31,11 +31,12 @@ import argparse
 import datetime
 import json
 import os
-import platform
 import statistics
 import sys
 import time
 from pathlib import Path
+
+from common import cpu_times, machine
 
 BENCH_DIR = Path(__file__).resolve().parent
 RESULTS_DIR = BENCH_DIR / "results"
@@ -46,16 +47,6 @@ SHORT_TIMELINE = {
     "extra_time": 0.5,
 }
 TARGET_OVERHEAD = 0.05
-
-
-def _cpu_times() -> tuple[float, float] | None:
-    """(busy, total) jiffies of all CPUs from /proc/stat, or None off Linux."""
-    try:
-        fields = [float(x) for x in Path("/proc/stat").read_text().split("\n")[0].split()[1:]]
-    except OSError:
-        return None
-    idle = fields[3] + fields[4]
-    return sum(fields) - idle, sum(fields)
 
 
 def make_spec(runs: int, short: bool):
@@ -77,11 +68,11 @@ def time_variant(spec, *, jobs: int = 1, scheduler: str | None = None) -> dict:
     shows ~2: more means other processes competed)."""
     from doorlab.sweep import run_sweep
 
-    before = _cpu_times()
+    before = cpu_times()
     start = time.perf_counter()
     frame = run_sweep(spec, None, jobs=jobs, scheduler=scheduler)
     wall = time.perf_counter() - start
-    after = _cpu_times()
+    after = cpu_times()
     busy = None
     if before and after:
         share = (after[0] - before[0]) / max(after[1] - before[1], 1.0)
@@ -163,17 +154,10 @@ def main(argv: list[str] | None = None) -> int:
         f"sweep-{datetime.datetime.now().strftime('%Y%m%d-%H%M%S')}.json"
     )
     out.parent.mkdir(parents=True, exist_ok=True)
-    from doorlab.outputs.pages import drake_version
-
     out.write_text(
         json.dumps(
             {
-                "machine": {
-                    "cpu_count": os.cpu_count(),
-                    "python": platform.python_version(),
-                    "drake": drake_version(),
-                    "loadavg": os.getloadavg(),
-                },
+                "machine": machine(),
                 "settings": {"runs": args.runs, "repeats": args.repeats, "short": args.short},
                 "cluster_start_s": cluster_start,
                 "samples": samples,
