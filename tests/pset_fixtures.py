@@ -184,3 +184,24 @@ def reference() -> dict:
     """The reference episodes' figures (from the notebook cells' full grading when the
     notebook is given; else from a grading of the episodes), a fresh copy each call."""
     return json.loads(_reference())
+
+
+def grade_in_thread(files, intake, supervisor) -> tuple:
+    """``grade_taken(files, intake)`` with no reference, one job, under ``supervisor``, in a
+    thread of its own, started. Returns (the thread, a dict that gets ``"error"``: the
+    :class:`GradingError`'s text, if the grading raises one)."""
+    import threading
+
+    from doorlab.pset.grading.grader import GradingError, grade_taken
+
+    outcome: dict = {}
+
+    def run() -> None:
+        try:
+            grade_taken(files, intake, reference={}, jobs=1, supervisor=supervisor)
+        except GradingError as e:
+            outcome["error"] = str(e)
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    return thread, outcome

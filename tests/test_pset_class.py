@@ -453,7 +453,7 @@ def test_a_supervisor_ended_by_sigterm_leaves_no_folder_behind(tmp_path, monkeyp
     Ctrl-C of grade-all brings): the grading is the grader's error, and nothing of it is left
     in its TMPDIR: not its own folder, not the grading's, not the submission's copy (the
     student's files)."""
-    from doorlab.pset.grading.grader import GradingError, Supervisor, grade_taken, take_files
+    from doorlab.pset.grading.grader import Supervisor, take_files
 
     folder = init_folder(tmp_path / "sleeper")
     _insert(folder, "calc_p_Q", SLEEPER, {})
@@ -462,18 +462,7 @@ def test_a_supervisor_ended_by_sigterm_leaves_no_folder_behind(tmp_path, monkeyp
     tmp.mkdir(mode=0o755)
     monkeypatch.setenv("TMPDIR", str(tmp))
     supervisor = Supervisor()
-    outcome = {}
-
-    def run() -> None:
-        try:
-            grade_taken(files, intake, reference={}, jobs=1, supervisor=supervisor)
-        except GradingError as e:
-            outcome["error"] = str(e)
-
-    import threading
-
-    thread = threading.Thread(target=run)
-    thread.start()
+    thread, outcome = pset_fixtures.grade_in_thread(files, intake, supervisor)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not any(
         p.name.startswith("doorlab_submission_") for p in tmp.iterdir()

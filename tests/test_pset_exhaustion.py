@@ -353,7 +353,7 @@ def test_the_folders_of_a_supervisor_killed_outright_are_removed_at_the_next_sta
     """A supervisor killed by SIGKILL (the OOM killer's way) cannot remove its folders: the
     submission's copy (the student's files), the grading's, its own. The next supervisor
     removes them as it starts; a live one's stay."""
-    from doorlab.pset.grading.grader import GradingError, Supervisor, grade_taken, take_files
+    from doorlab.pset.grading.grader import Supervisor, take_files
 
     folder = init_folder(tmp_path / "sleeper")
     _insert(folder, "calc_p_Q", SLEEPER, {})
@@ -364,16 +364,7 @@ def test_the_folders_of_a_supervisor_killed_outright_are_removed_at_the_next_sta
     alive = tmp / f"doorlab_grade_{os.getpid()}_live"  # a running grader's (this process)
     alive.mkdir()
     supervisor = Supervisor()
-    outcome = {}
-
-    def run() -> None:
-        try:
-            grade_taken(files, intake, reference={}, jobs=1, supervisor=supervisor)
-        except GradingError as e:
-            outcome["error"] = str(e)
-
-    thread = threading.Thread(target=run)
-    thread.start()
+    thread, outcome = pset_fixtures.grade_in_thread(files, intake, supervisor)
     deadline = time.monotonic() + 120
     # (not a pattern on the name: a random suffix may end like the live folder's name)
     while time.monotonic() < deadline and not set(tmp.glob("doorlab_grade_*")) - {alive}:
