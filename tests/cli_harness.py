@@ -200,3 +200,20 @@ def assert_refused(outcome: Outcome, *needles: str, memory: bool = False) -> Non
     assert outcome.cpu_s < REFUSAL_S, (outcome.cpu_s, outcome.wall_s)
     if memory:
         assert outcome.peak_rss_mb < MAX_REFUSAL_RSS_MB, outcome.peak_rss_mb
+
+
+class User:
+    """A user's machine: a home folder (HOME, TMPDIR inside) and a working folder."""
+
+    def __init__(self, root: Path) -> None:
+        self.home = root / "home"
+        self.work = root / "work"
+        self.home.mkdir()
+        self.work.mkdir()
+
+    def run(self, *argv: str, **kwargs):
+        return run_doorlab(list(argv), cwd=self.work, home=self.home, **kwargs)
+
+    def clean(self) -> bool:
+        """No staging folder, .old twin or temporary file anywhere, TMPDIR empty."""
+        return not leftovers(self.work, self.home) and not any((self.home / "tmp").iterdir())

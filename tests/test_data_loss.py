@@ -17,11 +17,10 @@ from pathlib import Path
 
 import pytest
 from cli_harness import (
+    User,
     assert_clean_exit,
     assert_refused,
     interrupt_doorlab,
-    leftovers,
-    run_doorlab,
 )
 
 from doorlab.runtime.folders import MANIFEST_NAME
@@ -43,23 +42,6 @@ FAR_SPEC = (
 """A one-run sweep whose IK fails at once (the cupboard out of reach): a cheap sweep folder."""
 UMASK = 0o002
 """A course group's umask: what doorlab writes must be group-writable under it."""
-
-
-class User:
-    """A user's machine: a home folder (HOME, TMPDIR inside) and a working folder."""
-
-    def __init__(self, root: Path) -> None:
-        self.home = root / "home"
-        self.work = root / "work"
-        self.home.mkdir()
-        self.work.mkdir()
-
-    def run(self, *argv: str, **kwargs):
-        return run_doorlab(list(argv), cwd=self.work, home=self.home, **kwargs)
-
-    def clean(self) -> bool:
-        """No staging folder, .old twin or temporary file anywhere, TMPDIR empty."""
-        return not leftovers(self.work, self.home) and not any((self.home / "tmp").iterdir())
 
 
 @pytest.fixture

@@ -19,11 +19,10 @@ from contextlib import contextmanager
 import pytest
 from cli_harness import (
     REFUSAL_S,
+    User,
     assert_clean_exit,
     assert_refused,
     interrupt_doorlab,
-    leftovers,
-    run_doorlab,
 )
 
 from doorlab.errors import ConfigError
@@ -31,21 +30,8 @@ from doorlab.sweep import load_spec
 
 
 @pytest.fixture
-def user(tmp_path):
-    home, work = tmp_path / "home", tmp_path / "work"
-    home.mkdir()
-    work.mkdir()
-    return home, work
-
-
-def _run(user, *argv: str):
-    home, work = user
-    return run_doorlab(list(argv), cwd=work, home=home)
-
-
-def _clean(user) -> bool:
-    home, work = user
-    return not leftovers(work, home) and not any((home / "tmp").iterdir())
+def user(tmp_path) -> User:
+    return User(tmp_path)
 
 
 # Hostile configs ---------------------------------------------------------------------------
@@ -79,18 +65,18 @@ def long_value_bomb() -> str:
 )
 def test_a_hostile_config_is_one_short_line(user, text, needle):
     """Alias bombs (a few hundred bytes) and deep nesting: one line, within 5 s and 300 MB."""
-    home, work = user
+    work = user.work
     assert len(text.encode()) < 1000 or "100000" not in needle
     (work / "bad.yaml").write_text(text)
-    outcome = _run(user, "run", "--config", "bad.yaml")
+    outcome = user.run("run", "--config", "bad.yaml")
     assert_refused(outcome, "bad.yaml", needle, memory=True)
     assert len(outcome.stderr) < 400
-    assert not (work / "doorlab_out").exists() and _clean(user)
+    assert not (work / "doorlab_out").exists() and user.clean()
 
 
 def test_unbounded_durations_are_refused(user):
     """``extra_time=1.0e+300`` (the spelling YAML reads as a number) is refused at once."""
-    outcome = _run(user, "run", "--set", "timeline.extra_time=1.0e+300")
+    outcome = user.run("run", "--set", "timeline.extra_time=1.0e+300")
     assert_refused(outcome, "timeline.extra_time", "600 s", memory=True)
 
 
@@ -101,7 +87,7 @@ def test_unbounded_durations_are_refused(user):
 def test_a_huge_grid_is_refused_with_its_count(user, exponent):
     """10^7, 10^8 and 10^12 runs: refused with the count, within 5 s and 300 MB (the grid
     used to be built first: 1 GB, 7.5 GB, a 7.28 TiB allocation)."""
-    home, work = user
+    work = user.work
     per_axis = 10 ** (exponent // 2)
     spec = (
         "controllers: [impedance]\ndoors: [closed]\naxes:\n"
@@ -109,9 +95,9 @@ def test_a_huge_grid_is_refused_with_its_count(user, exponent):
         f"  impedance.kw: {{low: 1, high: 100, num: {10**exponent // per_axis}}}\n"
     )
     (work / "big.yaml").write_text(spec)
-    outcome = _run(user, "sweep", "big.yaml", "--out", "out")
+    outcome = user.run("sweep", "big.yaml", "--out", "out")
     assert_refused(outcome, f"{10**exponent} runs", "100000", memory=True)
-    assert not (work / "out").exists() and _clean(user)
+    assert not (work / "out").exists() and user.clean()
     # counted, not built: the grid of 10^7 runs took 1 GB; counting allocates next to nothing
     # (a memory bound, not a time bound, so that the host's load cannot fail it)
     small = "controllers: [impedance]\ndoors: [closed]\naxes:\n  impedance.kv: [1, 2]\n"
@@ -134,7 +120,7 @@ def test_a_huge_grid_on_the_command_line_is_counted_before_parsing(user):
     from doorlab.episode.controllers import REGISTRY
 
     values = ",".join(["1"] * 60_000)
-    outcome = _run(user, "sweep", "--grid", f"impedance.kv={values}", "--out", "out")
+    outcome = user.run("sweep", "--grid", f"impedance.kv={values}", "--out", "out")
     assert_refused(outcome, f"{60_000 * len(REGISTRY)} runs", "100000", memory=True)
 
 
@@ -189,11 +175,10 @@ SCHEDULER_TIMEOUT_S = 1.0
 def test_a_server_that_is_no_scheduler_is_one_line_within_its_timeout(user, kind, command):
     """A silent or garbage-answering server: exit 2 within the timeout + 5 s, one line (no
     traceback, no late Client.__del__ noise), nothing written, under 300 MB."""
-    home, work = user
+    work = user.work
     argv = ["--grid", "impedance.kv=100"] if command == "sweep" else ["--no-robustness"]
     with tcp_server(kind) as address:
-        outcome = _run(
-            user,
+        outcome = user.run(
             command,
             *argv,
             "--out",
@@ -207,12 +192,12 @@ def test_a_server_that_is_no_scheduler_is_one_line_within_its_timeout(user, kind
     assert address in outcome.stderr
     assert outcome.wall_s < SCHEDULER_TIMEOUT_S + REFUSAL_S
     assert outcome.peak_rss_mb < 300
-    assert not (work / "out").exists() and _clean(user)
+    assert not (work / "out").exists() and user.clean()
 
 
 @pytest.mark.parametrize("address", ["tcp://127.0.0.1:99999999", "127.0.0.1:8786"])
 def test_a_bad_scheduler_address_is_refused_before_connecting(user, address):
-    outcome = _run(user, "sweep", "--grid", "impedance.kv=100", "--scheduler", address)
+    outcome = user.run("sweep", "--grid", "impedance.kv=100", "--scheduler", address)
     assert_refused(outcome, "--scheduler", "1-65535")
 
 
@@ -221,7 +206,7 @@ def test_ctrl_c_while_connecting_says_only_what_exists(user):
     claims no table (there is none), nothing written. The signal goes once the server has
     accepted the connection (a fixed delay was too short on a loaded host: the signal came
     while doorlab was still importing, and the generic "doorlab: interrupted" answered)."""
-    home, work = user
+    home, work = user.home, user.work
     accepted: list = []
     with tcp_server("silent", accepted) as address:
         argv = ["sweep", "--grid", "impedance.kv=100", "--out", "out", "--scheduler", address]
@@ -236,7 +221,7 @@ def test_ctrl_c_while_connecting_says_only_what_exists(user):
     assert_clean_exit(outcome, 130, lines=1)
     assert "nothing was written" in outcome.stderr and "results.parquet" not in outcome.stderr
     assert outcome.wall_s < REFUSAL_S
-    assert not (work / "out").exists() and _clean(user)
+    assert not (work / "out").exists() and user.clean()
 
 
 # Signals to a report's and a sweep's workers --------------------------------------------------
@@ -256,7 +241,7 @@ SHORT_SET = [
 def test_a_signal_to_a_reports_workers_leaves_nothing(user, signum, code, settle_s):
     """Ctrl-C or SIGTERM to the process group of ``doorlab report --jobs 2``: the documented
     code, no worker traceback, no staging folder, no temporary folder, within 5 s."""
-    home, work = user
+    home, work = user.home, user.work
     outcome = interrupt_doorlab(
         [
             "report",
@@ -279,14 +264,14 @@ def test_a_signal_to_a_reports_workers_leaves_nothing(user, signum, code, settle
     assert_clean_exit(outcome, code)
     assert "interrupted" in outcome.stderr
     assert outcome.wall_s < REFUSAL_S
-    assert not (work / "rep").exists() and _clean(user)
+    assert not (work / "rep").exists() and user.clean()
 
 
 @pytest.mark.slow
 def test_sigterm_to_a_sweeps_workers_keeps_its_table(user):
     """SIGTERM mid-sweep: exit 143, the message says what the folder holds (a table, empty
     here: no run had finished), no worker traceback, no temporary files."""
-    home, work = user
+    home, work = user.home, user.work
     (work / "long.yaml").write_text(
         "scenario: {timeline: {extra_time: 60.0}}\ncontrollers: [impedance]\n"
         "axes:\n  impedance.kv: [50, 100]\n"
@@ -301,4 +286,4 @@ def test_sigterm_to_a_sweeps_workers_keeps_its_table(user):
     )
     assert_clean_exit(outcome, 143)
     assert "no run had finished" in outcome.stderr and "empty table" in outcome.stderr
-    assert (work / "sw" / "results.parquet").is_file() and _clean(user)
+    assert (work / "sw" / "results.parquet").is_file() and user.clean()
