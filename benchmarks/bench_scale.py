@@ -20,6 +20,12 @@ machine kept busy meanwhile (from /proc/stat); above ``--workers`` other process
 ``--compare A B`` runs nothing: it compares two benchmark folders already written (say a local
 run and a cluster's, each perhaps completed by ``--resume``) the same way, and records both
 cards' rates and costs.
+
+``--table CARD`` runs nothing: it prints a card's table in Markdown (a ``bench.json``, or a copy
+of one such as ``results/bench_card_200.json``): per controller its successes with the Wilson
+95 % interval, robosuite's rate, the failures by kind, the median time to open and the median
+CPU seconds of an episode. docs/guides/bench.md shows it (``docs/tools/make_figures.py
+bench_200``).
 """
 
 from __future__ import annotations
@@ -28,13 +34,12 @@ import argparse
 import datetime
 import json
 import os
-import platform
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-from common import cpu_times
+from common import cpu_times, machine
 
 BENCH_DIR = Path(__file__).resolve().parent
 RESULTS_DIR = BENCH_DIR / "results"
@@ -56,7 +61,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--compare", nargs=2, type=Path, metavar=("A", "B"), help="compare two folders, run nothing"
     )
+    parser.add_argument(
+        "--table", type=Path, default=None, help="print a card's table, run nothing"
+    )
     args = parser.parse_args(argv)
+    if args.table:
+        print(table(json.loads(args.table.read_text())), end="")
+        return 0
     if args.compare:
         return compare(*args.compare, args.out)
 
@@ -113,18 +124,11 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out or RESULTS_DIR / (
         f"bench-scale-{datetime.datetime.now().strftime('%Y%m%d-%H%M%S')}.json"
     )
-    from doorlab.outputs.pages import drake_version
-
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(
         json.dumps(
             {
-                "machine": {
-                    "cpu_count": os.cpu_count(),
-                    "python": platform.python_version(),
-                    "drake": drake_version(),
-                    "loadavg": os.getloadavg(),
-                },
+                "machine": machine(),
                 "settings": {
                     k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()
                 },
@@ -136,6 +140,34 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(f"written to {out}")
     return 0 if code == 0 and same is not False else 1
+
+
+def _percent(rate: float) -> str:
+    return f"{100 * rate:.1f} %"
+
+
+def table(document: dict) -> str:
+    """A card's table in Markdown: a row per controller, in the card's order."""
+    lines = [
+        "| controller | success [95 % interval] | robosuite's | slip / stop / short "
+        "| median time to open | median CPU per episode |",
+        "|---|---|---|---|---|---|",
+    ]
+    cost = document["cost"]["seconds_per_episode"]
+    for name, card in document["controllers"].items():
+        low, high = card["ci95"]
+        failures = card["failures"]
+        to_open = card["metrics"]["time_to_open_s"]["q50"]
+        cpu = cost.get(name, {}).get("cpu", {}).get("median")
+        lines.append(
+            f"| `{name}` | {card['successes']} / {card['episodes']}, "
+            f"{_percent(card['success_rate'])} [{100 * low:.1f}, {100 * high:.1f}] "
+            f"| {_percent(card['robosuite']['success_rate'])} "
+            f"| {failures['slip']} / {failures['stop']} / {failures['short']} "
+            f"| {'-' if to_open is None else f'{to_open:.1f} s'} "
+            f"| {'-' if cpu is None else f'{cpu:.1f} s'} |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def compare(a: Path, b: Path, out: Path | None) -> int:

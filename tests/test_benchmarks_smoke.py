@@ -101,3 +101,42 @@ def test_the_python_variant_replays_the_episode_it_is_compared_with():
     assert len(common) == len(replayed.t)
     np.testing.assert_array_equal(replayed.q_measured, recorded.q_measured[i_rec])
     np.testing.assert_array_equal(replayed.door_angles, recorded.door_angles[i_rec])
+
+
+def test_the_bench_guide_s_card_is_the_recorded_one_of_every_built_in():
+    """docs/guides/bench.md's table of the card at 200 episodes (``docs/figures/bench_200``,
+    checked against the page by test_docs.py) is what ``bench_scale.py --table`` prints of the
+    recorded card; that card holds every built-in of the registry, 200 episodes each, and the
+    recorded comparison found it identical on a LocalCluster (all but the costs)."""
+    from doorlab.config import CONTROLLERS
+
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        from bench_scale import table
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+    results = REPO / "benchmarks" / "results"
+    card = json.loads((results / "bench_card_200.json").read_text())
+    assert list(card["controllers"]) == list(CONTROLLERS)
+    assert {c["episodes"] for c in card["controllers"].values()} == {200}
+    shown = (REPO / "docs" / "figures" / "bench_200" / "table.md").read_text()
+    assert shown == table(card)
+    compared = json.loads((results / "bench_compare_200.json").read_text())
+    assert compared["same_card"] is True
+    assert compared["episodes"] == [200, 200]
+    assert {n: r["successes"] for n, r in compared["rates"].items()} == {
+        n: c["successes"] for n, c in card["controllers"].items()
+    }
+    # What the guide says of the table, read off the card.
+    rates = card["controllers"]
+    top = sorted(rates, key=lambda n: rates[n]["success_rate"], reverse=True)[:3]
+    assert set(top) == {"diffik", "velocity", "osc"}, top  # "open the most cupboards"
+    for a in top:  # "their intervals overlap"
+        for b in top:
+            assert rates[a]["ci95"][0] <= rates[b]["ci95"][1], (a, b)
+    impedance = rates["impedance"]
+    assert impedance["robosuite"]["success_rate"] == 1.0  # "never fails" under robosuite's
+    failures = impedance["failures"]
+    assert max(failures, key=failures.get) == "short"  # "its commonest failure"
+    stopped = {n for n, c in rates.items() if c["failures"]["stop"] > 0}
+    assert stopped == {"adaptive"}  # "the only one the ... safety limits stop"
