@@ -127,13 +127,13 @@ def yaw_error_summary(out: Path) -> str:
     def slipped(name: str) -> list[float]:
         return sorted(y for y, r in by[name].items() if r.get("handle_held") == "False")
 
-    lost = [f"{label} at {_yaws(slipped(name))}" for name, label in
-            (("ik", "IK"), ("velocity", "velocity")) if slipped(name)]  # fmt: skip
     def grows(name: str) -> bool:  # larger at both ends of the range than without error
         ends = (min(by[name]), max(by[name]))
         at = {y: float(r["peak_external_torque_arc_Nm"]) for y, r in by[name].items()}
         return all(at[end] > at[0.0] for end in ends)
 
+    lost = [f"{label} at {_yaws(slipped(name))}" for name, label in
+            (("ik", "IK"), ("velocity", "velocity")) if slipped(name)]  # fmt: skip
     position = (
         "The two position-controlled plans force the handle along an arc about the wrong axis"
         + (": their contact torque grows with the error on both sides" if grows("ik") and
