@@ -12,8 +12,8 @@ costs about a minute of CPU; the reference episodes are the session's
 Three gradings of the class serve the acceptance: ``grade-all`` interrupted with Ctrl-C in
 the middle then ``--resume``d (local processes); ``grade-all`` on a Dask LocalCluster of 2
 workers (a third of the class, a submission of each kind, graded again: the identical rows);
-and each submission graded alone
-(``grade_submission``, as ``doorlab pset grade``): the same rows.
+and each submission graded alone (``grade_submission``, as ``doorlab pset grade``): the same
+rows.
 """
 
 from __future__ import annotations
@@ -428,8 +428,8 @@ def test_the_class_graded_again_on_a_dask_cluster_gives_the_identical_sheet(
 
     Graded there: a third of the class (:data:`ON_DASK`), one submission of each kind of
     result (the key, the stubs, a mistake of each of the three tasks, a missing file, a zip
-    of the helpers, a group, nothing to grade): the same path for every submission, where
-    the other 20 would add 20 s of gradings that the local run already compares."""
+    of the helpers, a group, nothing to grade): the cluster's path is the same for every
+    submission, and the other 20 would only add gradings of kinds already compared."""
     pytest.importorskip("distributed")
     import dask
 
