@@ -50,8 +50,11 @@ SPEC = {
 """Four runs: two ik_failed (cupboard out of reach, no simulation) and two short episodes."""
 
 
-LONG_EXTRA_S = 40.0
-"""The Ctrl-C test's long run's extra time [s]."""
+LONG_EXTRA_S = 120.0
+"""The Ctrl-C test's long run's extra time [s]: 130 s simulated, 10 s of wall time on an idle
+core here: the window in which the test must see the table's third row and its Ctrl-C reach
+the sweep. At 40 s (3 s of wall time) a fresh clone's whole run missed it once: its Ctrl-C came
+after the fourth run had ended ("interrupted; 4 finished runs")."""
 
 
 def write_spec(folder: Path, data: dict, name: str = "spec.yaml") -> Path:
@@ -331,10 +334,10 @@ def test_ctrl_c_leaves_the_finished_runs_and_resume_completes(local_sweep, tmp_p
     --resume then runs only that run, and the others keep their rows (the short episode's
     equal to the local sweep's run of the same scenario)."""
     _, _, local = local_sweep
-    # Runs in order (one worker): two ik_failed, the short episode, a long one (40 s more: it
-    # simulates for 1.6 s or more, the window in which this test sees the third row and its
-    # Ctrl-C reaches the sweep; the table is written as each run ends, even after a slow
-    # first write: test_each_finished_run_reaches_the_table_after_a_slow_first_write).
+    # Runs in order (one worker): two ik_failed, the short episode, a long one (LONG_EXTRA_S
+    # more: the window in which this test sees the third row and its Ctrl-C reaches the sweep;
+    # the table is written as each run ends, even after a slow first write:
+    # test_each_finished_run_reaches_the_table_after_a_slow_first_write).
     axes = {"station.cupboard_position": [FAR, HOME], "timeline.extra_time": [0.5, LONG_EXTRA_S]}
     spec_path = write_spec(tmp_path, {**SPEC, "axes": axes})
     out = tmp_path / "out"
