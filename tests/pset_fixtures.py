@@ -21,7 +21,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
-from shared_cache import shared_text
+from shared_cache import shared_folder, shared_text
 
 from doorlab.pset.handout.folder import init_folder
 
@@ -138,9 +138,18 @@ def notebook_cells() -> list[str]:
 
 @functools.cache
 def _solutions_run() -> tuple[Path, subprocess.CompletedProcess]:
-    folder = _root() / "solutions"
+    """The notebook's run (about half a minute), once per test run: the workers share it."""
+    folder, text = shared_folder("pset_solutions", _run_notebook, _root() / "run")
+    proc = subprocess.CompletedProcess(**json.loads(text))
+    return folder / "solutions", proc
+
+
+def _run_notebook(root: Path) -> str:
+    """Writes ``root/solutions``, runs the notebook's cells in it; returns the process's
+    ``args``, ``returncode``, ``stdout`` and ``stderr`` (JSON)."""
+    folder = root / "solutions"
     init_folder(folder, solutions=True)
-    cells_file = _root() / "cells.json"
+    cells_file = root / "cells.json"
     cells_file.write_text(json.dumps([_adapt(c) for c in notebook_cells()]))
     env = dict(os.environ, MPLBACKEND="Agg")
     # The notebook's last cell runs `python3 ./test_pset_5a.py`: python3 must be this interpreter.
@@ -154,11 +163,12 @@ def _solutions_run() -> tuple[Path, subprocess.CompletedProcess]:
         text=True,
         timeout=NOTEBOOK_CELLS_TIMEOUT_S,
     )
-    return folder, proc
+    return json.dumps({k: getattr(proc, k) for k in ("args", "returncode", "stdout", "stderr")})
 
 
 def solutions_run() -> tuple[Path, subprocess.CompletedProcess]:
-    """A fresh ``--solutions`` folder in which the notebook's cells ran in order (once)."""
+    """A fresh ``--solutions`` folder in which the notebook's cells ran in order (once per
+    test run, shared by the workers: read it, do not change it)."""
     notebook_cells()
     return _solutions_run()
 
