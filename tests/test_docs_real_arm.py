@@ -25,10 +25,14 @@ from doorlab.hardware.ground_truth import GROUND_TRUTH_FILE, GroundTruth
 pytestmark = pytest.mark.slow
 
 DOOR_TOLERANCE_DEG = 0.05
-"""How far the door at the arc's end over LCM may be from the one-process run's [deg]: the
-page says a client that answers within the driver's 5 ms cycle gets exactly the one-process
-episode; a command a cycle late (the host's doing) moves the door by the door's travel in 5 ms
-(0.02 deg at the arc's 4 deg/s), and the real-time tests saw at most 0.008 deg."""
+"""How far the door at the arc's end over LCM may be from the one-process run's [deg] with
+no command late: the page says a client that answers within the driver's 5 ms cycle gets
+exactly the one-process episode, and the real-time tests saw at most 0.008 deg."""
+
+LATE_COMMAND_DEG = 0.02
+"""What each command the driver applied a cycle late (the host's doing: ``driver.json``'s
+``iiwa_commands_late``) adds to that bound [deg]: the door's travel in one 5 ms cycle at the
+arc's 4 deg/s. (Under a system-wide profiler a run once ended 0.055 deg off.)"""
 
 ESTIMATE_ERROR_DEG = 1.5
 """The largest error of the door estimate in the rehearsal, as the page quotes it [deg] (to
@@ -66,7 +70,8 @@ def test_a_rehearsal_on_one_machine(tmp_path, lcm_url, realtime):  # noqa: F811
     door_lcm = math.degrees(gt.door_angles[i0, 0] - gt.door_angles[i1, 0])
     door_one = math.degrees(metrics["one"]["door_opening_arc_end_rad"])
     assert door_one > 30.0, door_one  # the velocity plan opens the door on the preset
-    assert abs(door_lcm - door_one) <= DOOR_TOLERANCE_DEG, (door_lcm, door_one)
+    bound = DOOR_TOLERANCE_DEG + LATE_COMMAND_DEG * driver["iiwa_commands_late"]
+    assert abs(door_lcm - door_one) <= bound, (door_lcm, door_one, driver)
     # The page's "A run": the log's door estimate against the true door, at each status.
     estimate = log.door_angle_estimated
     held = np.isfinite(estimate)

@@ -28,7 +28,11 @@ The timelines are short (hold 0.2 s, move 2 s with the position-gap limit relaxe
 grasp 0.5 s, arc 3 s, no extra time): what is compared is the arc's, and each real-time run
 costs a worker 12 s of wall time. The two delays bracket the period's first 3 ms; a delay
 between them (1.5 ms, run here until issue 42) tells nothing the two do not: each command
-reaches the driver before the next cycle or it does not.
+reaches the driver before the next cycle or it does not. Each plan runs once, the velocity
+plan's positions with no delay and the impedance plan's torques and positions with the 3 ms
+one: the delay acts on the link (when a command reaches the driver), which both plans' commands
+cross alike, so the two runs cover each plan and each delay (the four pairs, run here until
+issue 42, all passed alike).
 """
 
 from __future__ import annotations
@@ -174,7 +178,7 @@ def compare(controller: str, reference: EpisodeResult, gt: GroundTruth, log: Epi
 @pytest.mark.slow
 @pytest.mark.parametrize(
     ("controller", "delay_ms"),
-    [(c, d) for c in ("velocity", "impedance") for d in (0.0, 3.0)],
+    [("velocity", 0.0), ("impedance", 3.0)],
 )
 def test_any_client_within_the_period_gets_the_same_episode(
     realtime,
