@@ -410,8 +410,9 @@ def test_each_finished_run_reaches_the_table_after_a_slow_first_write(tmp_path, 
 
     def write(frame, out):
         # Only the first write takes time: a real write's duration follows the machine's load
-        # (a 40 ms write on a loaded CI machine spaced the writes by 0.4 s, longer than an
-        # episode, and the test failed), which is not what this test is about.
+        # (the next write is due 10 x the last one's time later: a write of a tenth of an
+        # episode's time skips a row; on CI's loaded cores the test failed with [0, 1, 3, 3]),
+        # which is not what this test is about.
         if not written:
             time.sleep(1.0)  # a slow first write
         written.append(len(frame))
