@@ -69,8 +69,8 @@ def _teaching() -> list[str]:
     def episodes(side: str) -> float:
         return sum(v for k, v in jobs.items() if k.startswith(f"{side}:"))
 
-    def median(jobs: str, key: str) -> float:
-        return statistics.median(g[key] for g in image["gradings"][jobs])
+    def median(job_count: str, key: str) -> float:
+        return statistics.median(g[key] for g in image["gradings"][job_count])
 
     per_minute = {n: 60 / f[f"batch_{n}"]["wall_s_per_submission"] for n in (1, 2)}
     low, high = batch["load"]
