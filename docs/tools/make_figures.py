@@ -243,16 +243,14 @@ BENCH_CARD = "benchmarks/results/bench_card_200.json"
 """The benchmark card at 200 episodes per built-in (benchmarks/bench_scale.py's local run)."""
 
 
-def _bench_table(out: Path) -> str:  # noqa: ARG001 (the benchmark wrote its results file)
-    """The card's table, as benchmarks/bench_scale.py --table prints it."""
-    import importlib.util
+def _stdout_path(out: Path) -> Path:
+    """Where :func:`make` keeps the stdout of the command that wrote ``out``."""
+    return out.parent / f"{out.name}.stdout.txt"
 
-    path = ROOT / "benchmarks" / "bench_scale.py"
-    sys.path.insert(0, str(path.parent))
-    spec = importlib.util.spec_from_file_location("doorlab_bench_scale", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.table(json.loads((ROOT / BENCH_CARD).read_text()))
+
+def _bench_table(out: Path) -> str:
+    """The card's table, as ``benchmarks/bench_scale.py --table`` printed it."""
+    return _stdout_path(out).read_text()
 
 
 TARGETS = {
@@ -378,7 +376,8 @@ def make(name: str, work: Path, *, reuse: bool = False) -> None:
     """Runs target ``name`` into ``work/name`` (``reuse``: unless a run left it there) and
     copies its figures and texts into docs/figures/name."""
     target = TARGETS[name]
-    out, stdout = work / name, work / f"{name}.stdout.txt"
+    out = work / name
+    stdout = _stdout_path(out)
     timing = work / f"{name}.time.json"
     if not (reuse and out.is_dir() and stdout.is_file()):
         shutil.rmtree(out, ignore_errors=True)
