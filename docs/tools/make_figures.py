@@ -42,6 +42,7 @@ class Target:
     figures: dict[str, tuple[str, str]]  # name -> (file in {out}, caption)
     text: dict[str, Callable[[str], str]] | None = None  # name -> what to keep of its stdout
     tables: dict[str, Callable[[Path], str]] | None = None  # name -> Markdown from {out}
+    timed: bool = True  # write time.md (False: the command only prints what a run recorded)
 
 
 def _rows(out: Path) -> list[dict[str, str]]:
@@ -339,6 +340,7 @@ TARGETS = {
         f"python benchmarks/bench_scale.py --table {BENCH_CARD}",
         {},
         tables={"table": _bench_table},
+        timed=False,  # a table printed from the card: the card holds what its episodes cost
     ),
     "suite": Target(
         "python -m pytest -p no:cacheprovider",
@@ -400,7 +402,7 @@ def make(name: str, work: Path, *, reuse: bool = False) -> None:
         (dest / f"{text_name}.txt").write_text(text)
     for table_name, table in (target.tables or {}).items():
         (dest / f"{table_name}.md").write_text(table(out))
-    if timing.is_file():
+    if target.timed and timing.is_file():
         measured = json.loads(timing.read_text())
         command = target.command.replace(" --out {out}", "").format(out="DIR")
         (dest / "time.md").write_text(_time_md(command, measured["seconds"], measured["load"]))
