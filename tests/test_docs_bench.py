@@ -17,11 +17,15 @@ def test_bench(tmp_path):
     page = Page("docs/guides/bench.md", tmp_path)
     outcomes = page.run_blocks()
     assert [o.how for o in outcomes] == ["ran"] * 3
-    card = json.loads((tmp_path / "bench_builtins" / "bench.json").read_text())
-    assert set(card["controllers"]) == set(CONTROLLERS)
-    for entry in card["controllers"].values():  # resumed: 3 episodes each, 2 of them kept
-        assert entry["episodes"] == 3, entry
-        low, high = entry["ci95"]
-        assert 0.0 <= low <= entry["success_rate"] <= high <= 1.0, entry
+    builtins = json.loads((tmp_path / "bench_builtins" / "bench.json").read_text())
+    assert set(builtins["controllers"]) == set(CONTROLLERS)
+    two = json.loads((tmp_path / "bench_two" / "bench.json").read_text())
+    assert set(two["controllers"]) == {"velocity", "dls"}
+    assert two["bench"]["seed"] == 7
+    for card, episodes in ((builtins, 2), (two, 3)):  # bench_two resumed: 2 kept, 1 more
+        for entry in card["controllers"].values():
+            assert entry["episodes"] == episodes, entry
+            low, high = entry["ci95"]
+            assert 0.0 <= low <= entry["success_rate"] <= high <= 1.0, entry
     assert (tmp_path / "bench_two" / "index.html").is_file()
     assert (tmp_path / "bench_yaw" / "bench.json").is_file()
