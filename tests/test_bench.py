@@ -334,6 +334,7 @@ def test_the_same_card_on_a_dask_local_cluster(bench_run, tmp_path):
         processes=True,
         host="127.0.0.1",
         dashboard_address=None,
+        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},  # not 8787: another's, maybe
         silence_logs=40,
     ) as cluster:
         out = tmp_path / "dask"

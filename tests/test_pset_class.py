@@ -288,6 +288,27 @@ def test_the_student_s_code_cannot_reach_a_tls_cluster_and_nothing_connects_with
     assert results["extra_data"]["sandbox"]["network_isolated"] is True
 
 
+def test_the_cluster_doorlab_starts_leaves_dask_s_default_port_to_the_course(recwarn):
+    """local_cluster's scheduler serves its HTTP routes (health, metrics) on a free loopback
+    port, not on Dask's default 8787, where a course's own dashboard usually is: with
+    127.0.0.1:8787 held (here, or by whoever holds it already), it starts without Dask's
+    "Port 8787 is already in use" warning. (It warned before; two gradings on clusters of
+    their own side by side did too.)"""
+    pytest.importorskip("distributed")
+    import socket
+
+    from doorlab.pset.classroom.cluster import local_cluster
+
+    with socket.socket() as held:
+        with contextlib.suppress(OSError):  # taken already: held by someone else, as wanted
+            held.bind(("127.0.0.1", 8787))
+            held.listen()
+        with local_cluster(1) as cluster:
+            assert cluster.address.startswith("tls://127.0.0.1:")
+    messages = [str(w.message) for w in recwarn]
+    assert not [m for m in messages if "8787" in m], messages
+
+
 def test_a_cluster_whose_workers_would_not_isolate_the_network_is_refused():
     """--scheduler where a worker's gradings would run the student's code without a network
     namespace (no view, not root): refused in one line before anything is graded."""

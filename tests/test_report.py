@@ -268,6 +268,7 @@ def test_run_report_on_a_dask_cluster(tmp_path: Path):
         processes=True,
         host="127.0.0.1",
         dashboard_address=None,
+        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},  # not 8787: another's, maybe
         silence_logs=40,
     ) as cluster:
         address = cluster.scheduler_address

@@ -299,6 +299,7 @@ def test_same_rows_on_a_dask_local_cluster(local_sweep, tmp_path: Path):
         processes=True,
         host="127.0.0.1",
         dashboard_address=None,
+        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},  # not 8787: another's, maybe
         silence_logs=40,
     ) as cluster:
         address = cluster.scheduler_address

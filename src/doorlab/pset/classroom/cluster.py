@@ -133,6 +133,9 @@ def local_cluster(workers: int = 2) -> Iterator[LocalCluster]:
         protocol="tls://",
         security=security,
         dashboard_address=None,
+        # The scheduler's HTTP routes (health, metrics) on a free loopback port: Dask's
+        # default, 8787, is where a course's own dashboard usually is.
+        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
         silence_logs=40,
     ) as cluster:
         yield LocalCluster(cluster.scheduler_address, security)
