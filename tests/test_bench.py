@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from dask_local import plain_cluster
 
 from doorlab.bench.distribution import (
     AXES,
@@ -326,17 +327,9 @@ def test_the_same_card_on_a_dask_local_cluster(bench_run, tmp_path):
     the same numbers as the local run's, to the last digit (the same episodes: a scenario
     fully determines one), for the registry's first controller (one, to keep it cheap; the
     cupboards do not depend on which controllers run)."""
-    distributed = pytest.importorskip("distributed")
+    pytest.importorskip("distributed")
     first = next(iter(REGISTRY))
-    with distributed.LocalCluster(
-        n_workers=2,
-        threads_per_worker=1,
-        processes=True,
-        host="127.0.0.1",
-        dashboard_address=None,
-        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},  # not 8787: another's, maybe
-        silence_logs=40,
-    ) as cluster:
+    with plain_cluster(2) as cluster:
         out = tmp_path / "dask"
         argv = ["bench", "--out", str(out), "--episodes", str(EPISODES), "--seed", "3"]
         argv += ["--controller", first, "--scheduler", cluster.scheduler_address]

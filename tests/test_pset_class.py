@@ -20,6 +20,7 @@ import json
 import os
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -295,8 +296,6 @@ def test_the_cluster_doorlab_starts_leaves_dask_s_default_port_to_the_course(rec
     "Port 8787 is already in use" warning. (It warned before; two gradings on clusters of
     their own side by side did too.)"""
     pytest.importorskip("distributed")
-    import socket
-
     from doorlab.pset.classroom.cluster import local_cluster
 
     with socket.socket() as held:

@@ -14,6 +14,7 @@ import re
 from pathlib import Path
 
 import pytest
+from dask_local import plain_cluster
 from report_fixtures import (
     FAILED_ERROR,
     FAILED_RUN,
@@ -259,18 +260,10 @@ def test_run_report_rejects_bad_arguments(tmp_path: Path):
 def test_run_report_on_a_dask_cluster(tmp_path: Path):
     """run_report through a real Dask LocalCluster (one worker process on loopback): the worker
     ships the run folder back, so the report holds the same files as a local run writes."""
-    distributed = pytest.importorskip("distributed")
+    pytest.importorskip("distributed")
     experiments = [short_experiment("ik_2_open")]
     out = tmp_path / "report"
-    with distributed.LocalCluster(
-        n_workers=1,
-        threads_per_worker=1,
-        processes=True,
-        host="127.0.0.1",
-        dashboard_address=None,
-        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},  # not 8787: another's, maybe
-        silence_logs=40,
-    ) as cluster:
+    with plain_cluster(1) as cluster:
         address = cluster.scheduler_address
         code = run_report(
             out,

@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from dask_local import plain_cluster
 
 from doorlab.cli.parser import main
 from doorlab.config import Scenario
@@ -291,17 +292,9 @@ def test_same_rows_on_a_dask_local_cluster(local_sweep, tmp_path: Path):
     """A real LocalCluster (scheduler + 2 worker processes on loopback) through --scheduler
     gives the local run's rows: the same scenarios, bit-identical metrics (a scenario fully
     determines an episode), wall times aside."""
-    distributed = pytest.importorskip("distributed")
+    pytest.importorskip("distributed")
     spec_path, _, local = local_sweep
-    with distributed.LocalCluster(
-        n_workers=2,
-        threads_per_worker=1,
-        processes=True,
-        host="127.0.0.1",
-        dashboard_address=None,
-        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},  # not 8787: another's, maybe
-        silence_logs=40,
-    ) as cluster:
+    with plain_cluster(2) as cluster:
         address = cluster.scheduler_address
         assert address.startswith("tcp://127.0.0.1:")
         out = tmp_path / "dask"
