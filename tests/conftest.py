@@ -26,6 +26,7 @@ from typing import TypeVar
 import file_order
 import pytest
 import realtime_priority
+import run_cost
 from run_lock import RunLock, read_waits
 from shared_cache import RUN_DIR_ENV, run_dir
 
@@ -39,6 +40,8 @@ def pytest_configure(config: pytest.Config) -> None:
     if not hasattr(config, "workerinput") and RUN_DIR_ENV not in os.environ:
         config._doorlab_run_dir = tempfile.mkdtemp(prefix="doorlab-pytest-")
         os.environ[RUN_DIR_ENV] = config._doorlab_run_dir
+    if not hasattr(config, "workerinput"):
+        config._doorlab_start = run_cost.mark()  # what the run costs (the summary's CPU line)
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -303,9 +306,14 @@ def _covered(intervals: list[tuple[float, float]]) -> float:
 def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
     """What the real-time sections cost the run: how long they ran, side by side or not, and
     how long workers waited for their turn (idle: tests/run_lock.py) (docs/development.md);
-    and the docs' blocks the docs tests ran (tests/doc_commands.py), each with its time."""
+    the docs' blocks the docs tests ran (tests/doc_commands.py), each with its time; and the
+    CPU the run used against its cores' time (tests/run_cost.py)."""
     if not hasattr(config, "workerinput"):
         import doc_commands
+
+        start = getattr(config, "_doorlab_start", None)
+        if start is not None:  # the workers are reaped by now: their CPU is counted
+            terminalreporter.write_line(run_cost.summary(start, run_cost.mark(), run_cost.cores()))
 
         for row in doc_commands.report():
             terminalreporter.write_line(

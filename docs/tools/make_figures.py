@@ -51,10 +51,12 @@ def _rows(out: Path) -> list[dict[str, str]]:
 
 
 def _pytest_summary(stdout: str) -> str:
-    """pytest's last line (``862 passed in 352.10s (0:05:52)``) and how many workers ran."""
+    """pytest's last line (``862 passed in 352.10s (0:05:52)``), how many workers ran and
+    the CPU the run used (tests/run_cost.py)."""
     lines = [line.strip("= ") for line in stdout.splitlines() if line.strip()]
     workers = next((line for line in lines if line.startswith("created:")), "")
-    return "\n".join(x for x in (workers, lines[-1]) if x) + "\n"
+    cpu = next((line for line in lines if line.startswith("CPU: ")), "")
+    return "\n".join(x for x in (workers, cpu, lines[-1]) if x) + "\n"
 
 
 def _deg(value: str) -> float:

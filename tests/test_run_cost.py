@@ -1,0 +1,48 @@
+"""The CPU line at the end of a run (tests/run_cost.py): a waited-for child's CPU is counted."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+
+import run_cost
+
+BURN_S = 0.5
+"""CPU the child spends in a loop [s]."""
+
+CHILD = f"""
+import time
+start = time.process_time()
+while time.process_time() - start < {BURN_S}:
+    pass
+"""
+
+
+def test_a_waited_for_child_s_cpu_is_counted_and_never_exceeds_the_cores_time():
+    start = run_cost.mark()
+    subprocess.run([sys.executable, "-c", CHILD], check=True)
+    end = run_cost.mark()
+    used = (end.user - start.user) + (end.system - start.system)
+    wall = end.wall - start.wall
+    # At least the loop's own CPU (the interpreter's start comes on top); the kernel accounts
+    # CPU in clock ticks (1-10 ms), hence the 0.02 s.
+    assert used >= BURN_S - 0.02, used
+    # One process at a time ran here: no more than one core's time over the interval.
+    assert used <= wall + 0.02, (used, wall)
+    line = run_cost.summary(start, end, 2)
+    figures = re.fullmatch(
+        r"CPU: the run's processes used (\d+) CPU-s \(user (\d+) s, system (\d+) s\) in (\d+) s "
+        r"on 2 cores: (\d+) % of their (\d+) core-seconds",
+        line,
+    )
+    assert figures is not None, line
+    assert int(figures[1]) == round(used)
+
+
+def test_the_share_is_the_cpu_over_the_cores_time():
+    start = run_cost.Mark(wall=100.0, user=10.0, system=1.0)
+    end = run_cost.Mark(wall=700.0, user=1150.0, system=111.0)  # 600 s; 1250 CPU-s
+    line = run_cost.summary(start, end, 2)
+    assert "used 1250 CPU-s (user 1140 s, system 110 s) in 600 s on 2 cores" in line
+    assert line.endswith("104 % of their 1200 core-seconds")  # more than the cores could give
