@@ -48,8 +48,8 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption(
         "--record-durations",
         action="store_true",
-        help="write each file's measured time to tests/durations.json (tests/file_order.py: "
-        "the order the files are handed to the workers)",
+        help="write each file's measured time and CPU to tests/durations.json "
+        "(tests/file_order.py: the order the files are handed to the workers)",
     )
 
 
@@ -67,11 +67,11 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         partial = folder / f".{REALTIME_FILES}.{config.workerinput['workerid']}"
         partial.write_text(json.dumps(sorted(realtime)))
         os.replace(partial, folder / REALTIME_FILES)
-    durations = file_order.read_durations()
+    durations, cpu = file_order.read_durations(), file_order.read_cpu()
     rank = {
         name: i
         for i, name in enumerate(
-            file_order.file_order({i.path.name for i in items}, realtime, durations)
+            file_order.file_order({i.path.name for i in items}, realtime, durations, cpu)
         )
     }
     items.sort(key=lambda item: rank[item.path.name])
@@ -110,26 +110,63 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log):
     return RealtimeBins(config, log, bins)
 
 
+CPU_PROPERTY = "cpu_s"
+"""With --record-durations: a phase report's CPU [s] (its worker's and the processes it
+waited for meanwhile), in the report's user_properties."""
+
+
+_PHASE_START: dict[str, run_cost.Mark] = {}
+"""With --record-durations, in a worker: where the test's current phase began."""
+
+
+def pytest_runtest_logstart(nodeid: str, location) -> None:
+    if _RECORDING.get("on"):
+        _PHASE_START["mark"] = run_cost.mark()
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo):
+    """Each phase's report carries its CPU (with --record-durations): from the end of the
+    previous phase (the test's start for its setup) to now."""
+    outcome = yield
+    start = _PHASE_START.get("mark")
+    if start is not None:
+        end = _PHASE_START["mark"] = run_cost.mark()
+        used = (end.user - start.user) + (end.system - start.system)
+        outcome.get_result().user_properties.append((CPU_PROPERTY, used))
+
+
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
-    times = _RECORDED.get("times")
-    if times is not None:
+    times, cpu = _RECORDED.get("times"), _RECORDED.get("cpu")
+    if times is not None and cpu is not None:
         name = report.nodeid.split("::")[0].rsplit("/", 1)[-1]
         times[name] = times.get(name, 0.0) + report.duration
+        used = dict(report.user_properties).get(CPU_PROPERTY, 0.0)
+        cpu[name] = cpu.get(name, 0.0) + float(used)
 
 
 _RECORDED: dict[str, dict[str, float]] = {}
-"""With --record-durations, in the main process: the times measured so far by file [s]."""
+"""With --record-durations, in the main process: the times and CPU measured so far by
+file [s]."""
+
+
+_RECORDING: dict[str, bool] = {}
+"""{"on": True} in every process of a run with --record-durations."""
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
-    if session.config.getoption("record_durations") and not hasattr(session.config, "workerinput"):
-        _RECORDED["times"] = {}
+    if session.config.getoption("record_durations"):
+        _RECORDING["on"] = True
+        if not hasattr(session.config, "workerinput"):
+            _RECORDED.update(times={}, cpu={})
 
 
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
-    times = _RECORDED.pop("times", None)
+    times, cpu = _RECORDED.pop("times", None), _RECORDED.pop("cpu", None)
     if times:  # the files this run measured replace theirs; the others are kept
-        file_order.write_durations({**file_order.read_durations(), **times})
+        file_order.write_durations(
+            {**file_order.read_durations(), **times}, {**file_order.read_cpu(), **(cpu or {})}
+        )
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:

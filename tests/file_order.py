@@ -13,11 +13,17 @@ first file to each worker at the start. Two things decide how long the run takes
   length (xdist alone hands out files as workers run low, which left one worker idle for
   40 s while the other ran two real-time files);
 - then the others, longest first (longest-processing-time scheduling): the run ends on short
-  files on both workers, not on one worker's long file while the other idles.
+  files on both workers, not on one worker's long file while the other idles. Except at the
+  start: where the real-time files share one worker (real-time priority: conftest.py), the
+  other runs the files that keep more than a core busy (:data:`PARALLEL_CPU_PER_S`: a
+  sweep's, a benchmark's or a report's worker processes) first, as many as the real-time
+  files last, longest first: the real-time tests, paced to the wall clock, leave most of
+  their core idle, and those files' extra processes use it.
 
 Each file's time is read from ``tests/durations.json`` (``pytest --record-durations``
-rewrites it from a whole run: the sum of each file's setup, call and teardown times [s]); a
-file not in it counts :data:`UNKNOWN_S`. Only the order changes: every test runs, once.
+rewrites it from a whole run: the sum of each file's setup, call and teardown times [s], and
+the CPU its tests used meanwhile [s], the worker's and its waited-for processes'); a file not
+in it counts :data:`UNKNOWN_S`. Only the order changes: every test runs, once.
 """
 
 from __future__ import annotations
@@ -30,26 +36,68 @@ DURATIONS = Path(__file__).with_name("durations.json")
 """Each test file's measured time [s] (``pytest --record-durations``)."""
 UNKNOWN_S = 10.0
 """The time counted for a file durations.json does not have [s]."""
+PARALLEL_CPU_PER_S = 1.05
+"""CPU-seconds per second of wall time from which a file counts as keeping more than a core
+busy: above a file of one process at a time (1.0 at most; less where it waits on real time
+or a time limit), below one whose commands run a process per core (in the recording, beside
+another worker, their second processes got only part of the second core: 1.09-1.32 for the
+benchmark's, the report's and the teaching guide's files)."""
 
 
-def read_durations(path: Path = DURATIONS) -> dict[str, float]:
-    """The recorded times by file name ({} without the file, or an unreadable one)."""
+def _read(path: Path) -> dict:
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError):
         return {}
-    return {str(k): float(v) for k, v in data.items()} if isinstance(data, dict) else {}
+    return data if isinstance(data, dict) else {}
 
 
-def file_order(files: Iterable[str], realtime: set[str], durations: dict[str, float]) -> list[str]:
+def read_durations(path: Path = DURATIONS) -> dict[str, float]:
+    """The recorded times by file name [s] ({} without the file, or an unreadable one)."""
+    return {
+        str(k): float(v["wall"] if isinstance(v, dict) else v)
+        for k, v in _read(path).items()
+        if isinstance(v, (int, float)) or (isinstance(v, dict) and "wall" in v)
+    }
+
+
+def read_cpu(path: Path = DURATIONS) -> dict[str, float]:
+    """The CPU each file's tests used in the recorded run [s] (the files that have it)."""
+    return {
+        str(k): float(v["cpu"])
+        for k, v in _read(path).items()
+        if isinstance(v, dict) and "cpu" in v
+    }
+
+
+def file_order(
+    files: Iterable[str],
+    realtime: set[str],
+    durations: dict[str, float],
+    cpu: dict[str, float] | None = None,
+) -> list[str]:
     """The files in the order they should run (see the module): the real-time ones, then
-    the others, each longest first."""
+    the others, each longest first, those that keep more than a core busy (by ``cpu``) first
+    for as long as the real-time ones last."""
+
+    def cost(name: str) -> float:
+        return durations.get(name, UNKNOWN_S)
 
     def by_cost(names: Iterable[str]) -> list[str]:
-        return sorted(names, key=lambda n: (-durations.get(n, UNKNOWN_S), n))
+        return sorted(names, key=lambda n: (-cost(n), n))
 
     files = set(files)
-    return by_cost(files & realtime) + by_cost(files - realtime)
+    first, others = by_cost(files & realtime), by_cost(files - realtime)
+    cpu = cpu or {}
+    parallel: list[str] = []
+    left = sum(cost(n) for n in first)  # the real-time files' time
+    for name in others:
+        if left <= 0:
+            break
+        if name in durations and cpu.get(name, 0.0) >= PARALLEL_CPU_PER_S * cost(name) > 0:
+            parallel.append(name)
+            left -= cost(name)
+    return first + parallel + [n for n in others if n not in parallel]
 
 
 def realtime_bins(
@@ -67,7 +115,14 @@ def realtime_bins(
     return {name: f"realtime-{rank + 1}" for rank, k in enumerate(order) for name in bins[k]}
 
 
-def write_durations(times: dict[str, float], path: Path = DURATIONS) -> None:
-    """Writes the measured times [s] by file, longest first, to ``path``."""
-    ordered = dict(sorted(((k, round(v, 1)) for k, v in times.items()), key=lambda kv: -kv[1]))
-    path.write_text(json.dumps(ordered, indent=1) + "\n")
+def write_durations(
+    times: dict[str, float], cpu: dict[str, float] | None = None, path: Path = DURATIONS
+) -> None:
+    """Writes the measured times [s] by file, longest first, each with its CPU [s] where
+    ``cpu`` has it, to ``path``."""
+    cpu = cpu or {}
+    rows = {
+        name: {"wall": round(wall, 1), **({"cpu": round(cpu[name], 1)} if name in cpu else {})}
+        for name, wall in sorted(times.items(), key=lambda kv: -kv[1])
+    }
+    path.write_text(json.dumps(rows, indent=1) + "\n")

@@ -25,11 +25,30 @@ def test_an_unrecorded_file_counts_its_default():
 
 def test_recorded_durations_round_trip(tmp_path):
     path = tmp_path / "durations.json"
-    file_order.write_durations({"a.py": 1.234, "b.py": 9.87}, path)
+    file_order.write_durations({"a.py": 1.234, "b.py": 9.87}, {"b.py": 12.34}, path)
     assert file_order.read_durations(path) == {"b.py": 9.9, "a.py": 1.2}
     assert list(file_order.read_durations(path)) == ["b.py", "a.py"]  # longest first
+    assert file_order.read_cpu(path) == {"b.py": 12.3}
+    path.write_text('{"old.py": 4.5}')  # a record from before the CPU was kept
+    assert file_order.read_durations(path) == {"old.py": 4.5} and file_order.read_cpu(path) == {}
     path.write_text("not json")
-    assert file_order.read_durations(path) == {}
+    assert file_order.read_durations(path) == {} and file_order.read_cpu(path) == {}
+
+
+def test_beside_the_real_time_files_those_that_keep_more_than_a_core_busy_come_first():
+    durations = {"rt.py": 100.0, "a.py": 90.0, "b.py": 70.0, "p1.py": 60.0, "p2.py": 50.0}
+    durations |= {"p3.py": 30.0, "c.py": 20.0, "empty.py": 0.0}
+    # p1-p3 ran a process per core (1.2-1.4 CPU-s a second); a, b and c one process (0.9).
+    cpu = {"a.py": 81.0, "b.py": 63.0, "p1.py": 84.0, "p2.py": 60.0, "p3.py": 36.0, "c.py": 18.0}
+    cpu["empty.py"] = 0.0  # no time, no CPU: nothing to say it keeps a core busy
+    order = file_order.file_order(durations, {"rt.py"}, durations, cpu)
+    # p1 and p2 (110 s) cover the real-time file's 100 s; p3 waits its turn by its length.
+    assert order == ["rt.py", "p1.py", "p2.py", "a.py", "b.py", "p3.py", "c.py", "empty.py"]
+    # Without the CPU, or without a real-time file, it is longest first.
+    assert file_order.file_order(durations, {"rt.py"}, durations) == [
+        "rt.py", "a.py", "b.py", "p1.py", "p2.py", "p3.py", "c.py", "empty.py"
+    ]  # fmt: skip
+    assert file_order.file_order(durations, set(), durations, cpu)[:3] == ["rt.py", "a.py", "b.py"]
 
 
 def test_the_real_time_files_are_dealt_into_a_bin_per_worker_longest_first():
