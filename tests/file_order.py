@@ -5,7 +5,9 @@
 first file to each worker at the start. Two things decide how long the run takes on 2 cores:
 
 - the real-time files (a test with the ``realtime`` fixture: conftest.py, tests/run_lock.py)
-  first, longest first: a real-time test runs beside other real-time tests, never beside an
+  first, longest first (those that wait on the clock, under a CPU-second a second in the
+  recording, before those that keep their core busy all the same): a real-time test runs
+  beside other real-time tests, never beside an
   ordinary one, so the workers run them together at the start, rather than one waiting while
   the other runs one. They are dealt into one bin per worker (:func:`realtime_bins`: the
   longest to the emptiest bin), and each bin is one unit of work for the scheduler (conftest's
@@ -17,7 +19,7 @@ first file to each worker at the start. Two things decide how long the run takes
   start: where the real-time files share one worker (real-time priority: conftest.py), the
   other runs the files that keep more than a core busy (:data:`PARALLEL_CPU_PER_S`: a
   sweep's, a benchmark's or a report's worker processes) first, as many as the real-time
-  files last, longest first: the real-time tests, paced to the wall clock, leave most of
+  files that wait last, longest first: those tests, paced to the wall clock, leave most of
   their core idle, and those files' extra processes use it.
 
 Each file's time is read from ``tests/durations.json`` (``pytest --record-durations``
@@ -76,9 +78,9 @@ def file_order(
     durations: dict[str, float],
     cpu: dict[str, float] | None = None,
 ) -> list[str]:
-    """The files in the order they should run (see the module): the real-time ones, then
-    the others, each longest first, those that keep more than a core busy (by ``cpu``) first
-    for as long as the real-time ones last."""
+    """The files in the order they should run (see the module): the real-time ones (those
+    that wait on the clock first), then the others, each longest first, those that keep
+    more than a core busy (by ``cpu``) first for as long as the real-time ones wait."""
 
     def cost(name: str) -> float:
         return durations.get(name, UNKNOWN_S)
@@ -87,10 +89,15 @@ def file_order(
         return sorted(names, key=lambda n: (-cost(n), n))
 
     files = set(files)
-    first, others = by_cost(files & realtime), by_cost(files - realtime)
     cpu = cpu or {}
+    # The real-time files that wait on the clock first (below a CPU-second a second), those
+    # that keep their core busy all the same after them (the controllers guide's, whose
+    # sweep, report and benchmark come before its real-time block).
+    busy = {n for n in files & realtime if cpu.get(n, 0.0) >= cost(n) > 0}
+    first = by_cost(files & realtime - busy) + by_cost(busy)
+    others = by_cost(files - realtime)
     parallel: list[str] = []
-    left = sum(cost(n) for n in first)  # the real-time files' time
+    left = sum(cost(n) for n in first if n not in busy)  # the time of those that wait
     for name in others:
         if left <= 0:
             break

@@ -44,6 +44,12 @@ def test_beside_the_real_time_files_those_that_keep_more_than_a_core_busy_come_f
     order = file_order.file_order(durations, {"rt.py"}, durations, cpu)
     # p1 and p2 (110 s) cover the real-time file's 100 s; p3 waits its turn by its length.
     assert order == ["rt.py", "p1.py", "p2.py", "a.py", "b.py", "p3.py", "c.py", "empty.py"]
+    # A real-time file that keeps its core busy (busy.py: 1.05 CPU-s a second) comes after
+    # those that wait, and does not count in the time the others fill.
+    durations["busy.py"], cpu["busy.py"], cpu["rt.py"] = 200.0, 210.0, 40.0
+    order = file_order.file_order(durations, {"rt.py", "busy.py"}, durations, cpu)
+    assert order[:5] == ["rt.py", "busy.py", "p1.py", "p2.py", "a.py"]
+    del durations["busy.py"]
     # Without the CPU, or without a real-time file, it is longest first.
     assert file_order.file_order(durations, {"rt.py"}, durations) == [
         "rt.py", "a.py", "b.py", "p1.py", "p2.py", "p3.py", "c.py", "empty.py"
