@@ -42,13 +42,13 @@ def cores() -> int:
 
 
 def summary(start: Mark, end: Mark, core_count: int) -> str:
-    """One line: the CPU seconds between two marks against the core-seconds of their wall time."""
+    """One line (under 90 characters: a page shows it whole): the CPU seconds between two marks
+    against the core-seconds of their wall time."""
     user, system = end.user - start.user, end.system - start.system
     wall = end.wall - start.wall
     available = core_count * wall
     share = 100.0 * (user + system) / available if available > 0 else 0.0
     return (
-        f"CPU: the run's processes used {user + system:.0f} CPU-s (user {user:.0f} s, system "
-        f"{system:.0f} s) in {wall:.0f} s on {core_count} cores: {share:.0f} % of their "
-        f"{available:.0f} core-seconds"
+        f"CPU: {user + system:.0f} CPU-s (user {user:.0f}, system {system:.0f}) in {wall:.0f} s "
+        f"on {core_count} cores: {share:.0f} % of {available:.0f} core-s"
     )
