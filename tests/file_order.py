@@ -6,14 +6,14 @@ first file to each worker at the start. Two things decide how long the run takes
 
 - the real-time files (a test with the ``realtime`` fixture: conftest.py, tests/run_lock.py)
   first, longest first (those that wait on the clock, under a CPU-second a second in the
-  recording, before those that keep their core busy all the same): a real-time test runs
-  beside other real-time tests, never beside an
+  recording, before those that keep their core busy all the same). Where real-time priority
+  cannot be had, a real-time test runs beside other real-time tests, never beside an
   ordinary one, so the workers run them together at the start, rather than one waiting while
-  the other runs one. They are dealt into one bin per worker (:func:`realtime_bins`: the
-  longest to the emptiest bin), and each bin is one unit of work for the scheduler (conftest's
-  ``pytest_xdist_make_scheduler``), so every worker starts with a bin of about the same
-  length (xdist alone hands out files as workers run low, which left one worker idle for
-  40 s while the other ran two real-time files);
+  the other runs one; where it can, they share one worker. They are dealt into one bin per
+  such worker (:func:`realtime_bins`: the longest to the emptiest bin), and each bin is one
+  unit of work for the scheduler (conftest's ``pytest_xdist_make_scheduler``), so every
+  worker starts with a bin of about the same length (xdist alone hands out files as workers
+  run low, which left one worker idle for 40 s while the other ran two real-time files);
 - then the others, longest first (longest-processing-time scheduling): the run ends on short
   files on both workers, not on one worker's long file while the other idles. Except at the
   start: where the real-time files share one worker (real-time priority: conftest.py), the
