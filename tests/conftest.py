@@ -85,8 +85,7 @@ def pytest_xdist_auto_num_workers(config: pytest.Config) -> int | None:
     pytest-xdist's to read."""
     if os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS"):
         return None
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return cores or 1
+    return run_cost.cores()
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -132,8 +131,7 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo):
     start = _PHASE_START.get("mark")
     if start is not None:
         end = _PHASE_START["mark"] = run_cost.mark()
-        used = (end.user - start.user) + (end.system - start.system)
-        outcome.get_result().user_properties.append((CPU_PROPERTY, used))
+        outcome.get_result().user_properties.append((CPU_PROPERTY, run_cost.used(start, end)))
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:

@@ -41,14 +41,19 @@ def cores() -> int:
     return os.cpu_count() or 1
 
 
+def used(start: Mark, end: Mark) -> float:
+    """The CPU used between two marks [s], user and system."""
+    return (end.user - start.user) + (end.system - start.system)
+
+
 def summary(start: Mark, end: Mark, core_count: int) -> str:
     """One line (under 90 characters: a page shows it whole): the CPU seconds between two marks
     against the core-seconds of their wall time."""
     user, system = end.user - start.user, end.system - start.system
     wall = end.wall - start.wall
     available = core_count * wall
-    share = 100.0 * (user + system) / available if available > 0 else 0.0
+    share = 100.0 * used(start, end) / available if available > 0 else 0.0
     return (
-        f"CPU: {user + system:.0f} CPU-s (user {user:.0f}, system {system:.0f}) in {wall:.0f} s "
+        f"CPU: {used(start, end):.0f} CPU-s (user {user:.0f}, system {system:.0f}) in {wall:.0f} s "
         f"on {core_count} cores: {share:.0f} % of {available:.0f} core-s"
     )
