@@ -232,6 +232,41 @@ def test_analyse_fits_a_kept_recording_as_the_run_did(rehearsal, tmp_path, capsy
     assert load_scenario(folder / IDENTIFIED_FILE) == load_scenario(out / IDENTIFIED_FILE)
 
 
+@pytest.mark.slow
+def test_small_identified_values_are_numbers_to_the_loader(
+    rehearsal, tmp_path, capsys, monkeypatch
+):
+    """A latency identified as 4e-05 s (measured over LCM once: the docs' rehearsal then
+    failed, ``--config identified.yaml`` refused as "YAML reads '4e-05' as text") and other
+    values only an exponent spells are written so that the loader reads them back as the
+    numbers they are, to the 6 digits written."""
+    from doorlab.hardware.identify import preset
+
+    small = {"latency": 4e-05, "latency_jitter": 3e-06, "load_mass": 1e-07}
+    identified = preset.identified_scenario
+
+    def with_small_values(scenario, found):
+        scenario = identified(scenario, found)
+        for name, value in small.items():
+            setattr(scenario.station.arm, name, value)
+        return scenario
+
+    monkeypatch.setattr(preset, "identified_scenario", with_small_values)
+    folder = _copy_recording(rehearsal[1], tmp_path / "copy")
+    code, stdout = _analyse(folder, capsys)
+    assert code == 0, stdout
+    arm = load_scenario(folder / IDENTIFIED_FILE).station.arm
+    assert {name: getattr(arm, name) for name in small} == small
+
+
+@pytest.mark.parametrize("value", [4e-05, -3e-07, 1e-300, 2.5e06, 1e16, 0.000123, 12.5, 0.0])
+def test_yaml_number_is_read_back_as_the_number(value):
+    from doorlab.hardware.identify.preset import yaml_number
+    from doorlab.runtime.inputs import load_yaml
+
+    assert load_yaml(f"x: {yaml_number(value)}")["x"] == pytest.approx(value, rel=1e-6, abs=0)
+
+
 def _changed_recording(out: Path, folder: Path, change) -> Path:
     """A copy of the rehearsal's recording with its log changed by ``change(log, script)``."""
     folder = _copy_recording(out, folder)

@@ -176,13 +176,24 @@ def fits_dict(found: Identified) -> dict:
     }
 
 
+def yaml_number(value: float, digits: int = 6) -> str:
+    """``value`` to ``digits`` significant digits, spelled so that YAML 1.1 reads a number:
+    ``4.0e-05``, where Python's ``4e-05`` is text to it (and ``doorlab run --config`` refuses
+    the file)."""
+    text = f"{value:.{digits}g}"
+    if "e" in text:
+        mantissa, exponent = text.split("e")
+        text = f"{mantissa if '.' in mantissa else mantissa + '.0'}e{exponent}"
+    return text
+
+
 def preset_yaml(scenario, found: Identified, *, source: str, kept_from: list[str]) -> str:
     """``identified.yaml``: the arm preset's station fields with the identified values, each
     with its fit's tolerance in a comment, and the lines of the values kept from the preset
     (``kept_from``); loadable with ``--config``."""
 
     def floats(values, digits=6) -> str:
-        return "[" + ", ".join(f"{v:.{digits}g}" for v in values) + "]"
+        return "[" + ", ".join(yaml_number(v, digits) for v in values) + "]"
 
     def tol(estimates, scale=1.0) -> str:
         return ", ".join(
@@ -212,7 +223,7 @@ def preset_yaml(scenario, found: Identified, *, source: str, kept_from: list[str
         "#   doorlab run --config identified.yaml --controller C     # predict the lab's arm",
         "#   doorlab report --config identified.yaml                 # the verdicts on it",
         "station:",
-        f"  time_step: {st.time_step:g}",
+        f"  time_step: {yaml_number(st.time_step)}",
         "  inner_loop:",
         "    kind: kuka_joint_impedance",
         f"    kuka_stiffness: {floats(loop.kuka_stiffness, 6)}   # [N m/rad] the Java app's",
@@ -224,19 +235,20 @@ def preset_yaml(scenario, found: Identified, *, source: str, kept_from: list[str
         f"model's {floats(found.model_inertia, 3)}",
         "  driver:",
         f"    timing: {st.driver.timing}",
-        f"    velocity_filter_cutoff: {st.driver.velocity_filter_cutoff:g}",
-        f"    external_torque_limit: {st.driver.external_torque_limit:g}",
+        f"    velocity_filter_cutoff: {yaml_number(st.driver.velocity_filter_cutoff)}",
+        f"    external_torque_limit: {yaml_number(st.driver.external_torque_limit)}",
         "  safety:",
         f"    enabled: {'true' if st.safety.enabled else 'false'}",
         "  arm:",
-        f"    load_mass: {'null' if arm.load_mass is None else f'{arm.load_mass:.6g}'}   "
+        f"    load_mass: {'null' if arm.load_mass is None else yaml_number(arm.load_mass)}   "
         f"# [kg] KUKA's load data, +- {one(rest.load_mass if rest else None)} (the arm "
         f"carries {gripper_mass():.3g} kg)",
         f"    stiction: {floats(arm.stiction)}   # [N m] +- {tol(found.stiction)}",
         f"    coulomb_friction: {floats(arm.coulomb_friction)}   # [N m] +- {tol(found.coulomb)}",
-        f"    friction_compensation_band: {arm.friction_compensation_band:g}   # [rad] assumed",
-        f"    latency: {arm.latency:.6g}   # [s] +- {one(found.latency)}",
-        f"    latency_jitter: {arm.latency_jitter:.6g}   # [s] +- {one(found.jitter)}",
+        f"    friction_compensation_band: {yaml_number(arm.friction_compensation_band)}"
+        "   # [rad] assumed",
+        f"    latency: {yaml_number(arm.latency)}   # [s] +- {one(found.latency)}",
+        f"    latency_jitter: {yaml_number(arm.latency_jitter)}   # [s] +- {one(found.jitter)}",
         f"    external_torque_noise: {floats(arm.external_torque_noise)}   # [N m] std, +- "
         f"{tol(noise)}",
         f"    seed: {arm.seed}",
