@@ -61,8 +61,7 @@ collections for the scheduler (:func:`pytest_xdist_make_scheduler`)."""
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """The files in tests/file_order.py's order (the same on every worker: computed from the
-    collection and durations.json only); the tests of a file keep theirs. The first worker
-    starts the notebook's shared run in the background (tests/warm_up.py)."""
+    collection and durations.json only); the tests of a file keep theirs."""
     realtime = {item.path.name for item in items if _is_realtime(item)}
     folder = run_dir()
     if hasattr(config, "workerinput") and folder is not None:  # for the scheduler
