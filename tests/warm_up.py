@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -54,18 +53,15 @@ def start(run_folder: Path) -> subprocess.Popen:
     tests = str(Path(__file__).resolve().parent)
     path = os.environ.get("PYTHONPATH")
     env = {**os.environ, "PYTHONPATH": tests if not path else f"{tests}{os.pathsep}{path}"}
-    # nice(1) sets it before Python starts (so every process it starts inherits it); no
-    # preexec_fn in a worker that has threads.
-    nice = shutil.which("nice")
-    prefix = [nice, "-n", str(NICE)] if nice else []
     with open(run_folder / LOG, "ab") as log:
         return subprocess.Popen(
-            [*prefix, sys.executable, "-c", SCRIPT],
+            [sys.executable, "-c", SCRIPT],
             cwd=run_folder,
             env=env,
             stdin=subprocess.DEVNULL,
             stdout=log,
             stderr=subprocess.STDOUT,
+            preexec_fn=lambda: os.nice(NICE),
             start_new_session=True,  # its own process group: the notebook's processes with it
         )
 
