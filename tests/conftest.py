@@ -27,7 +27,6 @@ import file_order
 import pytest
 import realtime_priority
 import run_cost
-import warm_up
 from run_lock import RunLock, read_waits
 from shared_cache import RUN_DIR_ENV, run_dir
 
@@ -76,14 +75,6 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         )
     }
     items.sort(key=lambda item: rank[item.path.name])
-    if (
-        hasattr(config, "workerinput")
-        and config.workerinput["workerid"] == "gw0"
-        and folder is not None
-        and realtime_priority.problem() is None
-        and warm_up.wanted(items)
-    ):
-        config._doorlab_warm_up = warm_up.start(folder)
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int | None:
@@ -169,10 +160,6 @@ def pytest_sessionstart(session: pytest.Session) -> None:
 
 
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
-    warming = getattr(session.config, "_doorlab_warm_up", None)
-    if warming is not None:  # another worker may still wait for it, unless the run stops
-        stopped = exitstatus not in (pytest.ExitCode.OK, pytest.ExitCode.TESTS_FAILED)
-        warm_up.finish(warming, interrupted=stopped or bool(session.shouldstop))
     times, cpu = _RECORDED.pop("times", None), _RECORDED.pop("cpu", None)
     if times:  # the files this run measured replace theirs; the others are kept
         file_order.write_durations(
