@@ -52,7 +52,12 @@ def test_teaching_first_block(tmp_path):
     with zipfile.ZipFile(work / "pset5_handout.zip") as archive:
         assert any(n.endswith(".whl") for n in archive.namelist())
     graded = json.loads((work / "pset5_key" / "test_results.json").read_text())
-    assert graded["score"] == FULL
+    lost = [
+        (t["name"], t["score"], t.get("status"), t.get("output", "")[-400:])
+        for t in graded["tests"]
+        if t["score"] != t["max_score"]
+    ]
+    assert graded["score"] == FULL, lost  # which test lost its points, and what it printed
     with open(work / "grades" / "grades.csv", newline="") as f:
         totals = {row["submission"]: float(row["total"]) for row in csv.DictReader(f)}
     assert totals == {"submission_1": FULL, "submission_2": 0.0}
