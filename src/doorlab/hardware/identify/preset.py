@@ -11,6 +11,7 @@ import math
 from doorlab.hardware.identify.analysis import Identified, gripper_mass
 from doorlab.hardware.identify.fit import Estimate
 from doorlab.kuka import MAX_LATENCY
+from doorlab.runtime.inputs import yaml_float_spelling
 
 FIELDS = {
     "load_mass": ("station.arm.load_mass", "kg"),
@@ -181,10 +182,7 @@ def yaml_number(value: float, digits: int = 6) -> str:
     ``4.0e-05``, where Python's ``4e-05`` is text to it (and ``doorlab run --config`` refuses
     the file)."""
     text = f"{value:.{digits}g}"
-    if "e" in text:
-        mantissa, exponent = text.split("e")
-        text = f"{mantissa if '.' in mantissa else mantissa + '.0'}e{exponent}"
-    return text
+    return (yaml_float_spelling(text) or text) if "e" in text else text
 
 
 def preset_yaml(scenario, found: Identified, *, source: str, kept_from: list[str]) -> str:
