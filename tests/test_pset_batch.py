@@ -205,6 +205,16 @@ grade, a group of two (a name a spreadsheet would run), one of the class's copie
 stubs."""
 
 
+ALONE = tuple(f"submission_{n}" for n in (101, 102, 103, 109, *range(111, 120)))
+"""The submissions graded alone: the key, the stubs, a mistake of a helper (103) and of a
+plan (109), the helpers in their four upload shapes (111 flat, 112 under a folder, 113
+zipped, 118 with extra files), a zip pointing outside (114), two files missing (115), none of
+the files (116), nested past the bound (117), a group of two (119)."""
+
+COPIES = tuple(f"submission_{n}" for n in range(120, 131))
+"""The class's unfinished uploads: flat copies of the stubs (odd) or of the helpers (even)."""
+
+
 def sub_export(export: Path, ids: tuple[str, ...], dest: Path) -> Path:
     """A copy of ``export`` with the submissions ``ids`` only (their folders and their
     entries in submission_metadata.yml, as Gradescope exports a part of a class)."""
@@ -377,33 +387,34 @@ def test_the_sheet_holds_the_expected_scores_names_and_statuses(klass, resumed):
 
 @pytest.mark.slow
 def test_each_submission_graded_alone_gives_its_row(klass, resumed):
-    """grade_submission on each submission folder of the export (the one intake, as
-    ``doorlab pset grade`` runs it; two gradings at a time): the row of the class's sheet,
-    times aside; and the same results file, times and the total's line aside.
+    """grade_submission on submission folders of the export (the one intake, as ``doorlab
+    pset grade`` runs it; two gradings at a time): the row of the class's sheet, times aside;
+    and the same results file, times and the total's line aside.
 
-    The 11 unfinished ones the class has for its size (submission_120-130, three flat files
-    as 102's or 111's) are not graded alone again: each gets the results of the submission
-    whose files it has, graded alone. That identical files graded alone give the identical
-    results is shown by the others: 102 and 119 (the stubs), 111, 112, 113 and 118 (the
-    helpers, in four upload shapes) are each graded alone and each compared with its row,
-    a copy in the class's sheet of one grading."""
+    Graded alone: every upload shape and every way a submission ends, once each (ALONE). The
+    six other single mistakes (104-108, 110) differ from 103 and 109 only in what the
+    student's code computes, which the class's sheet checks against each one's expected
+    scores (test_the_sheet_holds_the_expected_scores_names_and_statuses); the eleven
+    unfinished ones (120-130, flat copies of 102's or 111's files) get the results of the
+    submission whose files they have. The six mistakes take the same path through the intake
+    as 103 and 109; grading them alone as well cost the suite six gradings that run episodes."""
     from concurrent.futures import ThreadPoolExecutor
 
     export, _, reference_file = klass
     reference = json.loads(reference_file.read_text())["extra_data"]["reference"]
-    submissions = find_submissions(export)
+    submissions = [s for s in find_submissions(export) if s.id in ALONE or s.id in COPIES]
     rows = {row["submission"]: row for row in resumed["rows"]}
-    copies = {f"submission_{n}" for n in range(120, 131)}
     same_files = {1: "submission_102", 0: "submission_111"}
-    alone_ones = [s for s in submissions if s.id not in copies]
+    alone_ones = [s for s in submissions if s.id in ALONE]
+    assert len(alone_ones) == len(ALONE)
 
     def alone(submission: Submission) -> dict:
         return grade_submission(submission.path, reference=reference, jobs=1)
 
     with ThreadPoolExecutor(max_workers=2) as pool:
         graded = dict(zip([s.id for s in alone_ones], pool.map(alone, alone_ones), strict=True))
-    for n in range(120, 131):  # build_class: the stubs (odd) or the helpers (even), flat
-        graded[f"submission_{n}"] = json.loads(json.dumps(graded[same_files[n % 2]]))
+    for sid in COPIES:  # build_class: the stubs (odd) or the helpers (even), flat
+        graded[sid] = json.loads(json.dumps(graded[same_files[int(sid.rsplit("_", 1)[1]) % 2]]))
     for submission in submissions:
         sid, results = submission.id, graded[submission.id]
         text = sheet_text([sheet_row(submission, results)], [t.key for t in TESTS])
