@@ -12,8 +12,8 @@ costs about a minute of CPU; the reference episodes are the session's
 Three gradings of the class serve the acceptance: ``grade-all`` interrupted with Ctrl-C in
 the middle then ``--resume``d (local processes); ``grade-all`` on a Dask LocalCluster of 2
 workers (a third of the class, a submission of each kind, graded again: the identical rows);
-and each submission graded alone (``grade_submission``, as ``doorlab pset grade``): the same
-rows.
+and 13 submissions graded alone (``grade_submission``, as ``doorlab pset grade``; every upload
+shape and every way a grading ends): the same rows.
 """
 
 from __future__ import annotations
@@ -391,13 +391,12 @@ def test_each_submission_graded_alone_gives_its_row(klass, resumed):
     pset grade`` runs it; two gradings at a time): the row of the class's sheet, times aside;
     and the same results file, times and the total's line aside.
 
-    Graded alone: every upload shape and every way a submission ends, once each (ALONE). The
-    six other single mistakes (104-108, 110) differ from 103 and 109 only in what the
-    student's code computes, which the class's sheet checks against each one's expected
-    scores (test_the_sheet_holds_the_expected_scores_names_and_statuses); the eleven
-    unfinished ones (120-130, flat copies of 102's or 111's files) get the results of the
-    submission whose files they have. The six mistakes take the same path through the intake
-    as 103 and 109; grading them alone as well cost the suite six gradings that run episodes."""
+    Graded alone: every upload shape and every way a grading ends, once each (ALONE). The
+    six other single mistakes (104-108, 110) take the same path through the intake as 103
+    and 109 and differ only in what the student's code computes, which the sheet test checks
+    against each one's expected scores; grading them alone as well cost six gradings that run
+    episodes. The eleven unfinished ones (COPIES) get the results of the submission whose
+    files they have."""
     from concurrent.futures import ThreadPoolExecutor
 
     export, _, reference_file = klass
@@ -413,8 +412,8 @@ def test_each_submission_graded_alone_gives_its_row(klass, resumed):
 
     with ThreadPoolExecutor(max_workers=2) as pool:
         graded = dict(zip([s.id for s in alone_ones], pool.map(alone, alone_ones), strict=True))
-    for sid in COPIES:  # build_class: the stubs (odd) or the helpers (even), flat
-        graded[sid] = json.loads(json.dumps(graded[same_files[int(sid.rsplit("_", 1)[1]) % 2]]))
+    for n in range(120, 131):  # COPIES (build_class): the stubs (odd) or the helpers (even)
+        graded[f"submission_{n}"] = json.loads(json.dumps(graded[same_files[n % 2]]))
     for submission in submissions:
         sid, results = submission.id, graded[submission.id]
         text = sheet_text([sheet_row(submission, results)], [t.key for t in TESTS])
