@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from doc_commands import Page
 from lcm_fixtures import lcm_url, multicast_route  # noqa: F401
+from realtime_host import host_watch, watchdog_excused
 
 from doorlab.episode.result import EpisodeResult
 from doorlab.hardware.ground_truth import GROUND_TRUTH_FILE, GroundTruth
@@ -41,7 +42,11 @@ its printed digit: the run is the same each time but for a command the host make
 
 def test_a_rehearsal_on_one_machine(tmp_path, lcm_url, realtime):  # noqa: F811
     page = Page("docs/guides/real-arm.md", tmp_path, env={"LCM_DEFAULT_URL": lcm_url})
-    with realtime():
+    with (
+        realtime(),
+        host_watch() as host,
+        watchdog_excused(host, "the rehearsal's client lost the driver"),
+    ):
         outcomes = page.run_blocks()
     assert [o.how for o in outcomes] == ["ran", "ran"]
     identified = tmp_path / "doorlab_out" / "identify" / "identified.yaml"

@@ -4,13 +4,14 @@ fails on a loaded host, and fails when the host was not loaded."""
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 import pytest
-from realtime_host import LOADED_CORES, HostWatch
+from realtime_host import LOADED_CORES, STALL_S, HostWatch, StallProbe, watchdog_excused
 
 
 def _cpu_s(pid: int) -> float:
@@ -32,6 +33,49 @@ def test_a_missed_timing_is_excused_on_a_loaded_host_only():
     with pytest.raises(AssertionError, match="191.0 Hz"):
         with idle.excuse("the driver's measured rate"):
             raise AssertionError("IIWA_STATUS at 191.0 Hz")
+
+
+class _Stalled:
+    """A probe that saw the host stop it for ``worst_s``."""
+
+    def __init__(self, worst_s: float) -> None:
+        self.worst_s = worst_s
+
+    def stop(self) -> float:
+        return self.worst_s
+
+
+def test_a_stopped_probe_measures_the_stop():
+    """The host stops the probe (SIGSTOP, as a paused machine stops every process) for 150
+    ms: its latest wake-up is at least that late, less its 2 ms period; it cannot exceed the
+    stop by much unless the host held it off longer still, so the upper bound (1 s) only says
+    the figure is the stop's and not an accident of the probe."""
+    probe = StallProbe()
+    time.sleep(0.3)  # started: Python's start-up is not a late wake-up (its loop starts after)
+    os.kill(probe._proc.pid, signal.SIGSTOP)
+    time.sleep(0.15)
+    os.kill(probe._proc.pid, signal.SIGCONT)
+    time.sleep(0.05)
+    assert 0.15 - 0.002 <= probe.stop() < 1.0, probe.stop()
+    assert probe.stop() == probe.worst_s  # stopped once: the figure is kept
+
+
+def test_a_stall_excuses_a_missed_timing_on_an_idle_host_and_only_the_watchdog_s():
+    """A host that stopped the section's processes for STALL_S or more explains a missed
+    timing whatever the load (the skip says how late); a shorter stall does not. A page's
+    command that failed otherwise than on the client's watchdog is never the host's."""
+    stalled, brief = HostWatch(probe=_Stalled(STALL_S + 0.02)), HostWatch(probe=_Stalled(0.01))
+    stalled.other_cores = brief.other_cores = 0.0
+    with pytest.raises(pytest.skip.Exception) as skipped:
+        with watchdog_excused(stalled, "the rehearsal's client lost the driver"):
+            raise AssertionError("driver_lost: no fresh status for 50 ms after t = 6.310 s")
+    assert f"woke {1e3 * (STALL_S + 0.02):.0f} ms late" in str(skipped.value)
+    with pytest.raises(AssertionError, match="no fresh status"):
+        with watchdog_excused(brief, "the rehearsal's client lost the driver"):
+            raise AssertionError("driver_lost: no fresh status for 50 ms after t = 6.310 s")
+    with pytest.raises(AssertionError, match="exited 1"):
+        with watchdog_excused(stalled, "the rehearsal's client lost the driver"):
+            raise AssertionError("`doorlab identify --yes` exited 1 (the page expects 0)")
 
 
 def _skip_if_starved(burned: float, tolerance: float) -> None:
