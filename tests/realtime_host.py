@@ -27,11 +27,14 @@ import json
 import os
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import TypeVar
 
 import pytest
 import realtime_priority
+
+T = TypeVar("T")
 
 LOADED_CORES = 0.25
 """Other processes' average use [cores] from which a missed timing is put down to the host:
@@ -167,6 +170,11 @@ class HostWatch:
             self.other_cores = max(0.0, other / wall)
         return self.other_cores
 
+    def explains(self) -> bool:
+        """Whether the host explains a missed timing: its other processes used
+        :data:`LOADED_CORES` or more, or it stopped the section's processes (:data:`STALL_S`)."""
+        return self.stop() >= LOADED_CORES or self.stall_s() >= STALL_S
+
     def describe(self) -> str:
         cores = os.cpu_count() or 1
         stall = f", a real-time process woke at most {1e3 * self.stall_s():.1f} ms late"
@@ -188,7 +196,7 @@ class HostWatch:
             if self.stall_s() >= STALL_S:
                 stalled = f"a real-time process woke {1e3 * self.stall_s():.0f} ms late"
                 explained = f"{explained}, {stalled}" if explained else stalled
-            if self.stop() < LOADED_CORES and not explained:
+            if not explained and not self.explains():
                 raise
             shown = str(e).strip().splitlines()[0][:300] if str(e).strip() else repr(e)
             why = f"; {explained}" if explained else ""
@@ -227,3 +235,24 @@ def watchdog_excused(host: HostWatch, what: str) -> Iterator[None]:
             raise
         with host.excuse(what):
             raise
+
+
+def page_in_real_time(
+    realtime: Callable, run: Callable[[Path], T], folders: Sequence[Path], what: str
+) -> T:
+    """``run(folder)``, a page's blocks that hold real-time commands, in a real-time section
+    (the ``realtime`` fixture's) under :func:`host_watch`. A command that ended on the
+    client's watchdog where the host explains it (:meth:`HostWatch.explains`: a loaded host,
+    or one that stopped the section's processes) runs the page once more in the next folder,
+    saying so on stdout; in the last folder that skips the test (:func:`watchdog_excused`).
+    Any other failure is the test's. Returns what ``run`` returned."""
+    for i, folder in enumerate(folders):
+        with realtime(), host_watch() as host:
+            try:
+                return run(folder)
+            except AssertionError as e:
+                if WATCHDOG not in str(e) or not host.explains() or i == len(folders) - 1:
+                    with watchdog_excused(host, what):
+                        raise
+                print(f"{what} ({host.describe()}): the page once more, in {folders[i + 1]}")
+    raise ValueError("page_in_real_time needs at least one folder")

@@ -10,25 +10,27 @@ import json
 import pytest
 from doc_commands import Page
 from lcm_fixtures import lcm_url, multicast_route  # noqa: F401
-from realtime_host import host_watch, watchdog_excused
+from realtime_host import page_in_real_time
 
 pytestmark = pytest.mark.slow
 
 
 def test_controllers(tmp_path, lcm_url, realtime):  # noqa: F811
-    page = Page("docs/guides/controllers.md", tmp_path, env={"LCM_DEFAULT_URL": lcm_url})
-    with (
-        realtime(),
-        host_watch() as host,
-        watchdog_excused(host, "the plug-in's rehearsal lost the driver"),
-    ):
-        outcomes = page.run_blocks()
+    def run(work):
+        return work, Page(
+            "docs/guides/controllers.md", work, env={"LCM_DEFAULT_URL": lcm_url}
+        ).run_blocks()
+
+    folders = [tmp_path / "clone", tmp_path / "again"]  # again: the host stopped the first
+    work, outcomes = page_in_real_time(
+        realtime, run, folders, "the plug-in's rehearsal lost the driver"
+    )
     ran = [o for o in outcomes if o.how == "ran"]
     assert len(ran) >= 5, [o.how for o in outcomes]
     for folder in ("dls_closed", "ff_closed", "dls_arm"):
-        metrics = json.loads((tmp_path / folder / "metrics.json").read_text())
+        metrics = json.loads((work / folder / "metrics.json").read_text())
         assert metrics["status"] == "ok", (folder, metrics["status"])
-    assert (tmp_path / "sweep_dls" / "results.csv").is_file()
-    assert (tmp_path / "report_dls" / "runs" / "dls_closed" / "metrics.json").is_file()
-    card = json.loads((tmp_path / "bench_dls" / "bench.json").read_text())
+    assert (work / "sweep_dls" / "results.csv").is_file()
+    assert (work / "report_dls" / "runs" / "dls_closed" / "metrics.json").is_file()
+    card = json.loads((work / "bench_dls" / "bench.json").read_text())
     assert {"dls", "velocity"} <= set(card["controllers"])

@@ -4,6 +4,11 @@ one machine, the simulated driver in one terminal and ``doorlab run --hardware``
 plan in one process; then the calibration's rehearsal (``doorlab identify`` against the
 simulated driver with the arm preset, its recording fitted again, a run on what it wrote).
 
+A host that stopped the rehearsal's processes (tests/realtime_host.py's stall probe: once
+here, a real-time process woke 104 ms late while other processes used 0.04 cores) ends
+``doorlab run --hardware`` on its watchdog, as it should on an arm: the page then runs once
+more in a fresh folder, and skips, saying so, if the host stops it again.
+
 The bus is the test's own (``LCM_DEFAULT_URL``, which the page says the commands read: a port
 of its own on loopback, tests/lcm_fixtures.py); the paced processes run at real-time priority
 where they can have it, as the real-time tests' do.
@@ -18,7 +23,7 @@ import numpy as np
 import pytest
 from doc_commands import Page
 from lcm_fixtures import lcm_url, multicast_route  # noqa: F401
-from realtime_host import host_watch, watchdog_excused
+from realtime_host import page_in_real_time
 
 from doorlab.episode.result import EpisodeResult
 from doorlab.hardware.ground_truth import GROUND_TRUTH_FILE, GroundTruth
@@ -41,23 +46,25 @@ its printed digit: the run is the same each time but for a command the host make
 
 
 def test_a_rehearsal_on_one_machine(tmp_path, lcm_url, realtime):  # noqa: F811
-    page = Page("docs/guides/real-arm.md", tmp_path, env={"LCM_DEFAULT_URL": lcm_url})
-    with (
-        realtime(),
-        host_watch() as host,
-        watchdog_excused(host, "the rehearsal's client lost the driver"),
-    ):
-        outcomes = page.run_blocks()
+    def run(work):
+        return work, Page(
+            "docs/guides/real-arm.md", work, env={"LCM_DEFAULT_URL": lcm_url}
+        ).run_blocks()
+
+    folders = [tmp_path / "clone", tmp_path / "again"]  # again: the host stopped the first
+    work, outcomes = page_in_real_time(
+        realtime, run, folders, "the rehearsal's client lost the driver"
+    )
     assert [o.how for o in outcomes] == ["ran", "ran"]
-    identified = tmp_path / "doorlab_out" / "identify" / "identified.yaml"
+    identified = work / "doorlab_out" / "identify" / "identified.yaml"
     assert identified.is_file()
-    assert json.loads((tmp_path / "identified_ik" / "metrics.json").read_text())["status"] == "ok"
-    truth = np.load(tmp_path / "gt" / "ground_truth.npz")
+    assert json.loads((work / "identified_ik" / "metrics.json").read_text())["status"] == "ok"
+    truth = np.load(work / "gt" / "ground_truth.npz")
     assert {"t", "door_angles", "q_measured"} <= set(truth.files)
-    driver = json.loads((tmp_path / "gt" / "driver.json").read_text())
+    driver = json.loads((work / "gt" / "driver.json").read_text())
     assert driver["iiwa_commands_received"] > 4000, driver  # 24 s of 5 ms cycles, most commanded
     metrics = {
-        name: json.loads((tmp_path / folder / "metrics.json").read_text())
+        name: json.loads((work / folder / "metrics.json").read_text())
         for name, folder in (
             ("lcm", "doorlab_out/velocity_closed_hardware"),
             ("one", "one_process"),
@@ -66,9 +73,9 @@ def test_a_rehearsal_on_one_machine(tmp_path, lcm_url, realtime):  # noqa: F811
     assert metrics["lcm"]["status"] == metrics["one"]["status"] == "ok", metrics
     # The true door (the driver's ground truth) at the arc's end, on the client's timeline,
     # against the one-process run's.
-    one = EpisodeResult.load(tmp_path / "one_process" / "log.npz")
-    log = EpisodeResult.load(tmp_path / "doorlab_out" / "velocity_closed_hardware" / "log.npz")
-    gt = GroundTruth.load(tmp_path / "gt" / GROUND_TRUTH_FILE)
+    one = EpisodeResult.load(work / "one_process" / "log.npz")
+    log = EpisodeResult.load(work / "doorlab_out" / "velocity_closed_hardware" / "log.npz")
+    gt = GroundTruth.load(work / "gt" / GROUND_TRUTH_FILE)
     t0 = log.status_time[0]  # the client's t = 0 on the driver's clock
     window = one.arc_window
     i0, i1 = (int(np.argmin(np.abs(gt.t - t0 - t))) for t in window)

@@ -3,6 +3,7 @@ fails on a loaded host, and fails when the host was not loaded."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -11,7 +12,15 @@ import time
 from pathlib import Path
 
 import pytest
-from realtime_host import LOADED_CORES, STALL_S, HostWatch, StallProbe, watchdog_excused
+import realtime_host
+from realtime_host import (
+    LOADED_CORES,
+    STALL_S,
+    HostWatch,
+    StallProbe,
+    page_in_real_time,
+    watchdog_excused,
+)
 
 
 def _cpu_s(pid: int) -> float:
@@ -76,6 +85,44 @@ def test_a_stall_excuses_a_missed_timing_on_an_idle_host_and_only_the_watchdog_s
     with pytest.raises(AssertionError, match="exited 1"):
         with watchdog_excused(stalled, "the rehearsal's client lost the driver"):
             raise AssertionError("`doorlab identify --yes` exited 1 (the page expects 0)")
+
+
+def test_a_page_the_host_stopped_runs_once_more_and_only_then(monkeypatch, tmp_path, capsys):
+    """page_in_real_time: a command that ended on the client's watchdog in a section the host
+    explains runs the page again in the next folder (and says so); a second such end skips; a
+    failure of another kind, or one the host does not explain, is raised at once. (STALL_S is
+    set to 0 here so that any wake-up counts as the host's stop: the probe's figure is checked
+    by test_a_stopped_probe_measures_the_stop.)"""
+    folders = [tmp_path / "first", tmp_path / "again"]
+    lost = AssertionError("`doorlab run --hardware` exited 7: no fresh status for 50 ms")
+    tried = []
+
+    def run(folder, fail=(lost,)):
+        tried.append(folder)
+        if len(tried) <= len(fail):
+            raise fail[len(tried) - 1]
+        return folder
+
+    def realtime():
+        return contextlib.nullcontext()
+
+    monkeypatch.setattr(realtime_host, "STALL_S", 0.0)
+    assert page_in_real_time(realtime, run, folders, "the rehearsal") == tmp_path / "again"
+    assert tried == folders and "the page once more, in" in capsys.readouterr().out
+    tried.clear()
+    with pytest.raises(pytest.skip.Exception, match="the rehearsal: `doorlab run --hardware`"):
+        page_in_real_time(realtime, lambda f: run(f, (lost, lost)), folders, "the rehearsal")
+    tried.clear()
+    other = AssertionError("`doorlab identify --yes` exited 1")
+    with pytest.raises(AssertionError, match="exited 1"):
+        page_in_real_time(realtime, lambda f: run(f, (other,)), folders, "the rehearsal")
+    assert tried == folders[:1]
+    tried.clear()
+    monkeypatch.setattr(realtime_host, "STALL_S", 10.0)  # no stop, and an idle host: a defect
+    monkeypatch.setattr(realtime_host, "LOADED_CORES", 10.0)
+    with pytest.raises(AssertionError, match="no fresh status"):
+        page_in_real_time(realtime, run, folders, "the rehearsal")
+    assert tried == folders[:1]
 
 
 def _skip_if_starved(burned: float, tolerance: float) -> None:
