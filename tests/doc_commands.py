@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import realtime_priority
+from realtime_host import page_in_real_time
 from shared_cache import run_dir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -415,6 +416,22 @@ def _main_job() -> Path:
     )
     assert done.returncode == 0, done.stderr[-3000:]
     return out
+
+
+def rehearsed(
+    page: str, tmp_path: Path, realtime: Callable, lcm_url: str, what: str
+) -> tuple[Path, list[Outcome]]:
+    """A page whose blocks hold a rehearsal on the arm's bus (``lcm_url``, the test's own), run
+    in real time (the ``realtime`` fixture) in ``tmp_path/clone``, or once more in
+    ``tmp_path/again`` when the host stopped the first run's processes
+    (:func:`realtime_host.page_in_real_time`; ``what``: what failed, for the skip). Returns
+    the workspace that ran and the outcomes."""
+
+    def run(work: Path) -> tuple[Path, list[Outcome]]:
+        return work, Page(page, work, env={"LCM_DEFAULT_URL": lcm_url}).run_blocks()
+
+    folders = [tmp_path / "clone", tmp_path / "again"]
+    return page_in_real_time(realtime, run, folders, what)
 
 
 def _record(outcome: Outcome) -> None:

@@ -8,22 +8,19 @@ from __future__ import annotations
 import json
 
 import pytest
-from doc_commands import Page
+from doc_commands import rehearsed
 from lcm_fixtures import lcm_url, multicast_route  # noqa: F401
-from realtime_host import page_in_real_time
 
 pytestmark = pytest.mark.slow
 
 
 def test_controllers(tmp_path, lcm_url, realtime):  # noqa: F811
-    def run(work):
-        return work, Page(
-            "docs/guides/controllers.md", work, env={"LCM_DEFAULT_URL": lcm_url}
-        ).run_blocks()
-
-    folders = [tmp_path / "clone", tmp_path / "again"]  # again: the host stopped the first
-    work, outcomes = page_in_real_time(
-        realtime, run, folders, "the plug-in's rehearsal lost the driver"
+    work, outcomes = rehearsed(
+        "docs/guides/controllers.md",
+        tmp_path,
+        realtime,
+        lcm_url,
+        "the plug-in's rehearsal lost the driver",
     )
     ran = [o for o in outcomes if o.how == "ran"]
     assert len(ran) >= 5, [o.how for o in outcomes]

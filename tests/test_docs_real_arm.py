@@ -21,9 +21,8 @@ import math
 
 import numpy as np
 import pytest
-from doc_commands import Page
+from doc_commands import rehearsed
 from lcm_fixtures import lcm_url, multicast_route  # noqa: F401
-from realtime_host import page_in_real_time
 
 from doorlab.episode.result import EpisodeResult
 from doorlab.hardware.ground_truth import GROUND_TRUTH_FILE, GroundTruth
@@ -46,14 +45,12 @@ its printed digit: the run is the same each time but for a command the host make
 
 
 def test_a_rehearsal_on_one_machine(tmp_path, lcm_url, realtime):  # noqa: F811
-    def run(work):
-        return work, Page(
-            "docs/guides/real-arm.md", work, env={"LCM_DEFAULT_URL": lcm_url}
-        ).run_blocks()
-
-    folders = [tmp_path / "clone", tmp_path / "again"]  # again: the host stopped the first
-    work, outcomes = page_in_real_time(
-        realtime, run, folders, "the rehearsal's client lost the driver"
+    work, outcomes = rehearsed(
+        "docs/guides/real-arm.md",
+        tmp_path,
+        realtime,
+        lcm_url,
+        "the rehearsal's client lost the driver",
     )
     assert [o.how for o in outcomes] == ["ran", "ran"]
     identified = work / "doorlab_out" / "identify" / "identified.yaml"
