@@ -155,10 +155,18 @@ def test_protocol_over_the_bus(realtime, lcm_url, tmp_path):  # noqa: F811
         assert len(due) > 0.8 * n_answered, f"{len(due)} of {n_answered} answers seen due"
         on_time = np.mean([k >= d for d, k in due])
         assert on_time >= 0.9, f"only {on_time:.0%} of the statuses report the answer before last"
-    # Held: every status after the last command reports it.
+    # Held: from the first status that reports the last command on, every status reports it
+    # (the 1 s without commands: 200 statuses). When it first shows is the timing above: due
+    # in the second status after the one it answers, one cycle later allowed; a busy machine
+    # may apply it later still, which the host then explains.
     last_utime = sent[-1][1]
-    later = [k for u, k in zip(utimes, shown, strict=True) if u > last_utime + 10000]
-    assert len(later) > 100 and all(k == n_answered for k in later)
+    after = shown[utimes > last_utime]
+    reported = np.flatnonzero(after == n_answered)
+    assert reported.size > 0, f"no status reports the last command ({n_answered})"
+    with host.excuse("the last command applied late"):
+        assert reported[0] <= 2, f"the last command first shows {reported[0] + 1} statuses on"
+    held = after[reported[0] :]
+    assert len(held) > 100 and np.all(held == n_answered), "the last command was not held"
 
     # The ground truth: the driver's record of the same instants, sample for sample.
     facts = json.loads((out / "driver.json").read_text())
