@@ -20,6 +20,8 @@ import csv
 import json
 import math
 import os
+import re
+import resource
 import shlex
 import shutil
 import subprocess
@@ -43,6 +45,7 @@ class Target:
     text: dict[str, Callable[[str], str]] | None = None  # name -> what to keep of its stdout
     tables: dict[str, Callable[[Path], str]] | None = None  # name -> Markdown from {out}
     timed: bool = True  # write time.md (False: the command only prints what a run recorded)
+    host_reference: bool = False  # time.md also gives the main job's CPU, measured just before
 
 
 def _rows(out: Path) -> list[dict[str, str]]:
@@ -348,11 +351,13 @@ TARGETS = {
         "python -m pytest -p no:cacheprovider",
         {},
         text={"summary": lambda stdout: _pytest_summary(stdout)},
+        host_reference=True,
     ),
     "quick_tier": Target(
         'python -m pytest -m "not slow" -p no:cacheprovider',
         {},
         text={"summary": lambda stdout: _pytest_summary(stdout)},
+        host_reference=True,
     ),
 }
 """What each figure of the site is and which command makes it."""
@@ -368,12 +373,49 @@ def _command(target: Target, out: Path) -> list[str]:
     return words
 
 
-def _time_md(command: str, seconds: float, load: float) -> str:
+def _time_md(
+    command: str, seconds: float, load: float, reference: dict[str, float] | None = None
+) -> str:
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return (
+    text = (
         f"`{command}` took {seconds:.0f} s of wall time when these figures were made, on a "
-        f"machine of {cores} cores (load average {load:.1f} at its start).\n"
+        f"machine of {cores} cores (load average {load:.1f} at its start)."
     )
+    if reference:
+        text += (
+            f" Just before it, on the same machine, the README's main job (`doorlab run`) took "
+            f"{reference['cpu']:.1f} CPU-s: the CPU line above is {reference['ratio']:.0f} "
+            "main jobs' worth."
+        )
+    return text + "\n"
+
+
+def _cpu_seconds(stdout: str) -> float:
+    """The CPU line's total (``CPU: 1491 CPU-s ...``, tests/run_cost.py) [CPU-s]."""
+    match = re.search(r"^CPU: (\d+(?:\.\d+)?) CPU-s", stdout, re.MULTILINE)
+    if match is None:
+        raise SystemExit("no CPU line in pytest's output (tests/run_cost.py)")
+    return float(match.group(1))
+
+
+def _main_job_cpu(work: Path) -> float:
+    """The CPU one run of the README's main job (``doorlab run``) takes on this machine now,
+    the run and every process it waited for [CPU-s]: how fast the machine is, in the project's
+    own unit of work."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    folder = work / "main_job"
+    shutil.rmtree(folder, ignore_errors=True)
+    done = subprocess.run(
+        [str(Path(sys.executable).parent / "doorlab"), "run", "--out", str(folder)],
+        cwd=work,
+        capture_output=True,
+        text=True,
+    )
+    if done.returncode != 0:
+        sys.stderr.write(done.stderr)
+        raise SystemExit(f"the main job: exit {done.returncode}")
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
 def make(name: str, work: Path, *, reuse: bool = False) -> None:
@@ -386,6 +428,7 @@ def make(name: str, work: Path, *, reuse: bool = False) -> None:
     if not (reuse and out.is_dir() and stdout.is_file()):
         shutil.rmtree(out, ignore_errors=True)
         print(f"== {name}: {target.command.format(out=out)}", flush=True)
+        main_job = _main_job_cpu(work) if target.host_reference else None
         load, start = os.getloadavg()[0], time.perf_counter()
         done = subprocess.run(_command(target, out), cwd=ROOT, capture_output=True, text=True)
         seconds = time.perf_counter() - start
@@ -394,7 +437,11 @@ def make(name: str, work: Path, *, reuse: bool = False) -> None:
             sys.stderr.write(done.stderr)
             raise SystemExit(f"{name}: exit {done.returncode}")
         stdout.write_text(done.stdout)
-        timing.write_text(json.dumps({"seconds": seconds, "load": load}))
+        measured = {"seconds": seconds, "load": load}
+        if main_job is not None:
+            ratio = _cpu_seconds(done.stdout) / main_job
+            measured["reference"] = {"cpu": main_job, "ratio": ratio}
+        timing.write_text(json.dumps(measured))
     dest = FIGURES / name
     dest.mkdir(parents=True, exist_ok=True)
     for figure, (source, _) in target.figures.items():
@@ -407,7 +454,9 @@ def make(name: str, work: Path, *, reuse: bool = False) -> None:
     if target.timed and timing.is_file():
         measured = json.loads(timing.read_text())
         command = target.command.replace(" --out {out}", "").format(out="DIR")
-        (dest / "time.md").write_text(_time_md(command, measured["seconds"], measured["load"]))
+        (dest / "time.md").write_text(
+            _time_md(command, measured["seconds"], measured["load"], measured.get("reference"))
+        )
 
 
 def write_pages() -> None:
