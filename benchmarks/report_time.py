@@ -48,7 +48,8 @@ SECTIONS = {
 """The sections a user asks for: the report's flags and what they add."""
 
 
-def _cli(*args: str) -> list[str]:
+def cli(*args: str) -> list[str]:
+    """The command line of ``doorlab ARGS`` in this Python."""
     return [sys.executable, "-m", "doorlab.cli", *args]
 
 
@@ -59,7 +60,7 @@ def _children_cpu_s() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def _timed(command: list[str], cwd: Path) -> dict:
+def timed(command: list[str], cwd: Path) -> dict:
     """Runs ``command`` in ``cwd``: wall and CPU time, exit code, the other processes' load."""
     sys.path.insert(0, str(BENCH_DIR))
     from common import CpuWatch, subprocess_env
@@ -90,10 +91,10 @@ def measure(repeats: int, jobs: int, sections: bool) -> dict:
     with tempfile.TemporaryDirectory(prefix="doorlab_report_time_") as tmp:
         work = Path(tmp)
         for k in range(repeats):
-            run = _timed(_cli("run", "--out", f"run{k}"), work)
+            run = timed(cli("run", "--out", f"run{k}"), work)
             runs.append(run)
             print(f"  doorlab run: {run['wall_s']:.1f} s", flush=True)
-            report = _timed(_cli("report", "--jobs", str(jobs), "--out", f"report{k}"), work)
+            report = timed(cli("report", "--jobs", str(jobs), "--out", f"report{k}"), work)
             report["episodes"] = _episodes(work / f"report{k}")
             reports.append(report)
             print(f"  doorlab report: {report['wall_s']:.1f} s", flush=True)
@@ -123,7 +124,7 @@ def measure(repeats: int, jobs: int, sections: bool) -> dict:
         if sections:
             for name, (flags, what) in SECTIONS.items():
                 out = f"report_{name}"
-                sample = _timed(_cli("report", "--jobs", str(jobs), "--out", out, *flags), work)
+                sample = timed(cli("report", "--jobs", str(jobs), "--out", out, *flags), work)
                 episodes = _episodes(work / out)
                 results["sections"][name] = {
                     "command": f"doorlab report --jobs {jobs} {' '.join(flags)}",

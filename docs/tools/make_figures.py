@@ -21,7 +21,6 @@ import json
 import math
 import os
 import re
-import resource
 import shlex
 import shutil
 import subprocess
@@ -31,6 +30,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from types import ModuleType
 
 ROOT = Path(__file__).resolve().parents[2]
 FIGURES = ROOT / "docs" / "figures"
@@ -233,16 +233,22 @@ def _report_time(name: str) -> Callable[[Path], str]:
     """A block of what benchmarks/report_time.py measured (its results file)."""
 
     def block(out: Path) -> str:  # noqa: ARG001 (the benchmark writes its results file)
-        import importlib.util
-
-        path = ROOT / "benchmarks" / "report_time.py"
-        spec = importlib.util.spec_from_file_location("doorlab_bench_report_time", path)
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
+        module = _report_time_module()
         results = json.loads(module.RESULTS.read_text())
         return module.block(name, results) + "\n"
 
     return block
+
+
+def _report_time_module() -> ModuleType:
+    """benchmarks/report_time.py: its results and how it times a doorlab command."""
+    import importlib.util
+
+    path = ROOT / "benchmarks" / "report_time.py"
+    spec = importlib.util.spec_from_file_location("doorlab_bench_report_time", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 BENCH_CARD = "benchmarks/results/bench_card_200.json"
@@ -400,22 +406,17 @@ def _cpu_seconds(stdout: str) -> float:
 
 def _main_job_cpu(work: Path) -> float:
     """The CPU one run of the README's main job (``doorlab run``) takes on this machine now,
-    the run and every process it waited for [CPU-s]: how fast the machine is, in the project's
-    own unit of work."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    folder = work / "main_job"
-    shutil.rmtree(folder, ignore_errors=True)
-    done = subprocess.run(
-        [str(Path(sys.executable).parent / "doorlab"), "run", "--out", str(folder)],
-        cwd=work,
-        capture_output=True,
-        text=True,
-    )
-    if done.returncode != 0:
-        sys.stderr.write(done.stderr)
-        raise SystemExit(f"the main job: exit {done.returncode}")
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    the run and every process it waited for [CPU-s] (benchmarks/report_time.py's timing): how
+    fast the machine is, in the project's own unit of work."""
+    module = _report_time_module()
+    shutil.rmtree(work / "main_job", ignore_errors=True)
+    try:
+        run = module.timed(module.cli("run", "--out", "main_job"), work)
+    except RuntimeError as error:
+        raise SystemExit(f"the main job: {error}") from None
+    if run["exit_code"] != 0:
+        raise SystemExit(f"the main job: exit {run['exit_code']} (a run not ok)")
+    return run["cpu_s"]
 
 
 def make(name: str, work: Path, *, reuse: bool = False) -> None:
